@@ -1,0 +1,223 @@
+//! Alias elimination: equations `x = y`, `x = -y` (also `0 = x + y`) and
+//! `x = known` (a constant, parameter or source function) are removed, and
+//! the eliminated variable is replaced everywhere. States and derivatives
+//! are never eliminated; an alias between two states is kept (it is a
+//! structural singularity for the analysis to report).
+
+use std::collections::HashMap;
+
+use super::Built;
+use crate::elab::{Circuit, ElementKind};
+use crate::ir::{EqId, Expr, ExprId, IdVec, VarId, VarKind, VarRole, print};
+
+/// How strongly a variable should be kept (higher survives); 8 and up are
+/// never eliminated. `passive`: the variable belongs to an R, C, L or D.
+fn keep_rank(b: &Built, v: VarId, passive: bool) -> u8 {
+    let var = &b.system.vars[v];
+    match var.role {
+        VarRole::State { .. } => 9,
+        VarRole::Derivative { .. } => 8,
+        VarRole::Unknown => match var.kind {
+            VarKind::Derivative => 8,
+            VarKind::Potential => 3,
+            // Passive elements' variables read better than sources'.
+            VarKind::BranchVoltage | VarKind::BranchCurrent if passive => 5,
+            VarKind::BranchVoltage | VarKind::BranchCurrent => 4,
+        },
+    }
+}
+
+#[derive(Clone, Copy)]
+struct Link {
+    parent: VarId,
+    /// `self = sign * parent`
+    sign: f64,
+}
+
+struct Aliases {
+    link: IdVec<VarId, Option<Link>>,
+    /// For roots: a known value, `root = value`.
+    value: IdVec<VarId, Option<ExprId>>,
+}
+
+impl Aliases {
+    fn find(&mut self, v: VarId) -> (VarId, f64) {
+        match self.link[v] {
+            None => (v, 1.0),
+            Some(l) => {
+                let (root, s) = self.find(l.parent);
+                let sign = l.sign * s;
+                self.link[v] = Some(Link { parent: root, sign });
+                (root, sign)
+            }
+        }
+    }
+}
+
+/// Classify `lhs = rhs` as an alias: `Some((a, sign, b))` for `a = sign*b`.
+fn var_alias(b: &Built, lhs: ExprId, rhs: ExprId) -> Option<(VarId, f64, VarId)> {
+    let x = &b.system.exprs;
+    let as_signed = |e: ExprId| match x.get(e) {
+        Expr::Var(v) => Some((v, 1.0)),
+        Expr::Neg(a) => match x.get(a) {
+            Expr::Var(v) => Some((v, -1.0)),
+            _ => None,
+        },
+        _ => None,
+    };
+    if let (Some((a, sa)), Some((c, sc))) = (as_signed(lhs), as_signed(rhs)) {
+        return Some((a, sa * sc, c));
+    }
+    // 0 = a + b, 0 = a - b
+    let zero = |e: ExprId| x.as_const(e) == Some(0.0);
+    let pair = |e: ExprId| match x.get(e) {
+        Expr::Add(p, q) => Some((as_signed(p)?, as_signed(q)?, 1.0)),
+        Expr::Sub(p, q) => Some((as_signed(p)?, as_signed(q)?, -1.0)),
+        _ => None,
+    };
+    let sum = if zero(lhs) {
+        pair(rhs)
+    } else if zero(rhs) {
+        pair(lhs)
+    } else {
+        None
+    };
+    // sp*p + op*sq*q = 0  =>  p = -(op*sq/sp) q
+    sum.map(|((p, sp), (q, sq), op)| (p, -op * sq * sp, q))
+}
+
+/// `x = known`, where known mentions no variable.
+fn value_alias(b: &Built, lhs: ExprId, rhs: ExprId) -> Option<(VarId, ExprId)> {
+    let x = &b.system.exprs;
+    let mut vars = Vec::new();
+    let mut stack = Vec::new();
+    x.vars_into(rhs, &mut vars, &mut stack);
+    match (x.get(lhs), vars.is_empty()) {
+        (Expr::Var(v), true) => Some((v, rhs)),
+        _ => None,
+    }
+}
+
+pub fn eliminate(b: &mut Built, circuit: &Circuit) {
+    let n = b.system.vars.len();
+    let mut al = Aliases {
+        link: IdVec::filled(n, None),
+        value: IdVec::filled(n, None),
+    };
+    let mut removed: Vec<EqId> = Vec::new();
+    let mut notes: Vec<String> = Vec::new();
+    let mut passive = vec![false; n];
+    for (k, ev) in b.elem_vars.iter().enumerate() {
+        if let Some(ev) = ev
+            && matches!(
+                circuit.elements.as_slice()[k].kind,
+                ElementKind::Resistor { .. }
+                    | ElementKind::Capacitor { .. }
+                    | ElementKind::Inductor { .. }
+                    | ElementKind::Diode { .. }
+            )
+        {
+            passive[ev.u.0 as usize] = true;
+            passive[ev.i.0 as usize] = true;
+        }
+    }
+    let ranks: Vec<u8> = b
+        .system
+        .vars
+        .ids()
+        .map(|v| keep_rank(b, v, passive[v.0 as usize]))
+        .collect();
+    let is_fixed = |v: VarId| ranks[v.0 as usize] >= 8;
+    for (eq, e) in b.system.eqs.iter() {
+        if let Some((a, s, c)) = var_alias(b, e.lhs, e.rhs) {
+            let (ra, sa) = al.find(a);
+            let (rc, sc) = al.find(c);
+            if ra == rc || (is_fixed(ra) && is_fixed(rc)) {
+                continue;
+            }
+            if al.value[ra].is_some() && al.value[rc].is_some() {
+                continue;
+            }
+            // sa*ra = s*sc*rc  =>  ra = (sa*s*sc) rc
+            let k = sa * s * sc;
+            let (child, parent) = if ranks[ra.0 as usize] > ranks[rc.0 as usize] {
+                (rc, ra)
+            } else {
+                (ra, rc)
+            };
+            if is_fixed(child) {
+                continue;
+            }
+            al.link[child] = Some(Link { parent, sign: k });
+            if let Some(v) = al.value[child].take() {
+                // child = v and child = k*parent  =>  parent = k*v
+                let scaled = if k < 0.0 { b.system.exprs.neg(v) } else { v };
+                al.value[parent] = Some(scaled);
+            }
+            removed.push(eq);
+            notes.push(format!(
+                "{}  ({})",
+                print::equation(&b.system, eq),
+                e.origin.describe()
+            ));
+        } else if let Some((v, val)) = value_alias(b, e.lhs, e.rhs) {
+            let (r, s) = al.find(v);
+            if is_fixed(r) || al.value[r].is_some() {
+                continue;
+            }
+            let scaled = if s < 0.0 { b.system.exprs.neg(val) } else { val };
+            al.value[r] = Some(scaled);
+            removed.push(eq);
+            notes.push(format!(
+                "{}  ({})",
+                print::equation(&b.system, eq),
+                e.origin.describe()
+            ));
+        }
+    }
+    if removed.is_empty() {
+        return;
+    }
+    // The replacement of every eliminated variable.
+    let mut repl: HashMap<VarId, ExprId> = HashMap::new();
+    for v in b.system.vars.ids() {
+        let (r, s) = al.find(v);
+        let target = match al.value[r] {
+            Some(val) => val,
+            None if r != v => b.system.exprs.var(r),
+            None => continue,
+        };
+        let e = if s < 0.0 {
+            b.system.exprs.neg(target)
+        } else {
+            target
+        };
+        repl.insert(v, e);
+    }
+    let sys = &mut b.system;
+    let mut memo = HashMap::new();
+    let old = std::mem::take(&mut sys.eqs);
+    let mut removed_iter = removed.iter().peekable();
+    for (id, mut e) in old.iter().map(|(i, e)| (i, e.clone())) {
+        if removed_iter.peek() == Some(&&id) {
+            removed_iter.next();
+            continue;
+        }
+        e.lhs = sys
+            .exprs
+            .substitute(e.lhs, &mut |v| repl.get(&v).copied(), &mut memo);
+        e.rhs = sys
+            .exprs
+            .substitute(e.rhs, &mut |v| repl.get(&v).copied(), &mut memo);
+        sys.eqs.push(e);
+    }
+    for (&v, &e) in &repl {
+        sys.vars[v].alias = Some(e);
+    }
+    for p in b.node_pot.iter_mut() {
+        *p = sys
+            .exprs
+            .substitute(*p, &mut |v| repl.get(&v).copied(), &mut memo);
+    }
+    sys.eliminated = notes;
+}

@@ -1,0 +1,367 @@
+//! Circuit → acausal [`EquationSystem`]: one constitutive equation per
+//! element, Kirchhoff's laws, and (optionally) alias elimination.
+//!
+//! Default (nodal) formulation: per element a branch voltage `u_X` and current
+//! `i_X`, node potentials `v(n)`, `u_X = v(a) - v(b)` per branch, KCL at every
+//! node but ground. Ground's potential is the constant 0 (the `v(0) = 0`
+//! equation is substituted at build time). The loop formulation writes KVL on
+//! the fundamental loops of a normal spanning tree instead of branch equations.
+//! Capacitor voltages and inductor currents are the states.
+//!
+//! It knows the circuit and the IR, nothing of sorting or simulation.
+
+mod alias;
+mod tree;
+
+use std::collections::HashMap;
+
+use crate::elab::{Circuit, ElemId, ElementKind, GROUND, NodeId};
+use crate::ir::{
+    EquationSystem, ExprId, Func, Origin, OriginKind, SourceFn, VarId, VarKind, Waveform,
+};
+
+/// Thermal voltage kT/q at ngspice's default 27 °C.
+pub const VT_27C: f64 = 1.380_648_52e-23 * 300.15 / 1.602_176_620_8e-19;
+
+/// How Kirchhoff's voltage law is written.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+pub enum Kvl {
+    /// Node potentials and one branch equation per element.
+    #[default]
+    Nodes,
+    /// KVL on the fundamental loops of a spanning tree (no node potentials).
+    Loops,
+}
+
+/// Options for [`build`].
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Options {
+    pub kvl: Kvl,
+    /// Eliminate `x = y`, `x = -y` and `x = known` equations.
+    pub alias: bool,
+}
+
+/// The variables of one element.
+#[derive(Clone, Copy, Debug)]
+pub struct ElemVars {
+    pub u: VarId,
+    pub i: VarId,
+}
+
+/// The system plus the maps from circuit entities to its variables.
+#[derive(Clone, Debug)]
+pub struct Built {
+    pub system: EquationSystem,
+    /// Branch voltage and current of each element (`None` for K).
+    pub elem_vars: Vec<Option<ElemVars>>,
+    /// Expression of each node's potential (ground: the constant 0).
+    pub node_pot: Vec<ExprId>,
+}
+
+/// Build the equations of `circuit`.
+pub fn build(circuit: &Circuit, opts: Options) -> Built {
+    let mut b = Builder {
+        c: circuit,
+        sys: EquationSystem {
+            title: circuit.title.clone(),
+            ..EquationSystem::default()
+        },
+    };
+    let elem_vars = b.element_vars();
+    let node_pot = match opts.kvl {
+        Kvl::Nodes => b.node_potentials(),
+        Kvl::Loops => tree::potentials_from_tree(&mut b.sys, circuit, &elem_vars),
+    };
+    b.element_equations(&elem_vars, &node_pot);
+    b.kcl(&elem_vars);
+    match opts.kvl {
+        Kvl::Nodes => b.branch_equations(&elem_vars, &node_pot),
+        Kvl::Loops => tree::loop_equations(&mut b.sys, circuit, &elem_vars, &node_pot),
+    }
+    let mut built = Built {
+        system: b.sys,
+        elem_vars,
+        node_pot,
+    };
+    if opts.alias {
+        alias::eliminate(&mut built, circuit);
+    }
+    built
+}
+
+struct Builder<'c> {
+    c: &'c Circuit,
+    sys: EquationSystem,
+}
+
+fn elem_origin(c: &Circuit, id: ElemId) -> Origin {
+    let e = &c.elements[id];
+    Origin {
+        kind: OriginKind::Element {
+            name: e.name.clone(),
+        },
+        span: Some(e.span),
+    }
+}
+
+impl Builder<'_> {
+    fn element_vars(&mut self) -> Vec<Option<ElemVars>> {
+        let mut out = Vec::with_capacity(self.c.elements.len());
+        for (id, e) in self.c.elements.iter() {
+            if matches!(e.kind, ElementKind::Coupling { .. }) {
+                out.push(None);
+                continue;
+            }
+            let origin = elem_origin(self.c, id);
+            let u = self.sys.add_var(
+                format!("u_{}", e.name),
+                VarKind::BranchVoltage,
+                origin.clone(),
+            );
+            let i = self
+                .sys
+                .add_var(format!("i_{}", e.name), VarKind::BranchCurrent, origin);
+            match e.kind {
+                ElementKind::Capacitor { .. } => {
+                    self.sys.add_state(u);
+                }
+                ElementKind::Inductor { .. } => {
+                    self.sys.add_state(i);
+                }
+                _ => {}
+            }
+            out.push(Some(ElemVars { u, i }));
+        }
+        out
+    }
+
+    fn node_potentials(&mut self) -> Vec<ExprId> {
+        let mut pots = Vec::with_capacity(self.c.nodes.len());
+        for (id, n) in self.c.nodes.iter() {
+            if id == GROUND {
+                pots.push(self.sys.exprs.constant(0.0));
+                continue;
+            }
+            let v = self.sys.add_var(
+                format!("v({})", n.name),
+                VarKind::Potential,
+                Origin {
+                    kind: OriginKind::Node {
+                        name: n.name.clone(),
+                    },
+                    span: Some(n.span),
+                },
+            );
+            pots.push(self.sys.exprs.var(v));
+        }
+        pots
+    }
+
+    fn value_param(&mut self, name: &str, value: f64) -> ExprId {
+        let p = self.sys.add_param(name.to_string(), value);
+        self.sys.exprs.param(p)
+    }
+
+    fn source_expr(&mut self, name: &str, wave: &Waveform) -> ExprId {
+        match wave {
+            Waveform::Dc { value } => self.value_param(name, *value),
+            w => {
+                let s = self.sys.sources.push(SourceFn {
+                    name: name.to_string(),
+                    wave: w.clone(),
+                });
+                self.sys.exprs.source(s, 0)
+            }
+        }
+    }
+
+    fn element_equations(&mut self, vars: &[Option<ElemVars>], pots: &[ExprId]) {
+        // Mutual inductances seen by each inductor: (other inductor, M param).
+        let mut mutual: HashMap<ElemId, Vec<(ElemId, ExprId)>> = HashMap::new();
+        for (_, e) in self.c.elements.iter() {
+            if let ElementKind::Coupling { l1, l2, k } = e.kind {
+                let (ElementKind::Inductor { l: la, .. }, ElementKind::Inductor { l: lb, .. }) =
+                    (&self.c.elements[l1].kind, &self.c.elements[l2].kind)
+                else {
+                    continue;
+                };
+                let m = self.value_param(&format!("M_{}", e.name), k * (la * lb).sqrt());
+                mutual.entry(l1).or_default().push((l2, m));
+                mutual.entry(l2).or_default().push((l1, m));
+            }
+        }
+        for (id, e) in self.c.elements.iter() {
+            let Some(ev) = vars[id.0 as usize] else {
+                continue;
+            };
+            let x = &mut self.sys.exprs;
+            let u = x.var(ev.u);
+            let i = x.var(ev.i);
+            let ctrl_v = |n: &[NodeId], x: &mut crate::ir::ExprArena| {
+                x.sub(pots[n[2].0 as usize], pots[n[3].0 as usize])
+            };
+            let (lhs, rhs) = match &e.kind {
+                ElementKind::Resistor { r } => {
+                    let p = self.value_param(&e.name, *r);
+                    let rhs = self.sys.exprs.mul(p, i);
+                    (u, rhs)
+                }
+                ElementKind::Capacitor { c, .. } => {
+                    let p = self.value_param(&e.name, *c);
+                    let der = self.der_of(ev.u);
+                    let rhs = self.sys.exprs.mul(p, der);
+                    (i, rhs)
+                }
+                ElementKind::Inductor { l, .. } => {
+                    let p = self.value_param(&e.name, *l);
+                    let der = self.der_of(ev.i);
+                    let mut rhs = self.sys.exprs.mul(p, der);
+                    for &(other, m) in mutual.get(&id).map(Vec::as_slice).unwrap_or(&[]) {
+                        let Some(ov) = vars[other.0 as usize] else {
+                            continue;
+                        };
+                        let d = self.der_of(ov.i);
+                        let t = self.sys.exprs.mul(m, d);
+                        rhs = self.sys.exprs.add(rhs, t);
+                    }
+                    (u, rhs)
+                }
+                ElementKind::VSource { wave } => (u, self.source_expr(&e.name, wave)),
+                ElementKind::ISource { wave } => (i, self.source_expr(&e.name, wave)),
+                ElementKind::Vcvs { gain } => {
+                    let p = self.value_param(&e.name, *gain);
+                    let cv = ctrl_v(&e.nodes, &mut self.sys.exprs);
+                    (u, self.sys.exprs.mul(p, cv))
+                }
+                ElementKind::Vccs { gm } => {
+                    let p = self.value_param(&e.name, *gm);
+                    let cv = ctrl_v(&e.nodes, &mut self.sys.exprs);
+                    (i, self.sys.exprs.mul(p, cv))
+                }
+                ElementKind::Cccs { gain, ctrl } => {
+                    let p = self.value_param(&e.name, *gain);
+                    let ci = self.ctrl_current(vars, *ctrl);
+                    (i, self.sys.exprs.mul(p, ci))
+                }
+                ElementKind::Ccvs { r, ctrl } => {
+                    let p = self.value_param(&e.name, *r);
+                    let ci = self.ctrl_current(vars, *ctrl);
+                    (u, self.sys.exprs.mul(p, ci))
+                }
+                ElementKind::Diode { model, area } => {
+                    self.diode(id, ev, model, *area);
+                    continue;
+                }
+                ElementKind::Coupling { .. } => continue,
+            };
+            self.sys.add_eq(lhs, rhs, elem_origin(self.c, id));
+        }
+    }
+
+    fn der_of(&mut self, state: VarId) -> ExprId {
+        match self.sys.vars[state].role {
+            crate::ir::VarRole::State { der } => self.sys.exprs.var(der),
+            _ => unreachable!("capacitor voltages and inductor currents are states"),
+        }
+    }
+
+    fn ctrl_current(&mut self, vars: &[Option<ElemVars>], ctrl: ElemId) -> ExprId {
+        match vars.get(ctrl.0 as usize).copied().flatten() {
+            Some(cv) => self.sys.exprs.var(cv.i),
+            // Elaboration guarantees a valid controlling source.
+            None => self.sys.exprs.constant(0.0),
+        }
+    }
+
+    /// `i = IS*(exp(uj/(N*vt)) - 1)`, with `u = uj + RS*i` when RS > 0.
+    fn diode(&mut self, id: ElemId, ev: ElemVars, m: &crate::elab::DiodeModel, area: f64) {
+        let name = &self.c.elements[id].name;
+        let is = self.value_param(&format!("{name}.is"), m.is * area);
+        let nvt = self.value_param(&format!("{name}.nvt"), m.n * VT_27C);
+        let x = &mut self.sys.exprs;
+        let u = x.var(ev.u);
+        let i = x.var(ev.i);
+        let uj = if m.rs > 0.0 {
+            let origin = elem_origin(self.c, id);
+            let j = self
+                .sys
+                .add_var(format!("uj_{name}"), VarKind::BranchVoltage, origin.clone());
+            let rs = self.value_param(&format!("{name}.rs"), m.rs / area);
+            let x = &mut self.sys.exprs;
+            let ju = x.var(j);
+            let drop = x.mul(rs, i);
+            let rhs = x.add(ju, drop);
+            self.sys.add_eq(u, rhs, origin);
+            self.sys.exprs.var(j)
+        } else {
+            u
+        };
+        let x = &mut self.sys.exprs;
+        let arg = x.div(uj, nvt);
+        let e = x.call(Func::Exp, arg);
+        let one = x.constant(1.0);
+        let em1 = x.sub(e, one);
+        let rhs = x.mul(is, em1);
+        self.sys.add_eq(i, rhs, elem_origin(self.c, id));
+    }
+
+    /// KCL at every node but ground: currents in = currents out.
+    fn kcl(&mut self, vars: &[Option<ElemVars>]) {
+        let n = self.c.nodes.len();
+        let mut ins: Vec<Vec<VarId>> = vec![Vec::new(); n];
+        let mut outs: Vec<Vec<VarId>> = vec![Vec::new(); n];
+        for (id, e) in self.c.elements.iter() {
+            let Some(ev) = vars[id.0 as usize] else {
+                continue;
+            };
+            outs[e.nodes[0].0 as usize].push(ev.i);
+            ins[e.nodes[1].0 as usize].push(ev.i);
+        }
+        for (id, node) in self.c.nodes.iter() {
+            if id == GROUND {
+                continue;
+            }
+            let k = id.0 as usize;
+            if ins[k].is_empty() && outs[k].is_empty() {
+                continue;
+            }
+            let x = &mut self.sys.exprs;
+            let lhs_terms: Vec<ExprId> = ins[k].iter().map(|&v| x.var(v)).collect();
+            let rhs_terms: Vec<ExprId> = outs[k].iter().map(|&v| x.var(v)).collect();
+            let lhs = x.sum(lhs_terms);
+            let rhs = x.sum(rhs_terms);
+            self.sys.add_eq(
+                lhs,
+                rhs,
+                Origin {
+                    kind: OriginKind::Kcl {
+                        node: node.name.clone(),
+                    },
+                    span: Some(node.span),
+                },
+            );
+        }
+    }
+
+    /// `u_X = v(a) - v(b)` for every element.
+    fn branch_equations(&mut self, vars: &[Option<ElemVars>], pots: &[ExprId]) {
+        for (id, e) in self.c.elements.iter() {
+            let Some(ev) = vars[id.0 as usize] else {
+                continue;
+            };
+            let x = &mut self.sys.exprs;
+            let u = x.var(ev.u);
+            let rhs = x.sub(pots[e.nodes[0].0 as usize], pots[e.nodes[1].0 as usize]);
+            self.sys.add_eq(
+                u,
+                rhs,
+                Origin {
+                    kind: OriginKind::Branch {
+                        name: e.name.clone(),
+                    },
+                    span: Some(e.span),
+                },
+            );
+        }
+    }
+}

@@ -1,0 +1,207 @@
+//! The flattened circuit: nodes, elements with numeric values, analysis
+//! settings. Subcircuits are expanded, parameters evaluated, models resolved.
+
+use crate::diag::Span;
+use crate::ir::{IdVec, Waveform};
+
+crate::entity_id!(
+    /// A circuit node; `n0` is ground.
+    NodeId,
+    "n"
+);
+crate::entity_id!(
+    /// An element of the flattened circuit.
+    ElemId,
+    "el"
+);
+
+/// Ground, the reference node (`0` or `gnd` in the netlist).
+pub const GROUND: NodeId = NodeId(0);
+
+#[derive(Clone, Debug)]
+pub struct Node {
+    /// Lower-case, hierarchical for subcircuit-internal nodes (`x1.n2`).
+    pub name: String,
+    /// Where the node is first used.
+    pub span: Span,
+}
+
+/// ngspice's level-1 diode parameters (defaults as in ngspice).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct DiodeModel {
+    pub name: String,
+    pub is: f64,
+    pub n: f64,
+    pub rs: f64,
+    pub cjo: f64,
+    pub vj: f64,
+    pub m: f64,
+    pub fc: f64,
+    pub tt: f64,
+    /// Reverse breakdown voltage (positive); `None` means no breakdown.
+    pub bv: Option<f64>,
+    pub ibv: f64,
+}
+
+impl Default for DiodeModel {
+    fn default() -> Self {
+        DiodeModel {
+            name: String::new(),
+            is: 1e-14,
+            n: 1.0,
+            rs: 0.0,
+            cjo: 0.0,
+            vj: 1.0,
+            m: 0.5,
+            fc: 0.5,
+            tt: 0.0,
+            bv: None,
+            ibv: 1e-3,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum ElementKind {
+    Resistor { r: f64 },
+    Capacitor { c: f64, ic: Option<f64> },
+    Inductor { l: f64, ic: Option<f64> },
+    /// Mutual coupling `k` between two inductors.
+    Coupling { l1: ElemId, l2: ElemId, k: f64 },
+    VSource { wave: Waveform },
+    ISource { wave: Waveform },
+    /// E: nodes are out+, out-, ctrl+, ctrl-.
+    Vcvs { gain: f64 },
+    /// G: nodes are out+, out-, ctrl+, ctrl-.
+    Vccs { gm: f64 },
+    /// F: current gain on the current of V source `ctrl`.
+    Cccs { gain: f64, ctrl: ElemId },
+    /// H: transresistance on the current of V source `ctrl`.
+    Ccvs { r: f64, ctrl: ElemId },
+    Diode { model: DiodeModel, area: f64 },
+}
+
+impl ElementKind {
+    pub fn letter(&self) -> char {
+        match self {
+            ElementKind::Resistor { .. } => 'R',
+            ElementKind::Capacitor { .. } => 'C',
+            ElementKind::Inductor { .. } => 'L',
+            ElementKind::Coupling { .. } => 'K',
+            ElementKind::VSource { .. } => 'V',
+            ElementKind::ISource { .. } => 'I',
+            ElementKind::Vcvs { .. } => 'E',
+            ElementKind::Vccs { .. } => 'G',
+            ElementKind::Cccs { .. } => 'F',
+            ElementKind::Ccvs { .. } => 'H',
+            ElementKind::Diode { .. } => 'D',
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct Element {
+    /// Name as written, with the instance path in front (`X1.R2`).
+    pub name: String,
+    pub kind: ElementKind,
+    /// Terminals: two for most elements, four for E and G, none for K.
+    pub nodes: Vec<NodeId>,
+    pub span: Span,
+}
+
+impl Element {
+    /// The name ngspice gives this element's current vector: `v1`, or
+    /// `v.x1.vmeas` inside a subcircuit.
+    pub fn ngspice_name(&self) -> String {
+        let lower = self.name.to_ascii_lowercase();
+        match lower.rsplit_once('.') {
+            Some((path, local)) => {
+                let letter = local.chars().next().unwrap_or('?');
+                format!("{letter}.{path}.{local}")
+            }
+            None => lower,
+        }
+    }
+}
+
+/// The `.tran` line.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Tran {
+    pub tstep: f64,
+    pub tstop: f64,
+    pub tstart: f64,
+    pub tmax: Option<f64>,
+    pub uic: bool,
+}
+
+/// `.options` kausal understands; ngspice's meaning, ngspice's defaults when absent.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct SimOptions {
+    pub reltol: Option<f64>,
+    pub abstol: Option<f64>,
+    pub vntol: Option<f64>,
+    pub chgtol: Option<f64>,
+    pub trtol: Option<f64>,
+    /// `trap` or `gear`.
+    pub method: Option<String>,
+    pub maxord: Option<f64>,
+}
+
+/// An initial condition from `.ic v(node)=value`.
+#[derive(Clone, Debug)]
+pub struct NodeIc {
+    pub node: NodeId,
+    pub value: f64,
+    pub span: Span,
+}
+
+/// A requested output vector.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Output {
+    Voltage { pos: NodeId, neg: NodeId },
+    Current { elem: ElemId },
+}
+
+#[derive(Clone, Debug, Default)]
+pub struct Circuit {
+    pub title: String,
+    /// `nodes[GROUND]` is ground.
+    pub nodes: IdVec<NodeId, Node>,
+    pub elements: IdVec<ElemId, Element>,
+    pub tran: Option<Tran>,
+    pub ics: Vec<NodeIc>,
+    pub options: SimOptions,
+    pub outputs: Vec<Output>,
+}
+
+impl Circuit {
+    pub fn find_node(&self, name: &str) -> Option<NodeId> {
+        let lower = name.to_ascii_lowercase();
+        if lower == "0" || lower == "gnd" {
+            return Some(GROUND);
+        }
+        self.nodes
+            .iter()
+            .find(|(_, n)| n.name == lower)
+            .map(|(id, _)| id)
+    }
+
+    /// Find an element by its name (`X1.R2`) or ngspice's name (`r.x1.r2`).
+    pub fn find_element(&self, name: &str) -> Option<ElemId> {
+        self.elements
+            .iter()
+            .find(|(_, e)| e.name.eq_ignore_ascii_case(name) || e.ngspice_name() == name.to_ascii_lowercase())
+            .map(|(id, _)| id)
+    }
+
+    /// The ngspice name of an output vector (`v(out)`, `i(v1)`).
+    pub fn output_name(&self, out: &Output) -> String {
+        match *out {
+            Output::Voltage { pos, neg } if neg == GROUND => format!("v({})", self.nodes[pos].name),
+            Output::Voltage { pos, neg } => {
+                format!("v({},{})", self.nodes[pos].name, self.nodes[neg].name)
+            }
+            Output::Current { elem } => format!("i({})", self.elements[elem].ngspice_name()),
+        }
+    }
+}

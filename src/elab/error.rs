@@ -1,0 +1,188 @@
+//! Errors and warnings of elaboration (parameters, subcircuits, models, names).
+
+use crate::diag::{Diagnostic, Severity, Span, ToDiagnostic};
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ElabError {
+    #[error("parameter `{name}` is not defined")]
+    UndefinedParam { span: Span, name: String },
+    #[error("cannot evaluate `{text}`: {reason}")]
+    BadValue {
+        span: Span,
+        text: String,
+        reason: String,
+    },
+    #[error("model `{name}` is not defined")]
+    UndefinedModel { span: Span, name: String },
+    #[error("model `{name}` has type `{found}`, but `{element}` needs a `{expected}` model")]
+    WrongModelType {
+        span: Span,
+        name: String,
+        found: String,
+        expected: &'static str,
+        element: String,
+    },
+    #[error("subcircuit `{name}` is not defined")]
+    UndefinedSubckt { span: Span, name: String },
+    #[error("subcircuit `{name}` instantiates itself ({chain})")]
+    RecursiveSubckt {
+        span: Span,
+        name: String,
+        chain: String,
+    },
+    #[error("`{instance}` connects {found} nodes, but subcircuit `{name}` has {expected} ports")]
+    PortMismatch {
+        span: Span,
+        instance: String,
+        name: String,
+        expected: usize,
+        found: usize,
+        def: Span,
+    },
+    #[error("element `{name}` is defined twice")]
+    DuplicateElement { span: Span, name: String, first: Span },
+    #[error("`{name}` has both terminals on node `{node}`")]
+    SingleNode {
+        span: Span,
+        name: String,
+        node: String,
+    },
+    #[error("`{element}` is controlled by `{name}`, which is not a voltage source of this circuit")]
+    UnknownControl {
+        span: Span,
+        element: String,
+        name: String,
+    },
+    #[error("`{element}` couples `{name}`, which is not an inductor of this circuit")]
+    BadCoupling {
+        span: Span,
+        element: String,
+        name: String,
+    },
+    #[error("coupling coefficient {k} of `{element}` is outside (0, 1]")]
+    CouplingRange { span: Span, element: String, k: f64 },
+    #[error("{kind} of `{element}` {problem}")]
+    BadSourceArgs {
+        span: Span,
+        element: String,
+        kind: &'static str,
+        problem: String,
+    },
+    #[error("`{element}` has {what} {value}")]
+    BadElementValue {
+        span: Span,
+        element: String,
+        what: &'static str,
+        value: f64,
+    },
+    #[error("node `{node}` in `{directive}` does not exist")]
+    UnknownNode {
+        span: Span,
+        node: String,
+        directive: &'static str,
+    },
+    #[error("`i({name})` names no voltage source, inductor or controlled source")]
+    UnknownCurrent { span: Span, name: String },
+    #[error("`.tran` needs 0 < TSTEP and TSTART < TSTOP")]
+    BadTran { span: Span },
+    #[error("unknown parameter `{name}` on model `{model}`")]
+    UnknownModelParam {
+        span: Span,
+        name: String,
+        model: String,
+    },
+    #[error("model parameter `{name}` is ignored by kausal")]
+    IgnoredModelParam { span: Span, name: String },
+    #[error("parameter `{name}` of `{element}` is ignored by kausal")]
+    IgnoredElementParam {
+        span: Span,
+        name: String,
+        element: String,
+    },
+    #[error("option `{name}` is ignored by kausal")]
+    IgnoredOption { span: Span, name: String },
+    #[error("node `{node}` has only one connection")]
+    DanglingNode { span: Span, node: String },
+}
+
+impl ElabError {
+    pub fn span(&self) -> Span {
+        use ElabError::*;
+        match self {
+            UndefinedParam { span, .. }
+            | BadValue { span, .. }
+            | UndefinedModel { span, .. }
+            | WrongModelType { span, .. }
+            | UndefinedSubckt { span, .. }
+            | RecursiveSubckt { span, .. }
+            | PortMismatch { span, .. }
+            | DuplicateElement { span, .. }
+            | SingleNode { span, .. }
+            | UnknownControl { span, .. }
+            | BadCoupling { span, .. }
+            | CouplingRange { span, .. }
+            | BadSourceArgs { span, .. }
+            | BadElementValue { span, .. }
+            | UnknownNode { span, .. }
+            | UnknownCurrent { span, .. }
+            | BadTran { span }
+            | UnknownModelParam { span, .. }
+            | IgnoredModelParam { span, .. }
+            | IgnoredElementParam { span, .. }
+            | IgnoredOption { span, .. }
+            | DanglingNode { span, .. } => *span,
+        }
+    }
+
+    pub fn severity(&self) -> Severity {
+        use ElabError::*;
+        match self {
+            UnknownModelParam { .. }
+            | IgnoredModelParam { .. }
+            | IgnoredElementParam { .. }
+            | IgnoredOption { .. }
+            | DanglingNode { .. } => Severity::Warning,
+            _ => Severity::Error,
+        }
+    }
+}
+
+impl ToDiagnostic for ElabError {
+    fn to_diagnostic(&self) -> Diagnostic {
+        use ElabError::*;
+        let (code, label, help): (&str, &str, String) = match self {
+            UndefinedParam { .. } => ("K0200", "undefined", "define it with `.param NAME=VALUE` before use".into()),
+            BadValue { .. } => ("K0201", "here", "check the expression's functions and operands".into()),
+            UndefinedModel { .. } => ("K0202", "no such model", "add `.model NAME D(...)` or fix the name".into()),
+            WrongModelType { .. } => ("K0203", "wrong model type", "diodes need a model of type `D`".into()),
+            UndefinedSubckt { .. } => ("K0204", "no such subcircuit", "define it with `.subckt NAME ports ... .ends`".into()),
+            RecursiveSubckt { .. } => ("K0205", "recursive instance", "a subcircuit may not contain itself, directly or indirectly".into()),
+            PortMismatch { expected, .. } => ("K0206", "wrong node count", format!("connect exactly {expected} nodes")),
+            DuplicateElement { .. } => ("K0207", "second definition", "rename one of them".into()),
+            SingleNode { .. } => ("K0208", "both terminals here", "an element must connect two different nodes".into()),
+            UnknownControl { .. } => ("K0209", "not a V source", "F and H elements sense the current of a voltage source (add a 0 V source to measure it)".into()),
+            BadCoupling { .. } => ("K0210", "not an inductor", "K couples two inductors: `K1 L1 L2 0.99`".into()),
+            CouplingRange { .. } => ("K0211", "out of range", "use 0 < k <= 1".into()),
+            BadSourceArgs { .. } => ("K0212", "here", "see the ngspice manual for the source function's arguments".into()),
+            BadElementValue { .. } => ("K0213", "here", "use a nonzero, finite value".into()),
+            UnknownNode { .. } => ("K0214", "no such node", "check the node name".into()),
+            UnknownCurrent { .. } => ("K0215", "no such source", "ngspice names currents of V sources, e.g. `i(v1)`".into()),
+            BadTran { .. } => ("K0216", "here", "write `.tran TSTEP TSTOP [TSTART [TMAX]] [uic]`".into()),
+            UnknownModelParam { .. } => ("K0290", "unknown", "it is not a level-1 diode parameter of ngspice".into()),
+            IgnoredModelParam { .. } => ("K0291", "ignored", "temperature and noise parameters do not affect kausal's transient run".into()),
+            IgnoredElementParam { .. } => ("K0292", "ignored", "kausal does not model this instance parameter".into()),
+            IgnoredOption { .. } => ("K0293", "ignored", "kausal honours reltol, abstol, vntol, chgtol, trtol, method and maxord".into()),
+            DanglingNode { .. } => ("K0294", "dangling node", "a node with one connection carries no current".into()),
+        };
+        let mut d = Diagnostic::error(code, self.to_string())
+            .with_label(self.span(), label)
+            .with_help(help);
+        d.severity = self.severity();
+        match self {
+            DuplicateElement { first, .. } => d = d.with_label(*first, "first defined here"),
+            PortMismatch { def, .. } => d = d.with_label(*def, "subcircuit defined here"),
+            _ => {}
+        }
+        d
+    }
+}

@@ -1,0 +1,910 @@
+//! Elaboration: AST → [`Circuit`]. Evaluates `.param` expressions, expands
+//! subcircuit instances with hierarchical names (`x1.r2`, node `x1.n2`),
+//! resolves models and controlling sources, applies ngspice's source defaults.
+//!
+//! It knows the netlist AST and the circuit, nothing about equations.
+
+mod circuit;
+mod error;
+
+use std::collections::HashMap;
+
+pub use circuit::*;
+pub use error::ElabError;
+
+use crate::diag::Span;
+use crate::front::ast::{self, ElementBody, Stmt, TranFnKind, Value};
+use crate::ir::Waveform;
+
+/// Flatten a parsed netlist into a circuit. Errors and warnings are collected;
+/// the circuit holds everything that elaborated.
+pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
+    let mut e = Elab {
+        circuit: Circuit {
+            title: netlist.title.to_string(),
+            ..Circuit::default()
+        },
+        errors: Vec::new(),
+        node_map: HashMap::new(),
+        elem_map: HashMap::new(),
+        pending: Vec::new(),
+        model_cache: HashMap::new(),
+        tstep: 1.0,
+        tstop: 1.0,
+    };
+    e.circuit.nodes.push(Node {
+        name: "0".into(),
+        span: Span::default(),
+    });
+    let mut top = Scope::default();
+    e.collect(&netlist.stmts, &mut top);
+    e.params(&netlist.stmts, &mut top);
+    e.settings(&netlist.stmts, &top);
+    let mut stack = Vec::new();
+    e.walk(&netlist.stmts, &top, &mut stack);
+    e.resolve_pending();
+    e.outputs(&netlist.stmts, &top);
+    e.dangling();
+    (e.circuit, e.errors)
+}
+
+/// Names visible while expanding one level of the hierarchy.
+#[derive(Default)]
+struct Scope<'s, 'a> {
+    params: HashMap<String, f64>,
+    subckts: HashMap<String, &'s ast::Subckt<'a>>,
+    models: HashMap<String, &'s ast::Model<'a>>,
+    parent: Option<&'s Scope<'s, 'a>>,
+    /// Element-name prefix as written (`X1.`), empty at the top level.
+    prefix: String,
+    /// Formal port name → actual node.
+    ports: HashMap<String, NodeId>,
+}
+
+impl<'s, 'a> Scope<'s, 'a> {
+    fn param(&self, name: &str) -> Option<f64> {
+        self.params
+            .get(name)
+            .copied()
+            .or_else(|| self.parent.and_then(|p| p.param(name)))
+    }
+
+    fn subckt(&self, name: &str) -> Option<&'s ast::Subckt<'a>> {
+        self.subckts
+            .get(name)
+            .copied()
+            .or_else(|| self.parent.and_then(|p| p.subckt(name)))
+    }
+
+    fn model(&self, name: &str) -> Option<&'s ast::Model<'a>> {
+        self.models
+            .get(name)
+            .copied()
+            .or_else(|| self.parent.and_then(|p| p.model(name)))
+    }
+}
+
+enum PendingRef {
+    Control { vsrc: String },
+    Coupling { l1: String, l2: String },
+}
+
+struct Pending {
+    elem: ElemId,
+    what: PendingRef,
+    spans: [Span; 2],
+}
+
+struct Elab {
+    circuit: Circuit,
+    errors: Vec<ElabError>,
+    node_map: HashMap<String, NodeId>,
+    elem_map: HashMap<String, (ElemId, Span)>,
+    pending: Vec<Pending>,
+    model_cache: HashMap<(u32, u32, String), DiodeModel>,
+    tstep: f64,
+    tstop: f64,
+}
+
+/// Level-1 diode parameters kausal models, with their aliases.
+const DIODE_PARAMS: &[&str] = &[
+    "is", "n", "rs", "cjo", "cj0", "cj", "vj", "pb", "m", "mj", "fc", "tt", "bv", "ibv",
+];
+/// ngspice diode parameters that do not change kausal's transient result at
+/// the nominal temperature.
+const DIODE_IGNORED: &[&str] = &[
+    "eg", "xti", "kf", "af", "tnom", "level", "ikf", "ik", "ikr", "isr", "nr", "nbv", "ibvl",
+    "nbvl", "tbv1", "tbv2", "trs", "trs1", "trs2", "tt1", "tt2", "tm1", "tm2", "cta", "ctp",
+    "tpb", "tphp", "jsw", "cjsw", "cjp", "php", "mjsw", "fcs", "area", "pj", "vp", "lm", "lp",
+    "wm", "wp", "xom", "xoi", "xm", "xp", "d", "bvj", "iave", "vrev", "version", "bv_max",
+    "fv_max", "id_max", "pd_max", "te_max", "rth0", "cth0", "kms",
+];
+
+impl Elab {
+    /// Gather subcircuit and model definitions of one scope (through includes).
+    fn collect<'s, 'a>(&mut self, stmts: &'s [Stmt<'a>], scope: &mut Scope<'s, 'a>) {
+        for s in stmts {
+            match s {
+                Stmt::Subckt(sc) => {
+                    scope.subckts.entry(sc.name.key()).or_insert(sc);
+                }
+                Stmt::Model(m) => {
+                    scope.models.entry(m.name.key()).or_insert(m);
+                }
+                Stmt::Include { body, .. } => self.collect(body, scope),
+                _ => {}
+            }
+        }
+    }
+
+    /// Evaluate `.param` lines of one scope in order (through includes). A
+    /// parameter may use one defined later in the same scope.
+    fn params<'s, 'a>(&mut self, stmts: &'s [Stmt<'a>], scope: &mut Scope<'s, 'a>) {
+        let mut list = Vec::new();
+        fn gather<'s, 'a>(stmts: &'s [Stmt<'a>], out: &mut Vec<&'s ast::Assign<'a>>) {
+            for s in stmts {
+                match s {
+                    Stmt::Param(a, _) => out.extend(a.iter()),
+                    Stmt::Include { body, .. } => gather(body, out),
+                    _ => {}
+                }
+            }
+        }
+        gather(stmts, &mut list);
+        let mut left: Vec<&ast::Assign<'_>> = list;
+        loop {
+            let before = left.len();
+            left.retain(|a| match try_value(&a.value, scope) {
+                Ok(v) => {
+                    scope.params.insert(a.name.key(), v);
+                    false
+                }
+                Err(_) => true,
+            });
+            if left.is_empty() || left.len() == before {
+                break;
+            }
+        }
+        for a in left {
+            // Report the real reason now that no more progress is possible.
+            self.value(&a.value, scope);
+        }
+    }
+
+    fn value(&mut self, v: &Value<'_>, scope: &Scope<'_, '_>) -> Option<f64> {
+        match try_value(v, scope) {
+            Ok(x) => Some(x),
+            Err(e) => {
+                self.errors.push(e);
+                None
+            }
+        }
+    }
+
+    /// `.tran`, `.options`, `.ic` of the top level (through includes).
+    fn settings(&mut self, stmts: &[Stmt<'_>], scope: &Scope<'_, '_>) {
+        for s in stmts {
+            match s {
+                Stmt::Tran(t) => {
+                    let tstep = self.value(&t.tstep, scope);
+                    let tstop = self.value(&t.tstop, scope);
+                    let tstart = match &t.tstart {
+                        Some(v) => self.value(v, scope),
+                        None => Some(0.0),
+                    };
+                    let tmax = t.tmax.as_ref().and_then(|v| self.value(v, scope));
+                    if let (Some(tstep), Some(tstop), Some(tstart)) = (tstep, tstop, tstart) {
+                        if !(tstep > 0.0 && tstop > tstart && tstart >= 0.0) {
+                            self.errors.push(ElabError::BadTran { span: t.span });
+                            continue;
+                        }
+                        self.tstep = tstep;
+                        self.tstop = tstop;
+                        self.circuit.tran = Some(Tran {
+                            tstep,
+                            tstop,
+                            tstart,
+                            tmax,
+                            uic: t.uic,
+                        });
+                    }
+                }
+                Stmt::Options(opts, _) => {
+                    for o in opts {
+                        let key = o.name.key();
+                        let num = match &o.value {
+                            ast::OptValue::Value(v) => self.value(v, scope),
+                            _ => None,
+                        };
+                        let opt = &mut self.circuit.options;
+                        let slot = match key.as_str() {
+                            "reltol" => Some(&mut opt.reltol),
+                            "abstol" => Some(&mut opt.abstol),
+                            "vntol" => Some(&mut opt.vntol),
+                            "chgtol" => Some(&mut opt.chgtol),
+                            "trtol" => Some(&mut opt.trtol),
+                            "maxord" => Some(&mut opt.maxord),
+                            _ => None,
+                        };
+                        match (slot, &o.value) {
+                            (Some(slot), _) => *slot = num,
+                            (None, ast::OptValue::Word(w)) if key == "method" => {
+                                opt.method = Some(w.key());
+                            }
+                            _ => self.errors.push(ElabError::IgnoredOption {
+                                span: o.name.span,
+                                name: o.name.text.to_string(),
+                            }),
+                        }
+                    }
+                }
+                Stmt::Include { body, .. } => self.settings(body, scope),
+                _ => {}
+            }
+        }
+    }
+
+    fn node(&mut self, name: &ast::Name<'_>, scope: &Scope<'_, '_>) -> NodeId {
+        let key = name.key();
+        if key == "0" || key == "gnd" {
+            return GROUND;
+        }
+        if let Some(&n) = scope.ports.get(&key) {
+            return n;
+        }
+        let full = format!("{}{}", scope.prefix.to_ascii_lowercase(), key);
+        if let Some(&n) = self.node_map.get(&full) {
+            return n;
+        }
+        let id = self.circuit.nodes.push(Node {
+            name: full.clone(),
+            span: name.span,
+        });
+        self.node_map.insert(full, id);
+        id
+    }
+
+    fn walk<'s, 'a>(
+        &mut self,
+        stmts: &'s [Stmt<'a>],
+        scope: &Scope<'s, 'a>,
+        stack: &mut Vec<String>,
+    ) {
+        for s in stmts {
+            match s {
+                Stmt::Element(el) => self.element(el, scope, stack),
+                Stmt::Include { body, .. } => self.walk(body, scope, stack),
+                _ => {}
+            }
+        }
+    }
+
+    fn element<'s, 'a>(
+        &mut self,
+        el: &'s ast::Element<'a>,
+        scope: &Scope<'s, 'a>,
+        stack: &mut Vec<String>,
+    ) {
+        let name = format!("{}{}", scope.prefix, el.name.text);
+        if let ElementBody::Instance { subckt, params } = &el.body {
+            self.instance(el, &name, subckt, params, scope, stack);
+            return;
+        }
+        let key = name.to_ascii_lowercase();
+        if let Some(&(_, first)) = self.elem_map.get(&key) {
+            self.errors.push(ElabError::DuplicateElement {
+                span: el.name.span,
+                name,
+                first,
+            });
+            return;
+        }
+        let nodes: Vec<NodeId> = el.nodes.iter().map(|n| self.node(n, scope)).collect();
+        if nodes.len() >= 2 && nodes[0] == nodes[1] {
+            self.errors.push(ElabError::SingleNode {
+                span: el.nodes[0].span.to(el.nodes[1].span),
+                name: name.clone(),
+                node: self.circuit.nodes[nodes[0]].name.clone(),
+            });
+            return;
+        }
+        let letter = el.letter();
+        let Some(kind) = self.kind(el, &name, letter, scope) else {
+            return;
+        };
+        let id = self.circuit.elements.push(Element {
+            name: name.clone(),
+            kind,
+            nodes,
+            span: el.span,
+        });
+        self.elem_map.insert(key, (id, el.name.span));
+        match &el.body {
+            ElementBody::CurrentControlled { vsrc, .. } => self.pending.push(Pending {
+                elem: id,
+                what: PendingRef::Control {
+                    vsrc: format!("{}{}", scope.prefix, vsrc.text).to_ascii_lowercase(),
+                },
+                spans: [vsrc.span, vsrc.span],
+            }),
+            ElementBody::Coupling { l1, l2, .. } => self.pending.push(Pending {
+                elem: id,
+                what: PendingRef::Coupling {
+                    l1: format!("{}{}", scope.prefix, l1.text).to_ascii_lowercase(),
+                    l2: format!("{}{}", scope.prefix, l2.text).to_ascii_lowercase(),
+                },
+                spans: [l1.span, l2.span],
+            }),
+            _ => {}
+        }
+    }
+
+    fn kind(
+        &mut self,
+        el: &ast::Element<'_>,
+        name: &str,
+        letter: char,
+        scope: &Scope<'_, '_>,
+    ) -> Option<ElementKind> {
+        let nonzero = |this: &mut Elab, v: f64, span: Span, what: &'static str| {
+            if v == 0.0 || !v.is_finite() {
+                this.errors.push(ElabError::BadElementValue {
+                    span,
+                    element: name.to_string(),
+                    what,
+                    value: v,
+                });
+                None
+            } else {
+                Some(v)
+            }
+        };
+        Some(match &el.body {
+            ElementBody::Passive { value, params } => {
+                let v = self.value(value, scope)?;
+                let mut ic = None;
+                for p in params {
+                    if p.name.is("ic") && letter != 'R' {
+                        ic = Some(self.value(&p.value, scope)?);
+                    } else {
+                        self.errors.push(ElabError::IgnoredElementParam {
+                            span: p.name.span,
+                            name: p.name.text.to_string(),
+                            element: name.to_string(),
+                        });
+                    }
+                }
+                match letter {
+                    'R' => ElementKind::Resistor {
+                        r: nonzero(self, v, value.span(), "resistance")?,
+                    },
+                    'C' => ElementKind::Capacitor {
+                        c: nonzero(self, v, value.span(), "capacitance")?,
+                        ic,
+                    },
+                    _ => ElementKind::Inductor {
+                        l: nonzero(self, v, value.span(), "inductance")?,
+                        ic,
+                    },
+                }
+            }
+            ElementBody::Coupling { k, .. } => {
+                let kv = self.value(k, scope)?;
+                if !(kv > 0.0 && kv <= 1.0) {
+                    self.errors.push(ElabError::CouplingRange {
+                        span: k.span(),
+                        element: name.to_string(),
+                        k: kv,
+                    });
+                    return None;
+                }
+                // The inductors are filled in once every element exists.
+                ElementKind::Coupling {
+                    l1: ElemId(u32::MAX),
+                    l2: ElemId(u32::MAX),
+                    k: kv,
+                }
+            }
+            ElementBody::Source { dc, tran, .. } => {
+                let wave = match tran {
+                    Some(f) => self.waveform(f, name, scope)?,
+                    None => Waveform::Dc {
+                        value: match dc {
+                            Some(v) => self.value(v, scope)?,
+                            None => 0.0,
+                        },
+                    },
+                };
+                if letter == 'V' {
+                    ElementKind::VSource { wave }
+                } else {
+                    ElementKind::ISource { wave }
+                }
+            }
+            ElementBody::VoltageControlled { gain } => {
+                let g = self.value(gain, scope)?;
+                if letter == 'E' {
+                    ElementKind::Vcvs { gain: g }
+                } else {
+                    ElementKind::Vccs { gm: g }
+                }
+            }
+            ElementBody::CurrentControlled { gain, .. } => {
+                let g = self.value(gain, scope)?;
+                let ctrl = ElemId(u32::MAX);
+                if letter == 'F' {
+                    ElementKind::Cccs { gain: g, ctrl }
+                } else {
+                    ElementKind::Ccvs { r: g, ctrl }
+                }
+            }
+            ElementBody::Diode {
+                model,
+                area,
+                params,
+            } => {
+                let area = match area {
+                    Some(a) => self.value(a, scope)?,
+                    None => 1.0,
+                };
+                for p in params {
+                    self.errors.push(ElabError::IgnoredElementParam {
+                        span: p.name.span,
+                        name: p.name.text.to_string(),
+                        element: name.to_string(),
+                    });
+                }
+                let model = self.diode_model(model, name, scope)?;
+                ElementKind::Diode { model, area }
+            }
+            ElementBody::Instance { .. } => unreachable!("instances are expanded before"),
+        })
+    }
+
+    fn diode_model(
+        &mut self,
+        model: &ast::Name<'_>,
+        element: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<DiodeModel> {
+        let Some(def) = scope.model(&model.key()) else {
+            self.errors.push(ElabError::UndefinedModel {
+                span: model.span,
+                name: model.text.to_string(),
+            });
+            return None;
+        };
+        if !def.kind.is("d") {
+            self.errors.push(ElabError::WrongModelType {
+                span: model.span,
+                name: model.text.to_string(),
+                found: def.kind.text.to_string(),
+                expected: "D",
+                element: element.to_string(),
+            });
+            return None;
+        }
+        let cache_key = (def.span.file.0, def.span.start, scope.prefix.clone());
+        if let Some(m) = self.model_cache.get(&cache_key) {
+            return Some(m.clone());
+        }
+        let first_use = !self
+            .model_cache
+            .keys()
+            .any(|k| k.0 == cache_key.0 && k.1 == cache_key.1);
+        let mut m = DiodeModel {
+            name: def.name.key(),
+            ..DiodeModel::default()
+        };
+        for p in &def.params {
+            let key = p.name.key();
+            if !DIODE_PARAMS.contains(&key.as_str()) {
+                if first_use {
+                    self.errors.push(if DIODE_IGNORED.contains(&key.as_str()) {
+                        ElabError::IgnoredModelParam {
+                            span: p.name.span,
+                            name: p.name.text.to_string(),
+                        }
+                    } else {
+                        ElabError::UnknownModelParam {
+                            span: p.name.span,
+                            name: p.name.text.to_string(),
+                            model: def.name.text.to_string(),
+                        }
+                    });
+                }
+                continue;
+            }
+            let v = self.value(&p.value, scope)?;
+            match key.as_str() {
+                "is" => m.is = v,
+                "n" => m.n = v,
+                "rs" => m.rs = v,
+                "cjo" | "cj0" | "cj" => m.cjo = v,
+                "vj" | "pb" => m.vj = v,
+                "m" | "mj" => m.m = v,
+                "fc" => m.fc = v,
+                "tt" => m.tt = v,
+                "bv" => m.bv = Some(v.abs()),
+                "ibv" => m.ibv = v,
+                _ => {}
+            }
+        }
+        self.model_cache.insert(cache_key, m.clone());
+        Some(m)
+    }
+
+    fn waveform(
+        &mut self,
+        f: &ast::TranFn<'_>,
+        element: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<Waveform> {
+        let mut args = Vec::with_capacity(f.args.len());
+        for a in &f.args {
+            args.push(self.value(a, scope)?);
+        }
+        let (min, max) = match f.kind {
+            TranFnKind::Pulse => (2, 8),
+            TranFnKind::Sin => (2, 6),
+            TranFnKind::Exp => (2, 6),
+            TranFnKind::Pwl => (2, usize::MAX),
+        };
+        let bad = |this: &mut Elab, problem: String| {
+            this.errors.push(ElabError::BadSourceArgs {
+                span: f.span,
+                element: element.to_string(),
+                kind: f.kind.name(),
+                problem,
+            });
+            None
+        };
+        if args.len() < min || args.len() > max {
+            let want = if max == usize::MAX {
+                format!("at least {min}")
+            } else {
+                format!("{min} to {max}")
+            };
+            return bad(self, format!("takes {want} values, found {}", args.len()));
+        }
+        // Optional argument k, with 0 or absence meaning `default`.
+        let arg = |k: usize, default: f64| match args.get(k) {
+            Some(&v) if v != 0.0 => v,
+            _ => default,
+        };
+        let (tstep, tstop) = (self.tstep, self.tstop);
+        Some(match f.kind {
+            TranFnKind::Pulse => Waveform::Pulse {
+                v1: args[0],
+                v2: args[1],
+                td: args.get(2).copied().unwrap_or(0.0),
+                tr: arg(3, tstep),
+                tf: arg(4, tstep),
+                pw: arg(5, tstop),
+                per: arg(6, tstop),
+            },
+            TranFnKind::Sin => Waveform::Sin {
+                vo: args[0],
+                va: args[1],
+                freq: arg(2, 1.0 / tstop),
+                td: args.get(3).copied().unwrap_or(0.0),
+                theta: args.get(4).copied().unwrap_or(0.0),
+                phase: args.get(5).copied().unwrap_or(0.0),
+            },
+            TranFnKind::Exp => {
+                let td1 = args.get(2).copied().unwrap_or(0.0);
+                Waveform::Exp {
+                    v1: args[0],
+                    v2: args[1],
+                    td1,
+                    tau1: arg(3, tstep),
+                    td2: arg(4, td1 + tstep),
+                    tau2: arg(5, tstep),
+                }
+            }
+            TranFnKind::Pwl => {
+                if args.len() % 2 != 0 {
+                    return bad(self, "needs time-value pairs (an even count)".into());
+                }
+                let points: Vec<(f64, f64)> = args.chunks(2).map(|c| (c[0], c[1])).collect();
+                if points.windows(2).any(|w| w[1].0 < w[0].0) {
+                    return bad(self, "has times that decrease".into());
+                }
+                Waveform::Pwl { points }
+            }
+        })
+    }
+
+    fn instance<'s, 'a>(
+        &mut self,
+        el: &'s ast::Element<'a>,
+        name: &str,
+        subckt: &ast::Name<'a>,
+        params: &'s [ast::Assign<'a>],
+        scope: &Scope<'s, 'a>,
+        stack: &mut Vec<String>,
+    ) {
+        let key = subckt.key();
+        let Some(def) = scope.subckt(&key) else {
+            self.errors.push(ElabError::UndefinedSubckt {
+                span: subckt.span,
+                name: subckt.text.to_string(),
+            });
+            return;
+        };
+        if stack.contains(&key) {
+            let mut chain = stack.clone();
+            chain.push(key.clone());
+            self.errors.push(ElabError::RecursiveSubckt {
+                span: subckt.span,
+                name: subckt.text.to_string(),
+                chain: chain.join(" → "),
+            });
+            return;
+        }
+        if def.ports.len() != el.nodes.len() {
+            self.errors.push(ElabError::PortMismatch {
+                span: el.name.span,
+                instance: name.to_string(),
+                name: def.name.text.to_string(),
+                expected: def.ports.len(),
+                found: el.nodes.len(),
+                def: def.name.span,
+            });
+            return;
+        }
+        let actual: Vec<NodeId> = el.nodes.iter().map(|n| self.node(n, scope)).collect();
+        let mut inner = Scope {
+            parent: Some(scope),
+            prefix: format!("{name}."),
+            ..Scope::default()
+        };
+        for (port, node) in def.ports.iter().zip(actual) {
+            inner.ports.insert(port.key(), node);
+        }
+        // Defaults, evaluated where the subcircuit is used, then overrides.
+        for d in &def.params {
+            if let Some(v) = self.value(&d.value, scope) {
+                inner.params.insert(d.name.key(), v);
+            }
+        }
+        for p in params {
+            if let Some(v) = self.value(&p.value, scope) {
+                inner.params.insert(p.name.key(), v);
+            }
+        }
+        self.collect(&def.body, &mut inner);
+        self.params(&def.body, &mut inner);
+        stack.push(key);
+        self.walk(&def.body, &inner, stack);
+        stack.pop();
+    }
+
+    fn resolve_pending(&mut self) {
+        for p in std::mem::take(&mut self.pending) {
+            let elem_name = self.circuit.elements[p.elem].name.clone();
+            match p.what {
+                PendingRef::Control { vsrc } => {
+                    let found = self
+                        .elem_map
+                        .get(&vsrc)
+                        .map(|&(id, _)| id)
+                        .filter(|&id| {
+                            matches!(self.circuit.elements[id].kind, ElementKind::VSource { .. })
+                        });
+                    match found {
+                        Some(id) => match &mut self.circuit.elements[p.elem].kind {
+                            ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => {
+                                *ctrl = id
+                            }
+                            _ => {}
+                        },
+                        None => self.errors.push(ElabError::UnknownControl {
+                            span: p.spans[0],
+                            element: elem_name,
+                            name: vsrc,
+                        }),
+                    }
+                }
+                PendingRef::Coupling { l1, l2 } => {
+                    let mut ids = [ElemId(u32::MAX); 2];
+                    let mut ok = true;
+                    for (i, key) in [l1, l2].into_iter().enumerate() {
+                        let found = self.elem_map.get(&key).map(|&(id, _)| id).filter(|&id| {
+                            matches!(self.circuit.elements[id].kind, ElementKind::Inductor { .. })
+                        });
+                        match found {
+                            Some(id) => ids[i] = id,
+                            None => {
+                                ok = false;
+                                self.errors.push(ElabError::BadCoupling {
+                                    span: p.spans[i],
+                                    element: elem_name.clone(),
+                                    name: key,
+                                });
+                            }
+                        }
+                    }
+                    if ok
+                        && let ElementKind::Coupling { l1, l2, .. } =
+                            &mut self.circuit.elements[p.elem].kind
+                    {
+                        *l1 = ids[0];
+                        *l2 = ids[1];
+                    }
+                }
+            }
+        }
+        // Elements whose references failed are removed from the circuit so
+        // that later stages never see a dangling id.
+        let bad = |k: &ElementKind| match k {
+            ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => ctrl.0 == u32::MAX,
+            ElementKind::Coupling { l1, l2, .. } => l1.0 == u32::MAX || l2.0 == u32::MAX,
+            _ => false,
+        };
+        if self.circuit.elements.values().any(|e| bad(&e.kind)) {
+            let mut remap = Vec::with_capacity(self.circuit.elements.len());
+            let mut kept = crate::ir::IdVec::new();
+            for (_, e) in self.circuit.elements.iter() {
+                if bad(&e.kind) {
+                    remap.push(None);
+                } else {
+                    remap.push(Some(kept.push(e.clone())));
+                }
+            }
+            let fix = |id: &mut ElemId| *id = remap[id.0 as usize].unwrap_or(ElemId(u32::MAX));
+            for e in kept.as_mut_slice() {
+                match &mut e.kind {
+                    ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => fix(ctrl),
+                    ElementKind::Coupling { l1, l2, .. } => {
+                        fix(l1);
+                        fix(l2);
+                    }
+                    _ => {}
+                }
+            }
+            self.circuit.elements = kept;
+            for (_, (id, _)) in self.elem_map.iter_mut() {
+                if let Some(Some(n)) = remap.get(id.0 as usize) {
+                    *id = *n;
+                }
+            }
+        }
+    }
+
+    /// `.ic` and `.print`/`.save`/`.probe` (top level, through includes).
+    fn outputs(&mut self, stmts: &[Stmt<'_>], scope: &Scope<'_, '_>) {
+        for s in stmts {
+            match s {
+                Stmt::Ic(ics, _) => {
+                    for (v, val) in ics {
+                        let Some(value) = self.value(val, scope) else {
+                            continue;
+                        };
+                        if v.kind != 'v' || v.args.len() != 1 {
+                            self.errors.push(ElabError::UnknownNode {
+                                span: v.span,
+                                node: v.args.iter().map(|a| a.text).collect::<Vec<_>>().join(","),
+                                directive: ".ic",
+                            });
+                            continue;
+                        }
+                        match self.circuit.find_node(v.args[0].text) {
+                            Some(node) => self.circuit.ics.push(NodeIc {
+                                node,
+                                value,
+                                span: v.span,
+                            }),
+                            None => self.errors.push(ElabError::UnknownNode {
+                                span: v.args[0].span,
+                                node: v.args[0].text.to_string(),
+                                directive: ".ic",
+                            }),
+                        }
+                    }
+                }
+                Stmt::Output { vectors, .. } => {
+                    for v in vectors {
+                        if let Some(o) = self.output(v) {
+                            if !self.circuit.outputs.contains(&o) {
+                                self.circuit.outputs.push(o);
+                            }
+                        }
+                    }
+                }
+                Stmt::Include { body, .. } => self.outputs(body, scope),
+                _ => {}
+            }
+        }
+    }
+
+    fn output(&mut self, v: &ast::OutVec<'_>) -> Option<Output> {
+        if v.kind == 'i' {
+            let name = v.args[0].text;
+            return match self.circuit.find_element(name) {
+                Some(elem)
+                    if v.args.len() == 1
+                        && !matches!(
+                            self.circuit.elements[elem].kind,
+                            ElementKind::Coupling { .. }
+                        ) =>
+                {
+                    Some(Output::Current { elem })
+                }
+                _ => {
+                    self.errors.push(ElabError::UnknownCurrent {
+                        span: v.span,
+                        name: name.to_string(),
+                    });
+                    None
+                }
+            };
+        }
+        let mut nodes = [GROUND; 2];
+        for (i, a) in v.args.iter().enumerate() {
+            match self.circuit.find_node(a.text) {
+                Some(n) => nodes[i] = n,
+                None => {
+                    self.errors.push(ElabError::UnknownNode {
+                        span: a.span,
+                        node: a.text.to_string(),
+                        directive: "output",
+                    });
+                    return None;
+                }
+            }
+        }
+        Some(Output::Voltage {
+            pos: nodes[0],
+            neg: nodes[1],
+        })
+    }
+
+    fn dangling(&mut self) {
+        let mut count = vec![0u32; self.circuit.nodes.len()];
+        for e in self.circuit.elements.values() {
+            for n in &e.nodes {
+                count[n.0 as usize] += 1;
+            }
+        }
+        for (id, node) in self.circuit.nodes.iter() {
+            if id != GROUND && count[id.0 as usize] == 1 {
+                self.errors.push(ElabError::DanglingNode {
+                    span: node.span,
+                    node: node.name.clone(),
+                });
+            }
+        }
+    }
+}
+
+fn try_value(v: &Value<'_>, scope: &Scope<'_, '_>) -> Result<f64, ElabError> {
+    use crate::front::expr::EvalError;
+    match v {
+        Value::Num { value, .. } => Ok(*value),
+        Value::Ident(n) => scope.param(&n.key()).ok_or_else(|| ElabError::UndefinedParam {
+            span: n.span,
+            name: n.text.to_string(),
+        }),
+        Value::Expr { expr, text, span } => {
+            expr.eval(&|name| scope.param(name)).map_err(|e| match e {
+                EvalError::Undefined(name) => ElabError::UndefinedParam { span: *span, name },
+                EvalError::UnknownFunction(f) => ElabError::BadValue {
+                    span: *span,
+                    text: text.to_string(),
+                    reason: format!("unknown function `{f}`"),
+                },
+                EvalError::Arity(f, n) => ElabError::BadValue {
+                    span: *span,
+                    text: text.to_string(),
+                    reason: format!("`{f}` takes {n} argument(s)"),
+                },
+                EvalError::NotFinite => ElabError::BadValue {
+                    span: *span,
+                    text: text.to_string(),
+                    reason: "the result is not a finite number".into(),
+                },
+            })
+        }
+    }
+}

@@ -1,0 +1,214 @@
+//! The netlist AST: statements as written, borrowing the source text, with spans.
+//! Names keep their spelling; comparisons are case-insensitive.
+
+use super::expr::PExpr;
+use crate::diag::Span;
+
+/// A name as written (node, element, model, parameter).
+#[derive(Clone, Copy, Debug)]
+pub struct Name<'a> {
+    pub text: &'a str,
+    pub span: Span,
+}
+
+impl Name<'_> {
+    /// The case-folded key used for lookups.
+    pub fn key(&self) -> String {
+        self.text.to_ascii_lowercase()
+    }
+
+    pub fn is(&self, s: &str) -> bool {
+        self.text.eq_ignore_ascii_case(s)
+    }
+}
+
+/// A numeric value: a literal, a `{…}` expression or a bare parameter name.
+#[derive(Clone, Debug)]
+pub enum Value<'a> {
+    Num { value: f64, text: &'a str, span: Span },
+    Expr { expr: PExpr, text: &'a str, span: Span },
+    Ident(Name<'a>),
+}
+
+impl Value<'_> {
+    pub fn span(&self) -> Span {
+        match self {
+            Value::Num { span, .. } | Value::Expr { span, .. } => *span,
+            Value::Ident(n) => n.span,
+        }
+    }
+}
+
+/// `name=value`
+#[derive(Clone, Debug)]
+pub struct Assign<'a> {
+    pub name: Name<'a>,
+    pub value: Value<'a>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TranFnKind {
+    Pulse,
+    Sin,
+    Exp,
+    Pwl,
+}
+
+impl TranFnKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            TranFnKind::Pulse => "PULSE",
+            TranFnKind::Sin => "SIN",
+            TranFnKind::Exp => "EXP",
+            TranFnKind::Pwl => "PWL",
+        }
+    }
+}
+
+/// A transient source function such as `PULSE(0 1 1n)`.
+#[derive(Clone, Debug)]
+pub struct TranFn<'a> {
+    pub kind: TranFnKind,
+    pub args: Vec<Value<'a>>,
+    pub span: Span,
+}
+
+/// What follows an element's nodes, by element letter.
+#[derive(Clone, Debug)]
+pub enum ElementBody<'a> {
+    /// R, C, L: a value plus `name=value` extras (`ic=`, `m=`, ...).
+    Passive {
+        value: Value<'a>,
+        params: Vec<Assign<'a>>,
+    },
+    /// K: coupling of two inductors.
+    Coupling {
+        l1: Name<'a>,
+        l2: Name<'a>,
+        k: Value<'a>,
+    },
+    /// V, I.
+    Source {
+        dc: Option<Value<'a>>,
+        tran: Option<TranFn<'a>>,
+        /// `AC mag [phase]`: kept for printing, ignored by transient analysis.
+        ac: Vec<Value<'a>>,
+    },
+    /// E, G: four nodes (out+, out-, ctrl+, ctrl-) and a gain.
+    VoltageControlled { gain: Value<'a> },
+    /// F, H: two nodes, a controlling V source, a gain.
+    CurrentControlled { vsrc: Name<'a>, gain: Value<'a> },
+    /// D: a model name and an optional area factor.
+    Diode {
+        model: Name<'a>,
+        area: Option<Value<'a>>,
+        params: Vec<Assign<'a>>,
+    },
+    /// X: a subcircuit instance.
+    Instance {
+        subckt: Name<'a>,
+        params: Vec<Assign<'a>>,
+    },
+}
+
+#[derive(Clone, Debug)]
+pub struct Element<'a> {
+    pub name: Name<'a>,
+    pub nodes: Vec<Name<'a>>,
+    pub body: ElementBody<'a>,
+    pub span: Span,
+}
+
+impl Element<'_> {
+    /// The element letter, upper-case (`R`, `V`, `X`, ...).
+    pub fn letter(&self) -> char {
+        self.name
+            .text
+            .chars()
+            .next()
+            .unwrap_or('?')
+            .to_ascii_uppercase()
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct Model<'a> {
+    pub name: Name<'a>,
+    pub kind: Name<'a>,
+    pub params: Vec<Assign<'a>>,
+    pub span: Span,
+}
+
+#[derive(Clone, Debug)]
+pub struct Subckt<'a> {
+    pub name: Name<'a>,
+    pub ports: Vec<Name<'a>>,
+    /// Parameters with defaults (`params: a=1`).
+    pub params: Vec<Assign<'a>>,
+    pub body: Vec<Stmt<'a>>,
+    pub span: Span,
+}
+
+/// A vector such as `v(a)`, `v(a,b)` or `i(v1)`.
+#[derive(Clone, Debug)]
+pub struct OutVec<'a> {
+    /// `v` or `i`, lower-case.
+    pub kind: char,
+    pub args: Vec<Name<'a>>,
+    pub span: Span,
+}
+
+#[derive(Clone, Debug)]
+pub struct Tran<'a> {
+    pub tstep: Value<'a>,
+    pub tstop: Value<'a>,
+    pub tstart: Option<Value<'a>>,
+    pub tmax: Option<Value<'a>>,
+    pub uic: bool,
+    pub span: Span,
+}
+
+#[derive(Clone, Debug)]
+pub enum OptValue<'a> {
+    Flag,
+    Value(Value<'a>),
+    Word(Name<'a>),
+}
+
+#[derive(Clone, Debug)]
+pub struct OptionDef<'a> {
+    pub name: Name<'a>,
+    pub value: OptValue<'a>,
+}
+
+#[derive(Clone, Debug)]
+pub enum Stmt<'a> {
+    Element(Element<'a>),
+    Model(Model<'a>),
+    Subckt(Subckt<'a>),
+    Param(Vec<Assign<'a>>, Span),
+    /// `.ic v(node)=value ...`
+    Ic(Vec<(OutVec<'a>, Value<'a>)>, Span),
+    Tran(Tran<'a>),
+    Options(Vec<OptionDef<'a>>, Span),
+    /// `.print`, `.save`, `.probe`: the directive name and its vectors.
+    Output {
+        directive: Name<'a>,
+        analysis: Option<Name<'a>>,
+        vectors: Vec<OutVec<'a>>,
+        span: Span,
+    },
+    /// `.include "path"`, with the included file's statements.
+    Include {
+        path: &'a str,
+        span: Span,
+        body: Vec<Stmt<'a>>,
+    },
+}
+
+/// A parsed netlist file tree.
+#[derive(Clone, Debug, Default)]
+pub struct Netlist<'a> {
+    pub title: &'a str,
+    pub stmts: Vec<Stmt<'a>>,
+}

@@ -1,0 +1,147 @@
+//! Errors and warnings of the front end (loading, lexing, parsing).
+
+use crate::diag::{Diagnostic, Severity, Span, ToDiagnostic};
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ParseError {
+    #[error("the netlist is empty")]
+    Empty { span: Span },
+    #[error("`+` continuation line with nothing to continue")]
+    StrayContinuation { span: Span },
+    #[error("unterminated expression: missing `{close}`")]
+    Unterminated { span: Span, close: char },
+    #[error("unexpected {what}")]
+    Unexpected { span: Span, what: String },
+    #[error("unknown element type `{letter}`")]
+    UnknownElement { span: Span, letter: char },
+    #[error("{kind} (`{letter}`) elements are not supported by kausal")]
+    UnsupportedElement {
+        span: Span,
+        letter: char,
+        kind: &'static str,
+    },
+    #[error("element `{name}` needs {expected} nodes, found {found}")]
+    MissingNode {
+        span: Span,
+        name: String,
+        expected: usize,
+        found: usize,
+    },
+    #[error("missing {what} for `{name}`")]
+    MissingValue {
+        span: Span,
+        name: String,
+        what: &'static str,
+    },
+    #[error("`{text}` is not a number")]
+    BadNumber { span: Span, text: String },
+    #[error("cannot parse expression `{text}`")]
+    BadExpression { span: Span, text: String },
+    #[error("`.subckt {name}` has no matching `.ends`")]
+    UnclosedSubckt { span: Span, name: String },
+    #[error("`.ends` without a `.subckt`")]
+    StrayEnds { span: Span },
+    #[error("`.control` block has no matching `.endc`")]
+    UnclosedControl { span: Span },
+    #[error("unknown directive `{name}`")]
+    UnknownDirective { span: Span, name: String },
+    #[error("`{name}` is not supported by kausal")]
+    UnsupportedDirective { span: Span, name: String },
+    #[error("source function `{name}` is not supported by kausal")]
+    UnsupportedSource { span: Span, name: String },
+    #[error("cannot read include file `{path}`: {reason}")]
+    IncludeNotFound {
+        span: Span,
+        path: String,
+        reason: String,
+    },
+    #[error("`{path}` includes itself")]
+    IncludeCycle { span: Span, path: String },
+    #[error("expected {expected}")]
+    Expected { span: Span, expected: String },
+    #[error("`{name}` is skipped: kausal runs transient analysis only")]
+    SkippedAnalysis { span: Span, name: String },
+    #[error("`.control` block skipped: kausal does not run ngspice scripts")]
+    SkippedControl { span: Span },
+    #[error("`.{name}` is ignored by kausal")]
+    IgnoredDirective { span: Span, name: String },
+}
+
+impl ParseError {
+    pub fn span(&self) -> Span {
+        use ParseError::*;
+        match self {
+            Empty { span }
+            | StrayContinuation { span }
+            | Unterminated { span, .. }
+            | Unexpected { span, .. }
+            | UnknownElement { span, .. }
+            | UnsupportedElement { span, .. }
+            | MissingNode { span, .. }
+            | MissingValue { span, .. }
+            | BadNumber { span, .. }
+            | BadExpression { span, .. }
+            | UnclosedSubckt { span, .. }
+            | StrayEnds { span }
+            | UnclosedControl { span }
+            | UnknownDirective { span, .. }
+            | UnsupportedDirective { span, .. }
+            | UnsupportedSource { span, .. }
+            | IncludeNotFound { span, .. }
+            | IncludeCycle { span, .. }
+            | Expected { span, .. }
+            | SkippedAnalysis { span, .. }
+            | SkippedControl { span }
+            | IgnoredDirective { span, .. } => *span,
+        }
+    }
+
+    pub fn severity(&self) -> Severity {
+        match self {
+            ParseError::SkippedAnalysis { .. }
+            | ParseError::SkippedControl { .. }
+            | ParseError::IgnoredDirective { .. } => Severity::Warning,
+            _ => Severity::Error,
+        }
+    }
+
+    fn code_and_help(&self) -> (&'static str, &'static str, String) {
+        use ParseError::*;
+        match self {
+            Empty { .. } => ("K0100", "", "a netlist is a title line followed by elements".into()),
+            StrayContinuation { .. } => ("K0101", "continuation", "a `+` line continues the line above it; put it after an element or directive".into()),
+            Unterminated { close, .. } => ("K0102", "opened here", format!("close the expression with `{close}`")),
+            Unexpected { .. } => ("K0103", "unexpected", "remove it or check the element's syntax in the ngspice manual".into()),
+            UnknownElement { .. } => ("K0104", "unknown element", "element names start with R, C, L, K, V, I, E, F, G, H, D or X".into()),
+            UnsupportedElement { .. } => ("K0105", "not supported", "kausal supports R, C, L, K, V, I, E, F, G, H, D and X elements".into()),
+            MissingNode { expected, .. } => ("K0106", "missing node", format!("write {expected} node names after the element name")),
+            MissingValue { .. } => ("K0107", "value missing", "add the value after the nodes, e.g. `R1 a b 1k`".into()),
+            BadNumber { .. } => ("K0108", "bad number", "numbers look like `10`, `1.5e-3`, `4.7k`, `10uF` or `3meg`".into()),
+            BadExpression { .. } => ("K0109", "bad expression", "expressions use numbers, parameters, + - * / ** and functions like sqrt()".into()),
+            UnclosedSubckt { .. } => ("K0110", "opened here", "end the subcircuit with `.ends`".into()),
+            StrayEnds { .. } => ("K0111", "no open subcircuit", "remove it, or add the `.subckt` line it closes".into()),
+            UnclosedControl { .. } => ("K0112", "opened here", "end the block with `.endc`".into()),
+            UnknownDirective { .. } => ("K0113", "unknown directive", "check the spelling against the ngspice manual".into()),
+            UnsupportedDirective { .. } => ("K0114", "not supported", "remove it; kausal reads .param, .subckt, .model, .include, .ic, .tran, .options, .print, .save, .probe".into()),
+            UnsupportedSource { .. } => ("K0115", "not supported", "use DC, PULSE, SIN, PWL or EXP".into()),
+            IncludeNotFound { .. } => ("K0116", "included here", "include paths are relative to the including file".into()),
+            IncludeCycle { .. } => ("K0117", "included again here", "remove the circular `.include`".into()),
+            Expected { .. } => ("K0118", "here", "see the ngspice manual for the statement's syntax".into()),
+            SkippedAnalysis { .. } => ("K0190", "skipped", "only `.tran` analyses are run".into()),
+            SkippedControl { .. } => ("K0191", "skipped", "use `.tran`, `.print` and `.options` instead of a control script".into()),
+            IgnoredDirective { .. } => ("K0192", "ignored", "it does not affect the transient run as kausal performs it".into()),
+        }
+    }
+}
+
+impl ToDiagnostic for ParseError {
+    fn to_diagnostic(&self) -> Diagnostic {
+        let (code, label, help) = self.code_and_help();
+        let mut d = Diagnostic::error(code, self.to_string()).with_label(self.span(), label);
+        d.severity = self.severity();
+        if !help.is_empty() {
+            d = d.with_help(help);
+        }
+        d
+    }
+}

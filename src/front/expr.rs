@@ -1,0 +1,402 @@
+//! Numbers with engineering suffixes and `{…}` parameter expressions (nom).
+
+use nom::IResult;
+use nom::Parser;
+use nom::branch::alt;
+use nom::bytes::complete::{tag, take_while, take_while1};
+use nom::character::complete::{char, multispace0};
+use nom::combinator::{opt, recognize};
+use nom::multi::separated_list0;
+use nom::number::complete::recognize_float;
+use nom::sequence::{delimited, pair, preceded};
+
+/// A parameter expression, as written (names lower-cased).
+#[derive(Clone, Debug, PartialEq)]
+pub enum PExpr {
+    Num(f64),
+    Ident(String),
+    Neg(Box<PExpr>),
+    Bin(BinOp, Box<PExpr>, Box<PExpr>),
+    Call(String, Vec<PExpr>),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BinOp {
+    Add,
+    Sub,
+    Mul,
+    Div,
+    Pow,
+}
+
+impl BinOp {
+    fn symbol(self) -> &'static str {
+        match self {
+            BinOp::Add => "+",
+            BinOp::Sub => "-",
+            BinOp::Mul => "*",
+            BinOp::Div => "/",
+            BinOp::Pow => "**",
+        }
+    }
+}
+
+/// The scale of an engineering suffix (`k`, `meg`, `mil`, ...), and how many
+/// bytes of the suffix were consumed; trailing unit letters are allowed.
+fn suffix_scale(s: &str) -> Option<f64> {
+    let lower = s.to_ascii_lowercase();
+    if !lower.chars().all(|c| c.is_ascii_alphabetic()) {
+        return None;
+    }
+    let scale = if lower.starts_with("meg") {
+        1e6
+    } else if lower.starts_with("mil") {
+        25.4e-6
+    } else {
+        match lower.chars().next() {
+            None => 1.0,
+            Some('f') => 1e-15,
+            Some('p') => 1e-12,
+            Some('n') => 1e-9,
+            Some('u') => 1e-6,
+            Some('m') => 1e-3,
+            Some('k') => 1e3,
+            Some('g') => 1e9,
+            Some('t') => 1e12,
+            Some(_) => 1.0,
+        }
+    };
+    Some(scale)
+}
+
+fn number_with_suffix(input: &str) -> IResult<&str, f64> {
+    let (rest, digits) = recognize_float(input)?;
+    let (rest, suffix) = take_while(|c: char| c.is_ascii_alphabetic()).parse(rest)?;
+    let mantissa: f64 = digits.parse().map_err(|_| {
+        nom::Err::Error(nom::error::Error::new(input, nom::error::ErrorKind::Float))
+    })?;
+    let scale = suffix_scale(suffix).unwrap_or(1.0);
+    Ok((rest, mantissa * scale))
+}
+
+/// Parse a whole token as a SPICE number: `10`, `1.5e-3`, `10uF`, `1kOhm`, `3meg`.
+pub fn parse_number(s: &str) -> Option<f64> {
+    if !s.starts_with(|c: char| c.is_ascii_digit() || matches!(c, '.' | '-' | '+')) {
+        return None;
+    }
+    match number_with_suffix(s) {
+        Ok(("", v)) if v.is_finite() => Some(v),
+        _ => None,
+    }
+}
+
+fn ws<'a, O>(
+    p: impl Parser<&'a str, Output = O, Error = nom::error::Error<&'a str>>,
+) -> impl Parser<&'a str, Output = O, Error = nom::error::Error<&'a str>> {
+    delimited(multispace0, p, multispace0)
+}
+
+fn ident(input: &str) -> IResult<&str, &str> {
+    recognize(pair(
+        take_while1(|c: char| c.is_ascii_alphabetic() || c == '_'),
+        take_while(|c: char| c.is_ascii_alphanumeric() || c == '_' || c == '.'),
+    ))
+    .parse(input)
+}
+
+fn atom(input: &str) -> IResult<&str, PExpr> {
+    ws(alt((
+        |i| {
+            let (i, v) = number_with_suffix(i)?;
+            Ok((i, PExpr::Num(v)))
+        },
+        |i| {
+            let (i, name) = ident(i)?;
+            let (i, args) = opt(delimited(
+                ws(char('(')),
+                separated_list0(ws(char(',')), sum),
+                ws(char(')')),
+            ))
+            .parse(i)?;
+            let name = name.to_ascii_lowercase();
+            Ok((
+                i,
+                match args {
+                    Some(args) => PExpr::Call(name, args),
+                    None => PExpr::Ident(name),
+                },
+            ))
+        },
+        delimited(ws(char('(')), sum, ws(char(')'))),
+    )))
+    .parse(input)
+}
+
+fn power(input: &str) -> IResult<&str, PExpr> {
+    let (i, base) = atom(input)?;
+    let (i, exp) = opt(preceded(ws(alt((tag("**"), tag("^")))), unary)).parse(i)?;
+    Ok((
+        i,
+        match exp {
+            Some(e) => PExpr::Bin(BinOp::Pow, Box::new(base), Box::new(e)),
+            None => base,
+        },
+    ))
+}
+
+fn unary(input: &str) -> IResult<&str, PExpr> {
+    alt((
+        |i| {
+            let (i, e) = preceded(ws(char('-')), unary).parse(i)?;
+            Ok((i, PExpr::Neg(Box::new(e))))
+        },
+        preceded(ws(char('+')), unary),
+        power,
+    ))
+    .parse(input)
+}
+
+fn mul_op(i: &str) -> IResult<&str, BinOp> {
+    let (i, _) = char('*')(i)?;
+    // `**` is power, handled below `unary`.
+    if i.starts_with('*') {
+        return Err(nom::Err::Error(nom::error::Error::new(
+            i,
+            nom::error::ErrorKind::Char,
+        )));
+    }
+    Ok((i, BinOp::Mul))
+}
+
+fn product(input: &str) -> IResult<&str, PExpr> {
+    let (mut i, mut acc) = unary(input)?;
+    loop {
+        let op = ws(alt((mul_op, |i| char('/')(i).map(|(i, _)| (i, BinOp::Div))))).parse(i);
+        match op {
+            Ok((r, op)) => {
+                let (r, rhs) = unary(r)?;
+                acc = PExpr::Bin(op, Box::new(acc), Box::new(rhs));
+                i = r;
+            }
+            Err(_) => return Ok((i, acc)),
+        }
+    }
+}
+
+fn sum(input: &str) -> IResult<&str, PExpr> {
+    let (mut i, mut acc) = product(input)?;
+    loop {
+        let op = ws(alt((
+            |i| char('+')(i).map(|(i, _)| (i, BinOp::Add)),
+            |i| char('-')(i).map(|(i, _)| (i, BinOp::Sub)),
+        )))
+        .parse(i);
+        match op {
+            Ok((r, op)) => {
+                let (r, rhs) = product(r)?;
+                acc = PExpr::Bin(op, Box::new(acc), Box::new(rhs));
+                i = r;
+            }
+            Err(_) => return Ok((i, acc)),
+        }
+    }
+}
+
+/// Parse a whole parameter expression; on failure, the byte offset where
+/// parsing stopped.
+pub fn parse_expr(s: &str) -> Result<PExpr, usize> {
+    match sum(s) {
+        Ok((rest, e)) if rest.trim().is_empty() => Ok(e),
+        Ok((rest, _)) => Err(s.len() - rest.len()),
+        Err(nom::Err::Error(e) | nom::Err::Failure(e)) => Err(s.len() - e.input.len()),
+        Err(nom::Err::Incomplete(_)) => Err(s.len()),
+    }
+}
+
+/// Why an expression could not be evaluated.
+#[derive(Clone, Debug, PartialEq)]
+pub enum EvalError {
+    Undefined(String),
+    UnknownFunction(String),
+    Arity(String, usize),
+    NotFinite,
+}
+
+impl PExpr {
+    /// Evaluate with `lookup` for parameter names.
+    pub fn eval(&self, lookup: &dyn Fn(&str) -> Option<f64>) -> Result<f64, EvalError> {
+        let v = match self {
+            PExpr::Num(x) => *x,
+            PExpr::Ident(name) => match lookup(name) {
+                Some(v) => v,
+                None => match name.as_str() {
+                    "pi" => std::f64::consts::PI,
+                    "e" => std::f64::consts::E,
+                    _ => return Err(EvalError::Undefined(name.clone())),
+                },
+            },
+            PExpr::Neg(a) => -a.eval(lookup)?,
+            PExpr::Bin(op, a, b) => {
+                let (a, b) = (a.eval(lookup)?, b.eval(lookup)?);
+                match op {
+                    BinOp::Add => a + b,
+                    BinOp::Sub => a - b,
+                    BinOp::Mul => a * b,
+                    BinOp::Div => a / b,
+                    BinOp::Pow => a.powf(b),
+                }
+            }
+            PExpr::Call(name, args) => {
+                let vals = args
+                    .iter()
+                    .map(|a| a.eval(lookup))
+                    .collect::<Result<Vec<_>, _>>()?;
+                let one = |f: fn(f64) -> f64| -> Result<f64, EvalError> {
+                    match vals.as_slice() {
+                        [x] => Ok(f(*x)),
+                        _ => Err(EvalError::Arity(name.clone(), 1)),
+                    }
+                };
+                let two = |f: fn(f64, f64) -> f64| -> Result<f64, EvalError> {
+                    match vals.as_slice() {
+                        [x, y] => Ok(f(*x, *y)),
+                        _ => Err(EvalError::Arity(name.clone(), 2)),
+                    }
+                };
+                match name.as_str() {
+                    "sqrt" => one(f64::sqrt)?,
+                    "exp" => one(f64::exp)?,
+                    "log" | "ln" => one(f64::ln)?,
+                    "log10" => one(f64::log10)?,
+                    "sin" => one(f64::sin)?,
+                    "cos" => one(f64::cos)?,
+                    "tan" => one(f64::tan)?,
+                    "atan" => one(f64::atan)?,
+                    "asin" => one(f64::asin)?,
+                    "acos" => one(f64::acos)?,
+                    "sinh" => one(f64::sinh)?,
+                    "cosh" => one(f64::cosh)?,
+                    "tanh" => one(f64::tanh)?,
+                    "abs" => one(f64::abs)?,
+                    "floor" => one(f64::floor)?,
+                    "ceil" => one(f64::ceil)?,
+                    "int" => one(f64::trunc)?,
+                    "pow" | "pwr" => two(f64::powf)?,
+                    "min" => two(f64::min)?,
+                    "max" => two(f64::max)?,
+                    "atan2" => two(f64::atan2)?,
+                    _ => return Err(EvalError::UnknownFunction(name.clone())),
+                }
+            }
+        };
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(EvalError::NotFinite)
+        }
+    }
+
+    /// The parameter names this expression reads.
+    pub fn idents<'s>(&'s self, out: &mut Vec<&'s str>) {
+        match self {
+            PExpr::Num(_) => {}
+            PExpr::Ident(n) => out.push(n),
+            PExpr::Neg(a) => a.idents(out),
+            PExpr::Bin(_, a, b) => {
+                a.idents(out);
+                b.idents(out);
+            }
+            PExpr::Call(_, args) => args.iter().for_each(|a| a.idents(out)),
+        }
+    }
+}
+
+impl std::fmt::Display for PExpr {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            PExpr::Num(x) => write!(f, "{x:e}"),
+            PExpr::Ident(n) => f.write_str(n),
+            PExpr::Neg(a) => write!(f, "-({a})"),
+            PExpr::Bin(op, a, b) => write!(f, "({a}){}({b})", op.symbol()),
+            PExpr::Call(n, args) => {
+                write!(f, "{n}(")?;
+                for (i, a) in args.iter().enumerate() {
+                    if i > 0 {
+                        f.write_str(", ")?;
+                    }
+                    write!(f, "{a}")?;
+                }
+                f.write_str(")")
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn engineering_suffixes() {
+        let cases = [
+            ("10", 10.0),
+            ("1k", 1e3),
+            ("1K", 1e3),
+            ("1kOhm", 1e3),
+            ("10uF", 10e-6),
+            ("2.2n", 2.2e-9),
+            ("3meg", 3e6),
+            ("3MEG", 3e6),
+            ("1m", 1e-3),
+            ("1M", 1e-3),
+            ("1mil", 25.4e-6),
+            ("1e-3", 1e-3),
+            ("1.5E3", 1500.0),
+            ("-2p", -2e-12),
+            ("1f", 1e-15),
+            ("5V", 5.0),
+            ("1g", 1e9),
+            ("2t", 2e12),
+            (".5", 0.5),
+        ];
+        for (s, v) in cases {
+            let got = parse_number(s).unwrap_or_else(|| panic!("{s} did not parse"));
+            assert!((got - v).abs() <= 1e-12 * v.abs(), "{s}: {got} != {v}");
+        }
+        for bad in ["abc", "1k5", "--1", "", "1.2.3"] {
+            assert_eq!(parse_number(bad), None, "{bad}");
+        }
+    }
+
+    #[test]
+    fn expressions() {
+        let env = |n: &str| match n {
+            "r" => Some(2e3),
+            "c" => Some(1e-6),
+            _ => None,
+        };
+        let cases = [
+            ("1+2*3", 7.0),
+            ("(1+2)*3", 9.0),
+            ("-r/2", -1e3),
+            ("2**3**2", 512.0),
+            ("2^3", 8.0),
+            ("sqrt(16) + max(1, 2)", 6.0),
+            ("1/(2*pi*r*c)", 1.0 / (2.0 * std::f64::consts::PI * 2e-3)),
+            ("2k*3", 6e3),
+            ("1e-3*2", 2e-3),
+            ("- -1", 1.0),
+        ];
+        for (s, v) in cases {
+            let e = parse_expr(s).unwrap_or_else(|at| panic!("{s} failed at {at}"));
+            let got = e.eval(&env).unwrap();
+            assert!((got - v).abs() <= 1e-12 * v.abs(), "{s}: {got} != {v}");
+        }
+        assert!(parse_expr("1 +").is_err());
+        assert!(parse_expr("(1").is_err());
+        assert_eq!(
+            parse_expr("x*2").unwrap().eval(&env),
+            Err(EvalError::Undefined("x".into()))
+        );
+    }
+}

@@ -1,0 +1,262 @@
+//! Lines and tokens: comments, `+` continuation, the title line, and the
+//! splitting of a logical line into words, `=`, parentheses and `{…}`
+//! expressions, each with its byte span.
+
+use nom::IResult;
+use nom::Parser;
+use nom::branch::alt;
+use nom::bytes::complete::{take_till1, take_while};
+use nom::character::complete::char;
+use nom::combinator::map;
+
+use super::error::ParseError;
+use crate::diag::{FileId, SourceMap, Span};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TokKind {
+    Word,
+    Eq,
+    LParen,
+    RParen,
+    /// A `{…}` or `'…'` expression; `text` is the part inside the delimiters.
+    Expr,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Token<'a> {
+    pub kind: TokKind,
+    pub text: &'a str,
+    pub span: Span,
+}
+
+impl Token<'_> {
+    pub fn is_word(&self, w: &str) -> bool {
+        self.kind == TokKind::Word && self.text.eq_ignore_ascii_case(w)
+    }
+}
+
+/// One statement: a physical line plus its `+` continuation lines.
+#[derive(Clone, Debug)]
+pub struct LogicalLine<'a> {
+    pub tokens: Vec<Token<'a>>,
+}
+
+impl LogicalLine<'_> {
+    pub fn span(&self) -> Span {
+        let first = self.tokens[0].span;
+        self.tokens.last().map_or(first, |t| first.to(t.span))
+    }
+}
+
+/// A lexed file: its title line (root file only) and its logical lines.
+pub struct LexedFile<'a> {
+    pub title: Option<(&'a str, Span)>,
+    pub lines: Vec<LogicalLine<'a>>,
+}
+
+/// Split `file` into logical lines. The first line is the title when
+/// `has_title` (ngspice: the root file's first line, never an included file's).
+pub fn lex_file<'a>(
+    sources: &'a SourceMap,
+    file: FileId,
+    has_title: bool,
+    errors: &mut Vec<ParseError>,
+) -> LexedFile<'a> {
+    let text = sources.file(file).text.as_str();
+    let mut lines: Vec<LogicalLine<'a>> = Vec::new();
+    let mut title = None;
+    let mut offset = 0usize;
+    let mut first = true;
+    for raw in text.split_inclusive('\n') {
+        let start = offset;
+        offset += raw.len();
+        let line = raw.trim_end_matches(['\n', '\r']);
+        if first && has_title {
+            first = false;
+            let t = line.trim();
+            let lead = line.len() - line.trim_start().len();
+            title = Some((t, Span::new(file, start + lead, start + lead + t.len())));
+            continue;
+        }
+        first = false;
+        let trimmed = line.trim_start();
+        if trimmed.is_empty() || trimmed.starts_with('*') {
+            continue;
+        }
+        let lead = line.len() - trimmed.len();
+        let (body, body_start, continuation) = match trimmed.strip_prefix('+') {
+            Some(rest) => (rest, start + lead + 1, true),
+            None => (trimmed, start + lead, false),
+        };
+        let toks = tokenize(body, file, body_start, errors);
+        if continuation {
+            match lines.last_mut() {
+                Some(prev) => prev.tokens.extend(toks),
+                None => errors.push(ParseError::StrayContinuation {
+                    span: Span::new(file, start + lead, start + lead + 1),
+                }),
+            }
+        } else if !toks.is_empty() {
+            lines.push(LogicalLine { tokens: toks });
+        }
+    }
+    LexedFile { title, lines }
+}
+
+fn is_sep(c: char) -> bool {
+    c.is_whitespace() || c == ','
+}
+
+fn is_word_end(c: char) -> bool {
+    is_sep(c) || matches!(c, '(' | ')' | '=' | '{' | '}' | '\'' | ';')
+}
+
+/// The raw token shapes, recognized with nom on one line's text.
+fn token(input: &str) -> IResult<&str, (TokKind, &str)> {
+    alt((
+        map(char('='), |_| (TokKind::Eq, "=")),
+        map(char('('), |_| (TokKind::LParen, "(")),
+        map(char(')'), |_| (TokKind::RParen, ")")),
+        map(take_till1(is_word_end), |w| (TokKind::Word, w)),
+    ))
+    .parse(input)
+}
+
+fn separators(input: &str) -> IResult<&str, &str> {
+    take_while(is_sep).parse(input)
+}
+
+/// Split one line body (after any `+`) into tokens; `base` is its file offset.
+pub fn tokenize<'a>(
+    body: &'a str,
+    file: FileId,
+    base: usize,
+    errors: &mut Vec<ParseError>,
+) -> Vec<Token<'a>> {
+    let mut toks = Vec::new();
+    let mut rest = body;
+    let at = |rest: &str| base + (body.len() - rest.len());
+    loop {
+        let Ok((r, _)) = separators(rest) else { break };
+        rest = r;
+        let Some(c) = rest.chars().next() else { break };
+        // End-of-line comments: `;` anywhere, `$` and `//` after white space.
+        let after_space = rest.len() == body.len()
+            || body[..body.len() - rest.len()]
+                .chars()
+                .next_back()
+                .is_some_and(is_sep);
+        if c == ';' || (after_space && (c == '$' || rest.starts_with("//"))) {
+            break;
+        }
+        if c == '{' || c == '\'' {
+            let close = if c == '{' { '}' } else { '\'' };
+            let start = at(rest);
+            match find_close(rest, c, close) {
+                Some(end) => {
+                    let inner = &rest[1..end];
+                    toks.push(Token {
+                        kind: TokKind::Expr,
+                        text: inner,
+                        span: Span::new(file, start, start + end + 1),
+                    });
+                    rest = &rest[end + 1..];
+                }
+                None => {
+                    errors.push(ParseError::Unterminated {
+                        span: Span::new(file, start, start + 1),
+                        close,
+                    });
+                    break;
+                }
+            }
+            continue;
+        }
+        if c == '}' {
+            let start = at(rest);
+            errors.push(ParseError::Unexpected {
+                span: Span::new(file, start, start + 1),
+                what: "`}` without a matching `{`".into(),
+            });
+            rest = &rest[1..];
+            continue;
+        }
+        match token(rest) {
+            Ok((r, (kind, text))) => {
+                let start = at(rest);
+                toks.push(Token {
+                    kind,
+                    text,
+                    span: Span::new(file, start, start + text.len()),
+                });
+                rest = r;
+            }
+            Err(_) => break,
+        }
+    }
+    toks
+}
+
+/// Byte index of the delimiter closing the one at `s[0]`, counting nesting for braces.
+fn find_close(s: &str, open: char, close: char) -> Option<usize> {
+    let mut depth = 0usize;
+    for (i, c) in s.char_indices() {
+        if i == 0 {
+            depth = 1;
+            continue;
+        }
+        if c == close {
+            depth -= 1;
+            if depth == 0 {
+                return Some(i);
+            }
+        } else if c == open && open != close {
+            depth += 1;
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn kinds(s: &str) -> Vec<(TokKind, &str)> {
+        let mut errs = Vec::new();
+        let toks = tokenize(s, FileId(0), 0, &mut errs);
+        assert!(errs.is_empty(), "{errs:?}");
+        toks.into_iter().map(|t| (t.kind, t.text)).collect()
+    }
+
+    #[test]
+    fn tokens_and_comments() {
+        use TokKind::*;
+        assert_eq!(
+            kinds("V1 a 0 PULSE(0 1, 1n) ; comment"),
+            vec![
+                (Word, "V1"),
+                (Word, "a"),
+                (Word, "0"),
+                (Word, "PULSE"),
+                (LParen, "("),
+                (Word, "0"),
+                (Word, "1"),
+                (Word, "1n"),
+                (RParen, ")")
+            ]
+        );
+        assert_eq!(
+            kinds("R1 a b {2*rval} $ x"),
+            vec![(Word, "R1"), (Word, "a"), (Word, "b"), (Expr, "2*rval")]
+        );
+        assert_eq!(kinds(".ic v(a)=1"), vec![
+            (Word, ".ic"),
+            (Word, "v"),
+            (LParen, "("),
+            (Word, "a"),
+            (RParen, ")"),
+            (Eq, "="),
+            (Word, "1")
+        ]);
+    }
+}

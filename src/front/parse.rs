@@ -1,0 +1,961 @@
+//! Statements from logical lines: elements by their letter, and directives.
+
+use super::ast::*;
+use super::error::ParseError;
+use super::expr::{parse_expr, parse_number};
+use super::lex::{LogicalLine, TokKind, Token, lex_file};
+use super::resolve_include;
+use crate::diag::{FileId, SourceMap, Span};
+
+pub(super) struct Parser<'a> {
+    pub sources: &'a SourceMap,
+    pub errors: Vec<ParseError>,
+    include_stack: Vec<FileId>,
+}
+
+/// Why a block of lines ended.
+enum BlockEnd {
+    Eof,
+    End,
+    Ends(Span),
+}
+
+impl<'a> Parser<'a> {
+    pub fn new(sources: &'a SourceMap) -> Parser<'a> {
+        Parser {
+            sources,
+            errors: Vec::new(),
+            include_stack: Vec::new(),
+        }
+    }
+
+    pub fn parse_root(&mut self, root: FileId) -> Netlist<'a> {
+        let lexed = lex_file(self.sources, root, true, &mut self.errors);
+        let Some((title, _)) = lexed.title else {
+            let len = self.sources.file(root).text.len();
+            self.errors.push(ParseError::Empty {
+                span: Span::new(root, 0, len.min(1)),
+            });
+            return Netlist::default();
+        };
+        self.include_stack.push(root);
+        let mut idx = 0;
+        let (stmts, end) = self.block(&lexed.lines, &mut idx, false);
+        if let BlockEnd::Ends(span) = end {
+            self.errors.push(ParseError::StrayEnds { span });
+        }
+        Netlist { title, stmts }
+    }
+
+    /// Parse lines from `*idx` until EOF, `.end`, or (inside a subcircuit) `.ends`.
+    fn block(
+        &mut self,
+        lines: &[LogicalLine<'a>],
+        idx: &mut usize,
+        in_subckt: bool,
+    ) -> (Vec<Stmt<'a>>, BlockEnd) {
+        let mut out = Vec::new();
+        while *idx < lines.len() {
+            let line = &lines[*idx];
+            *idx += 1;
+            let first = line.tokens[0];
+            if first.kind != TokKind::Word {
+                self.errors.push(ParseError::Unexpected {
+                    span: first.span,
+                    what: format!("`{}` at the start of a line", first.text),
+                });
+                continue;
+            }
+            if let Some(directive) = first.text.strip_prefix('.') {
+                let d = directive.to_ascii_lowercase();
+                match d.as_str() {
+                    "end" => return (out, BlockEnd::End),
+                    "ends" => {
+                        if in_subckt {
+                            return (out, BlockEnd::Ends(first.span));
+                        }
+                        self.errors.push(ParseError::StrayEnds { span: first.span });
+                    }
+                    "subckt" => {
+                        if let Some(s) = self.subckt(line, lines, idx) {
+                            out.push(Stmt::Subckt(s));
+                        }
+                    }
+                    "control" => {
+                        let start = first.span;
+                        let mut closed = false;
+                        while *idx < lines.len() {
+                            let l = &lines[*idx];
+                            *idx += 1;
+                            if l.tokens[0].is_word(".endc") {
+                                closed = true;
+                                break;
+                            }
+                        }
+                        if closed {
+                            self.errors.push(ParseError::SkippedControl { span: start });
+                        } else {
+                            self.errors.push(ParseError::UnclosedControl { span: start });
+                        }
+                    }
+                    _ => {
+                        if let Some(s) = self.directive(&d, line) {
+                            out.push(s);
+                        }
+                    }
+                }
+            } else if let Some(e) = self.element(line) {
+                out.push(Stmt::Element(e));
+            }
+        }
+        (out, BlockEnd::Eof)
+    }
+
+    fn subckt(
+        &mut self,
+        line: &LogicalLine<'a>,
+        lines: &[LogicalLine<'a>],
+        idx: &mut usize,
+    ) -> Option<Subckt<'a>> {
+        let toks = &line.tokens;
+        let mut c = Cursor::new(toks);
+        c.next();
+        let Some(name) = c.word() else {
+            self.errors.push(ParseError::Expected {
+                span: toks[0].span,
+                expected: "a subcircuit name after `.subckt`".into(),
+            });
+            // Still consume the body so its `.ends` does not look stray.
+            let _ = self.block(lines, idx, true);
+            return None;
+        };
+        let mut ports = Vec::new();
+        while let Some(t) = c.peek() {
+            if t.kind != TokKind::Word || c.peek_at(1).is_some_and(|t| t.kind == TokKind::Eq) {
+                break;
+            }
+            if t.is_word("params:") {
+                c.next();
+                break;
+            }
+            ports.push(name_of(t));
+            c.next();
+        }
+        let params = self.assigns(&mut c);
+        self.rest_unexpected(&c);
+        let (body, end) = self.block(lines, idx, true);
+        if !matches!(end, BlockEnd::Ends(_)) {
+            self.errors.push(ParseError::UnclosedSubckt {
+                span: toks[0].span.to(name.span),
+                name: name.text.to_string(),
+            });
+        }
+        Some(Subckt {
+            name,
+            ports,
+            params,
+            body,
+            span: line.span(),
+        })
+    }
+
+    fn directive(&mut self, d: &str, line: &LogicalLine<'a>) -> Option<Stmt<'a>> {
+        let toks = &line.tokens;
+        let span = line.span();
+        let mut c = Cursor::new(toks);
+        c.next();
+        match d {
+            "model" => {
+                let (Some(name), Some(kind)) = (c.word(), c.word()) else {
+                    self.errors.push(ParseError::Expected {
+                        span,
+                        expected: "`.model NAME TYPE(PARAM=VALUE ...)`".into(),
+                    });
+                    return None;
+                };
+                let paren = c.eat(TokKind::LParen);
+                let params = self.assigns(&mut c);
+                if paren && !c.eat(TokKind::RParen) {
+                    self.errors.push(ParseError::Expected {
+                        span: c.here(span),
+                        expected: "`)` closing the model parameters".into(),
+                    });
+                    return None;
+                }
+                self.rest_unexpected(&c);
+                Some(Stmt::Model(Model {
+                    name,
+                    kind,
+                    params,
+                    span,
+                }))
+            }
+            "param" => {
+                let params = self.assigns(&mut c);
+                self.rest_unexpected(&c);
+                if params.is_empty() {
+                    self.errors.push(ParseError::Expected {
+                        span,
+                        expected: "`NAME=VALUE` after `.param`".into(),
+                    });
+                    return None;
+                }
+                Some(Stmt::Param(params, span))
+            }
+            "ic" => {
+                let mut ics = Vec::new();
+                while !c.done() {
+                    let Some(v) = self.out_vec(&mut c) else {
+                        break;
+                    };
+                    if !c.eat(TokKind::Eq) {
+                        self.errors.push(ParseError::Expected {
+                            span: c.here(span),
+                            expected: "`=` after `v(node)` in `.ic`".into(),
+                        });
+                        return None;
+                    }
+                    let val = self.value_tok(&mut c, ".ic", "value")?;
+                    ics.push((v, val));
+                }
+                self.rest_unexpected(&c);
+                Some(Stmt::Ic(ics, span))
+            }
+            "tran" => {
+                let mut vals = Vec::new();
+                let mut uic = false;
+                while let Some(t) = c.peek() {
+                    if t.is_word("uic") {
+                        uic = true;
+                        c.next();
+                        continue;
+                    }
+                    vals.push(self.value_tok(&mut c, ".tran", "time")?);
+                }
+                if vals.len() < 2 {
+                    self.errors.push(ParseError::MissingValue {
+                        span,
+                        name: ".tran".into(),
+                        what: "TSTEP and TSTOP",
+                    });
+                    return None;
+                }
+                if vals.len() > 4 {
+                    self.errors.push(ParseError::Unexpected {
+                        span: vals[4].span(),
+                        what: "fifth value in `.tran`".into(),
+                    });
+                }
+                let mut it = vals.into_iter();
+                Some(Stmt::Tran(Tran {
+                    tstep: it.next()?,
+                    tstop: it.next()?,
+                    tstart: it.next(),
+                    tmax: it.next(),
+                    uic,
+                    span,
+                }))
+            }
+            "options" | "option" | "opt" | "opts" => {
+                let mut opts = Vec::new();
+                while let Some(t) = c.peek() {
+                    if t.kind != TokKind::Word {
+                        self.errors.push(ParseError::Unexpected {
+                            span: t.span,
+                            what: format!("`{}` in `.options`", t.text),
+                        });
+                        c.next();
+                        continue;
+                    }
+                    let name = name_of(t);
+                    c.next();
+                    let value = if c.eat(TokKind::Eq) {
+                        match c.peek() {
+                            Some(v)
+                                if v.kind == TokKind::Word
+                                    && parse_number(v.text).is_none()
+                                    && v.text.starts_with(|ch: char| ch.is_ascii_alphabetic()) =>
+                            {
+                                c.next();
+                                OptValue::Word(name_of(v))
+                            }
+                            _ => OptValue::Value(self.value_tok(&mut c, name.text, "value")?),
+                        }
+                    } else {
+                        OptValue::Flag
+                    };
+                    opts.push(OptionDef { name, value });
+                }
+                Some(Stmt::Options(opts, span))
+            }
+            "print" | "save" | "probe" | "plot" => {
+                let directive = name_of(&toks[0]);
+                let mut analysis = None;
+                if let Some(t) = c.peek()
+                    && ["tran", "ac", "dc", "op", "noise"]
+                        .iter()
+                        .any(|a| t.is_word(a))
+                {
+                    analysis = Some(name_of(t));
+                    c.next();
+                }
+                let mut vectors = Vec::new();
+                while let Some(t) = c.peek() {
+                    if t.is_word("all") {
+                        c.next();
+                        continue;
+                    }
+                    match self.out_vec(&mut c) {
+                        Some(v) => vectors.push(v),
+                        None => break,
+                    }
+                }
+                Some(Stmt::Output {
+                    directive,
+                    analysis,
+                    vectors,
+                    span,
+                })
+            }
+            "include" | "inc" => {
+                let Some(t) = c.next() else {
+                    self.errors.push(ParseError::Expected {
+                        span,
+                        expected: "a file name after `.include`".into(),
+                    });
+                    return None;
+                };
+                let path = include_path(t);
+                let from = self.sources.file(t.span.file);
+                let resolved = resolve_include(&from.path, path);
+                let Some(file) = self.sources.find_path(&resolved) else {
+                    // The loader reported why it could not read it.
+                    return None;
+                };
+                if self.include_stack.contains(&file) {
+                    // Reported by the loader as a cycle.
+                    return None;
+                }
+                self.include_stack.push(file);
+                let lexed = lex_file(self.sources, file, false, &mut self.errors);
+                let mut i = 0;
+                let (body, end) = self.block(&lexed.lines, &mut i, false);
+                if let BlockEnd::Ends(span) = end {
+                    self.errors.push(ParseError::StrayEnds { span });
+                }
+                self.include_stack.pop();
+                Some(Stmt::Include {
+                    path,
+                    span: t.span,
+                    body,
+                })
+            }
+            "ac" | "op" | "dc" | "noise" | "tf" | "four" | "disto" | "pz" | "sens" | "sp"
+            | "meas" | "measure" | "fft" => {
+                self.errors.push(ParseError::SkippedAnalysis {
+                    span: toks[0].span,
+                    name: toks[0].text.to_string(),
+                });
+                None
+            }
+            "temp" | "width" | "nodeset" | "global" | "csparam" | "title" | "save_all" => {
+                self.errors.push(ParseError::IgnoredDirective {
+                    span: toks[0].span,
+                    name: d.to_string(),
+                });
+                None
+            }
+            "func" | "lib" | "endl" | "if" | "else" | "endif" | "model_lib" => {
+                self.errors.push(ParseError::UnsupportedDirective {
+                    span: toks[0].span,
+                    name: toks[0].text.to_string(),
+                });
+                None
+            }
+            "endc" => {
+                self.errors.push(ParseError::Unexpected {
+                    span: toks[0].span,
+                    what: "`.endc` without `.control`".into(),
+                });
+                None
+            }
+            _ => {
+                self.errors.push(ParseError::UnknownDirective {
+                    span: toks[0].span,
+                    name: toks[0].text.to_string(),
+                });
+                None
+            }
+        }
+    }
+
+    fn element(&mut self, line: &LogicalLine<'a>) -> Option<Element<'a>> {
+        let toks = &line.tokens;
+        let name = name_of(&toks[0]);
+        let span = line.span();
+        let letter = name.text.chars().next().unwrap_or('?').to_ascii_uppercase();
+        let n_nodes = match letter {
+            'R' | 'C' | 'L' | 'V' | 'I' | 'F' | 'H' | 'D' => 2,
+            'E' | 'G' => 4,
+            'K' => 0,
+            'X' => usize::MAX,
+            'Q' | 'M' | 'J' | 'B' | 'S' | 'W' | 'T' | 'U' | 'O' | 'Y' | 'Z' | 'N' | 'P' | 'A' => {
+                let kind = match letter {
+                    'Q' => "bipolar transistor",
+                    'M' => "MOSFET",
+                    'J' => "JFET",
+                    'B' => "behavioural source",
+                    'S' => "voltage-controlled switch",
+                    'W' => "current-controlled switch",
+                    'T' | 'O' | 'U' | 'Y' => "transmission line",
+                    'Z' => "MESFET",
+                    'N' => "OSDI device",
+                    'P' => "coupled transmission line",
+                    _ => "XSPICE code model",
+                };
+                self.errors.push(ParseError::UnsupportedElement {
+                    span: name.span,
+                    letter,
+                    kind,
+                });
+                return None;
+            }
+            _ => {
+                self.errors.push(ParseError::UnknownElement {
+                    span: name.span,
+                    letter: name.text.chars().next().unwrap_or('?'),
+                });
+                return None;
+            }
+        };
+        let mut c = Cursor::new(toks);
+        c.next();
+        let mut nodes = Vec::new();
+        if letter == 'X' {
+            // Words up to the first `name=` or `params:`; the last is the subcircuit.
+            while let Some(t) = c.peek() {
+                if t.kind != TokKind::Word
+                    || t.is_word("params:")
+                    || c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq)
+                {
+                    break;
+                }
+                nodes.push(name_of(t));
+                c.next();
+            }
+            if c.peek().is_some_and(|t| t.is_word("params:")) {
+                c.next();
+            }
+            let Some(subckt) = nodes.pop() else {
+                self.errors.push(ParseError::Expected {
+                    span,
+                    expected: "nodes and a subcircuit name after the instance name".into(),
+                });
+                return None;
+            };
+            let params = self.assigns(&mut c);
+            self.rest_unexpected(&c);
+            return Some(Element {
+                name,
+                nodes,
+                body: ElementBody::Instance { subckt, params },
+                span,
+            });
+        }
+        for _ in 0..n_nodes {
+            match c.peek() {
+                Some(t)
+                    if t.kind == TokKind::Word
+                        && !c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq) =>
+                {
+                    nodes.push(name_of(t));
+                    c.next();
+                }
+                _ => {
+                    let at = c.peek().map_or_else(
+                        || {
+                            let last = toks[toks.len() - 1].span;
+                            Span {
+                                start: last.end,
+                                end: last.end + 1,
+                                ..last
+                            }
+                        },
+                        |t| t.span,
+                    );
+                    self.errors.push(ParseError::MissingNode {
+                        span: at,
+                        name: name.text.to_string(),
+                        expected: n_nodes,
+                        found: nodes.len(),
+                    });
+                    return None;
+                }
+            }
+        }
+        let body = match letter {
+            'R' | 'C' | 'L' => {
+                let key = match letter {
+                    'R' => "r",
+                    'C' => "c",
+                    _ => "l",
+                };
+                let mut value = None;
+                if c.peek().is_some_and(|t| t.kind != TokKind::Eq)
+                    && !c.peek_at(1).is_some_and(|t| t.kind == TokKind::Eq)
+                {
+                    value = Some(self.value_tok(&mut c, name.text, "value")?);
+                }
+                let mut params = self.assigns(&mut c);
+                self.rest_unexpected(&c);
+                if value.is_none()
+                    && let Some(i) = params.iter().position(|a| a.name.is(key))
+                {
+                    value = Some(params.remove(i).value);
+                }
+                let Some(value) = value else {
+                    self.errors.push(ParseError::MissingValue {
+                        span: c.here(span),
+                        name: name.text.to_string(),
+                        what: "value",
+                    });
+                    return None;
+                };
+                ElementBody::Passive { value, params }
+            }
+            'K' => {
+                let (Some(l1), Some(l2)) = (c.word(), c.word()) else {
+                    self.errors.push(ParseError::Expected {
+                        span: c.here(span),
+                        expected: "two inductor names, e.g. `K1 L1 L2 0.99`".into(),
+                    });
+                    return None;
+                };
+                let k = if c.peek().is_some_and(|t| t.is_word("k"))
+                    && c.peek_at(1).is_some_and(|t| t.kind == TokKind::Eq)
+                {
+                    c.next();
+                    c.next();
+                    self.value_tok(&mut c, name.text, "coupling")?
+                } else {
+                    match c.peek() {
+                        Some(_) => self.value_tok(&mut c, name.text, "coupling")?,
+                        None => {
+                            self.errors.push(ParseError::MissingValue {
+                                span: c.here(span),
+                                name: name.text.to_string(),
+                                what: "coupling coefficient",
+                            });
+                            return None;
+                        }
+                    }
+                };
+                self.rest_unexpected(&c);
+                ElementBody::Coupling { l1, l2, k }
+            }
+            'V' | 'I' => self.source(&mut c, name, span)?,
+            'E' | 'G' => {
+                if let Some(t) = c.peek()
+                    && (t.is_word("poly") || t.is_word("value") || t.is_word("table"))
+                {
+                    self.errors.push(ParseError::UnsupportedSource {
+                        span: t.span,
+                        name: t.text.to_string(),
+                    });
+                    return None;
+                }
+                let gain = match c.peek() {
+                    Some(_) => self.value_tok(&mut c, name.text, "gain")?,
+                    None => {
+                        self.errors.push(ParseError::MissingValue {
+                            span: c.here(span),
+                            name: name.text.to_string(),
+                            what: "gain",
+                        });
+                        return None;
+                    }
+                };
+                self.rest_unexpected(&c);
+                ElementBody::VoltageControlled { gain }
+            }
+            'F' | 'H' => {
+                let Some(vsrc) = c.word() else {
+                    self.errors.push(ParseError::Expected {
+                        span: c.here(span),
+                        expected: "the name of the controlling V source".into(),
+                    });
+                    return None;
+                };
+                let gain = match c.peek() {
+                    Some(_) => self.value_tok(&mut c, name.text, "gain")?,
+                    None => {
+                        self.errors.push(ParseError::MissingValue {
+                            span: c.here(span),
+                            name: name.text.to_string(),
+                            what: "gain",
+                        });
+                        return None;
+                    }
+                };
+                self.rest_unexpected(&c);
+                ElementBody::CurrentControlled { vsrc, gain }
+            }
+            'D' => {
+                let Some(model) = c.word() else {
+                    self.errors.push(ParseError::MissingValue {
+                        span: c.here(span),
+                        name: name.text.to_string(),
+                        what: "model name",
+                    });
+                    return None;
+                };
+                let mut area = None;
+                if let Some(t) = c.peek()
+                    && !c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq)
+                    && !t.is_word("off")
+                {
+                    area = Some(self.value_tok(&mut c, name.text, "area")?);
+                }
+                if c.peek().is_some_and(|t| t.is_word("off")) {
+                    c.next();
+                }
+                let params = self.assigns(&mut c);
+                self.rest_unexpected(&c);
+                ElementBody::Diode {
+                    model,
+                    area,
+                    params,
+                }
+            }
+            _ => unreachable!("letters are filtered above"),
+        };
+        Some(Element {
+            name,
+            nodes,
+            body,
+            span,
+        })
+    }
+
+    fn source(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        span: Span,
+    ) -> Option<ElementBody<'a>> {
+        let mut dc = None;
+        let mut tran: Option<TranFn<'a>> = None;
+        let mut ac = Vec::new();
+        while let Some(t) = c.peek() {
+            if t.is_word("dc") {
+                c.next();
+                if c.peek().is_some_and(|t| t.kind != TokKind::Eq) {
+                    dc = Some(self.value_tok(c, name.text, "DC value")?);
+                }
+                continue;
+            }
+            if t.is_word("ac") {
+                c.next();
+                for _ in 0..2 {
+                    match c.peek() {
+                        Some(v) if is_value_token(v) => {
+                            ac.push(self.value_tok(c, name.text, "AC value")?)
+                        }
+                        _ => break,
+                    }
+                }
+                continue;
+            }
+            let kind = if t.is_word("pulse") {
+                Some(TranFnKind::Pulse)
+            } else if t.is_word("sin") {
+                Some(TranFnKind::Sin)
+            } else if t.is_word("exp") {
+                Some(TranFnKind::Exp)
+            } else if t.is_word("pwl") {
+                Some(TranFnKind::Pwl)
+            } else {
+                None
+            };
+            if let Some(kind) = kind {
+                let start = t.span;
+                c.next();
+                let paren = c.eat(TokKind::LParen);
+                let mut args = Vec::new();
+                while let Some(a) = c.peek() {
+                    if a.kind == TokKind::RParen || (!paren && !is_value_token(a)) {
+                        break;
+                    }
+                    args.push(self.value_tok(c, name.text, "source argument")?);
+                }
+                let mut end = args.last().map_or(start, |a| a.span());
+                if paren {
+                    match c.peek() {
+                        Some(t) if t.kind == TokKind::RParen => {
+                            end = t.span;
+                            c.next();
+                        }
+                        _ => {
+                            self.errors.push(ParseError::Expected {
+                                span: c.here(span),
+                                expected: format!("`)` closing `{}(`", kind.name()),
+                            });
+                            return None;
+                        }
+                    }
+                }
+                if tran.is_some() {
+                    self.errors.push(ParseError::Unexpected {
+                        span: start,
+                        what: "second transient function".into(),
+                    });
+                }
+                tran = Some(TranFn {
+                    kind,
+                    args,
+                    span: start.to(end),
+                });
+                continue;
+            }
+            if ["sffm", "am", "trnoise", "trrandom", "pat", "distof1", "distof2"]
+                .iter()
+                .any(|w| t.is_word(w))
+            {
+                self.errors.push(ParseError::UnsupportedSource {
+                    span: t.span,
+                    name: t.text.to_string(),
+                });
+                return None;
+            }
+            if is_value_token(t) && dc.is_none() {
+                dc = Some(self.value_tok(c, name.text, "value")?);
+                continue;
+            }
+            self.errors.push(ParseError::Unexpected {
+                span: t.span,
+                what: format!("`{}` in a source", t.text),
+            });
+            return None;
+        }
+        Some(ElementBody::Source { dc, tran, ac })
+    }
+
+    /// `name=value` pairs until the cursor meets something else.
+    fn assigns(&mut self, c: &mut Cursor<'_, 'a>) -> Vec<Assign<'a>> {
+        let mut out = Vec::new();
+        while let (Some(n), Some(eq)) = (c.peek(), c.peek_at(1)) {
+            if n.kind != TokKind::Word || eq.kind != TokKind::Eq {
+                break;
+            }
+            c.next();
+            c.next();
+            match self.value_tok(c, n.text, "value") {
+                Some(value) => out.push(Assign {
+                    name: name_of(n),
+                    value,
+                }),
+                None => break,
+            }
+        }
+        out
+    }
+
+    /// `v(a)`, `v(a,b)`, `i(v1)`, or a bare node name meaning `v(name)`.
+    fn out_vec(&mut self, c: &mut Cursor<'_, 'a>) -> Option<OutVec<'a>> {
+        let t = *c.peek()?;
+        if t.kind != TokKind::Word {
+            self.errors.push(ParseError::Expected {
+                span: t.span,
+                expected: "an output vector such as `v(out)` or `i(v1)`".into(),
+            });
+            return None;
+        }
+        c.next();
+        let kind = t.text.to_ascii_lowercase();
+        if (kind == "v" || kind == "i") && c.eat(TokKind::LParen) {
+            let mut args = Vec::new();
+            while let Some(a) = c.peek() {
+                if a.kind != TokKind::Word {
+                    break;
+                }
+                args.push(name_of(a));
+                c.next();
+            }
+            let close = c.peek().copied();
+            if !c.eat(TokKind::RParen) || args.is_empty() || args.len() > 2 {
+                self.errors.push(ParseError::Expected {
+                    span: close.map_or(t.span, |x| x.span),
+                    expected: "`v(node)`, `v(node1,node2)` or `i(source)`".into(),
+                });
+                return None;
+            }
+            let end = close.map_or(t.span, |x| x.span);
+            return Some(OutVec {
+                kind: if kind == "v" { 'v' } else { 'i' },
+                args,
+                span: t.span.to(end),
+            });
+        }
+        Some(OutVec {
+            kind: 'v',
+            args: vec![name_of(&t)],
+            span: t.span,
+        })
+    }
+
+    /// The value at the cursor: a number, `{expr}` or parameter name.
+    fn value_tok(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        owner: &str,
+        what: &'static str,
+    ) -> Option<Value<'a>> {
+        let Some(t) = c.next() else {
+            self.errors.push(ParseError::MissingValue {
+                span: c.here(c.toks[0].span),
+                name: owner.to_string(),
+                what,
+            });
+            return None;
+        };
+        match value_of(t) {
+            Ok(v) => Some(v),
+            Err(e) => {
+                self.errors.push(e);
+                None
+            }
+        }
+    }
+
+    fn rest_unexpected(&mut self, c: &Cursor<'_, 'a>) {
+        if let Some(t) = c.peek() {
+            self.errors.push(ParseError::Unexpected {
+                span: t.span,
+                what: format!("`{}`", t.text),
+            });
+        }
+    }
+}
+
+fn is_value_token(t: &Token<'_>) -> bool {
+    t.kind == TokKind::Expr || (t.kind == TokKind::Word && parse_number(t.text).is_some())
+}
+
+fn include_path<'a>(t: &Token<'a>) -> &'a str {
+    t.text.trim_matches('"')
+}
+
+pub(super) fn name_of<'a>(t: &Token<'a>) -> Name<'a> {
+    Name {
+        text: t.text,
+        span: t.span,
+    }
+}
+
+/// Interpret one token as a value.
+pub(super) fn value_of<'a>(t: &Token<'a>) -> Result<Value<'a>, ParseError> {
+    match t.kind {
+        TokKind::Expr => match parse_expr(t.text) {
+            Ok(expr) => Ok(Value::Expr {
+                expr,
+                text: t.text,
+                span: t.span,
+            }),
+            Err(at) => {
+                // Point at the offending character inside the braces.
+                let start = t.span.start as usize + 1 + at;
+                let end = (start + 1).min(t.span.end as usize);
+                Err(ParseError::BadExpression {
+                    span: Span::new(t.span.file, start.min(end), end),
+                    text: t.text.to_string(),
+                })
+            }
+        },
+        TokKind::Word => {
+            if let Some(value) = parse_number(t.text) {
+                Ok(Value::Num {
+                    value,
+                    text: t.text,
+                    span: t.span,
+                })
+            } else if t.text.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_') {
+                Ok(Value::Ident(name_of(t)))
+            } else {
+                Err(ParseError::BadNumber {
+                    span: t.span,
+                    text: t.text.to_string(),
+                })
+            }
+        }
+        _ => Err(ParseError::Expected {
+            span: t.span,
+            expected: "a value".into(),
+        }),
+    }
+}
+
+/// A read position in a token list.
+pub(super) struct Cursor<'t, 'a> {
+    toks: &'t [Token<'a>],
+    pos: usize,
+}
+
+impl<'t, 'a> Cursor<'t, 'a> {
+    fn new(toks: &'t [Token<'a>]) -> Self {
+        Cursor { toks, pos: 0 }
+    }
+
+    fn peek(&self) -> Option<&'t Token<'a>> {
+        self.toks.get(self.pos)
+    }
+
+    fn peek_at(&self, k: usize) -> Option<&'t Token<'a>> {
+        self.toks.get(self.pos + k)
+    }
+
+    fn next(&mut self) -> Option<&'t Token<'a>> {
+        let t = self.toks.get(self.pos);
+        if t.is_some() {
+            self.pos += 1;
+        }
+        t
+    }
+
+    fn done(&self) -> bool {
+        self.pos >= self.toks.len()
+    }
+
+    fn eat(&mut self, kind: TokKind) -> bool {
+        if self.peek().is_some_and(|t| t.kind == kind) {
+            self.pos += 1;
+            true
+        } else {
+            false
+        }
+    }
+
+    fn word(&mut self) -> Option<Name<'a>> {
+        match self.peek() {
+            Some(t) if t.kind == TokKind::Word => {
+                self.pos += 1;
+                Some(name_of(t))
+            }
+            _ => None,
+        }
+    }
+
+    /// Span of the current token, or just past the line's end.
+    fn here(&self, fallback: Span) -> Span {
+        match self.peek() {
+            Some(t) => t.span,
+            None => match self.toks.last() {
+                Some(t) => Span {
+                    start: t.span.end,
+                    end: t.span.end + 1,
+                    ..t.span
+                },
+                None => fallback,
+            },
+        }
+    }
+}

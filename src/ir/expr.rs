@@ -1,0 +1,432 @@
+//! Symbolic expressions in a hash-consed arena.
+//!
+//! Identical subterms share one [`ExprId`]. The constructors fold constants and
+//! apply the small algebraic simplifications that keep listings readable
+//! (`0 + x`, `1*x`, `a - (-b)`, `-(-x)`).
+
+use std::collections::HashMap;
+
+use super::system::{ParamId, SourceId, VarId};
+
+crate::entity_id!(
+    /// An expression in an [`ExprArena`]. Operands always have smaller ids than
+    /// the expression that uses them (children before parents).
+    ExprId,
+    "e"
+);
+
+/// The bits of an `f64`, so constants can be hashed.
+pub fn bits(x: f64) -> u64 {
+    // Fold -0.0 into 0.0 so that both intern as one constant.
+    if x == 0.0 { 0 } else { x.to_bits() }
+}
+
+/// Built-in functions of one argument.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Func {
+    Exp,
+    Ln,
+    Sqrt,
+    Sin,
+    Cos,
+    Tan,
+    Atan,
+    Sinh,
+    Cosh,
+    Tanh,
+    Abs,
+}
+
+impl Func {
+    pub fn name(self) -> &'static str {
+        match self {
+            Func::Exp => "exp",
+            Func::Ln => "ln",
+            Func::Sqrt => "sqrt",
+            Func::Sin => "sin",
+            Func::Cos => "cos",
+            Func::Tan => "tan",
+            Func::Atan => "atan",
+            Func::Sinh => "sinh",
+            Func::Cosh => "cosh",
+            Func::Tanh => "tanh",
+            Func::Abs => "abs",
+        }
+    }
+
+    pub fn apply(self, x: f64) -> f64 {
+        match self {
+            Func::Exp => x.exp(),
+            Func::Ln => x.ln(),
+            Func::Sqrt => x.sqrt(),
+            Func::Sin => x.sin(),
+            Func::Cos => x.cos(),
+            Func::Tan => x.tan(),
+            Func::Atan => x.atan(),
+            Func::Sinh => x.sinh(),
+            Func::Cosh => x.cosh(),
+            Func::Tanh => x.tanh(),
+            Func::Abs => x.abs(),
+        }
+    }
+}
+
+/// One node of an expression DAG.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Expr {
+    /// A constant, as the bits of an `f64` (see [`bits`]).
+    Const(u64),
+    Var(VarId),
+    Param(ParamId),
+    /// Simulation time `t`.
+    Time,
+    /// The `order`-th time derivative of an independent source's waveform.
+    Source(SourceId, u8),
+    Neg(ExprId),
+    Add(ExprId, ExprId),
+    Sub(ExprId, ExprId),
+    Mul(ExprId, ExprId),
+    Div(ExprId, ExprId),
+    Pow(ExprId, ExprId),
+    Call(Func, ExprId),
+}
+
+/// The deduplicating arena that owns every expression of a system.
+#[derive(Clone, Debug, Default)]
+pub struct ExprArena {
+    nodes: Vec<Expr>,
+    dedup: HashMap<Expr, ExprId>,
+}
+
+impl ExprArena {
+    pub fn new() -> ExprArena {
+        ExprArena::default()
+    }
+
+    pub fn len(&self) -> usize {
+        self.nodes.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.nodes.is_empty()
+    }
+
+    #[inline]
+    pub fn get(&self, id: ExprId) -> Expr {
+        self.nodes[id.0 as usize]
+    }
+
+    pub fn nodes(&self) -> &[Expr] {
+        &self.nodes
+    }
+
+    /// Intern `e` as it is, without simplification.
+    pub fn intern(&mut self, e: Expr) -> ExprId {
+        if let Some(&id) = self.dedup.get(&e) {
+            return id;
+        }
+        let id = ExprId(self.nodes.len() as u32);
+        self.nodes.push(e);
+        self.dedup.insert(e, id);
+        id
+    }
+
+    pub fn constant(&mut self, x: f64) -> ExprId {
+        self.intern(Expr::Const(bits(x)))
+    }
+
+    pub fn var(&mut self, v: VarId) -> ExprId {
+        self.intern(Expr::Var(v))
+    }
+
+    pub fn param(&mut self, p: ParamId) -> ExprId {
+        self.intern(Expr::Param(p))
+    }
+
+    pub fn time(&mut self) -> ExprId {
+        self.intern(Expr::Time)
+    }
+
+    pub fn source(&mut self, s: SourceId, order: u8) -> ExprId {
+        self.intern(Expr::Source(s, order))
+    }
+
+    /// The value of a constant expression node, if it is one.
+    pub fn as_const(&self, id: ExprId) -> Option<f64> {
+        match self.get(id) {
+            Expr::Const(b) => Some(f64::from_bits(b)),
+            _ => None,
+        }
+    }
+
+    fn is_const(&self, id: ExprId, x: f64) -> bool {
+        self.as_const(id) == Some(x)
+    }
+
+    pub fn neg(&mut self, a: ExprId) -> ExprId {
+        match self.get(a) {
+            Expr::Const(b) => self.constant(-f64::from_bits(b)),
+            Expr::Neg(x) => x,
+            Expr::Sub(x, y) => self.intern(Expr::Sub(y, x)),
+            _ => self.intern(Expr::Neg(a)),
+        }
+    }
+
+    pub fn add(&mut self, a: ExprId, b: ExprId) -> ExprId {
+        if let (Some(x), Some(y)) = (self.as_const(a), self.as_const(b)) {
+            return self.constant(x + y);
+        }
+        if self.is_const(a, 0.0) {
+            return b;
+        }
+        if self.is_const(b, 0.0) {
+            return a;
+        }
+        if let Expr::Neg(y) = self.get(b) {
+            return self.sub(a, y);
+        }
+        if let Expr::Neg(x) = self.get(a) {
+            return self.sub(b, x);
+        }
+        self.intern(Expr::Add(a, b))
+    }
+
+    pub fn sub(&mut self, a: ExprId, b: ExprId) -> ExprId {
+        if let (Some(x), Some(y)) = (self.as_const(a), self.as_const(b)) {
+            return self.constant(x - y);
+        }
+        if a == b {
+            return self.constant(0.0);
+        }
+        if self.is_const(b, 0.0) {
+            return a;
+        }
+        if self.is_const(a, 0.0) {
+            return self.neg(b);
+        }
+        if let Expr::Neg(y) = self.get(b) {
+            return self.add(a, y);
+        }
+        self.intern(Expr::Sub(a, b))
+    }
+
+    pub fn mul(&mut self, a: ExprId, b: ExprId) -> ExprId {
+        if let (Some(x), Some(y)) = (self.as_const(a), self.as_const(b)) {
+            return self.constant(x * y);
+        }
+        if self.is_const(a, 0.0) || self.is_const(b, 0.0) {
+            return self.constant(0.0);
+        }
+        if self.is_const(a, 1.0) {
+            return b;
+        }
+        if self.is_const(b, 1.0) {
+            return a;
+        }
+        if self.is_const(a, -1.0) {
+            return self.neg(b);
+        }
+        if self.is_const(b, -1.0) {
+            return self.neg(a);
+        }
+        match (self.get(a), self.get(b)) {
+            (Expr::Neg(x), Expr::Neg(y)) => self.mul(x, y),
+            (Expr::Neg(x), _) => {
+                let m = self.mul(x, b);
+                self.neg(m)
+            }
+            (_, Expr::Neg(y)) => {
+                let m = self.mul(a, y);
+                self.neg(m)
+            }
+            _ => self.intern(Expr::Mul(a, b)),
+        }
+    }
+
+    pub fn div(&mut self, a: ExprId, b: ExprId) -> ExprId {
+        if let (Some(x), Some(y)) = (self.as_const(a), self.as_const(b))
+            && y != 0.0
+        {
+            return self.constant(x / y);
+        }
+        if self.is_const(b, 1.0) {
+            return a;
+        }
+        if self.is_const(a, 0.0) {
+            return a;
+        }
+        if self.is_const(b, -1.0) {
+            return self.neg(a);
+        }
+        match (self.get(a), self.get(b)) {
+            (Expr::Neg(x), Expr::Neg(y)) => self.div(x, y),
+            (Expr::Neg(x), _) => {
+                let d = self.div(x, b);
+                self.neg(d)
+            }
+            (_, Expr::Neg(y)) => {
+                let d = self.div(a, y);
+                self.neg(d)
+            }
+            _ => self.intern(Expr::Div(a, b)),
+        }
+    }
+
+    pub fn pow(&mut self, a: ExprId, b: ExprId) -> ExprId {
+        if let (Some(x), Some(y)) = (self.as_const(a), self.as_const(b)) {
+            return self.constant(x.powf(y));
+        }
+        if self.is_const(b, 1.0) {
+            return a;
+        }
+        if self.is_const(b, 0.0) {
+            return self.constant(1.0);
+        }
+        self.intern(Expr::Pow(a, b))
+    }
+
+    pub fn call(&mut self, f: Func, a: ExprId) -> ExprId {
+        if let Some(x) = self.as_const(a) {
+            return self.constant(f.apply(x));
+        }
+        match (f, self.get(a)) {
+            (Func::Exp, Expr::Call(Func::Ln, x)) | (Func::Ln, Expr::Call(Func::Exp, x)) => x,
+            _ => self.intern(Expr::Call(f, a)),
+        }
+    }
+
+    /// Sum of many terms (an empty sum is 0).
+    pub fn sum(&mut self, terms: impl IntoIterator<Item = ExprId>) -> ExprId {
+        let mut acc: Option<ExprId> = None;
+        for t in terms {
+            acc = Some(match acc {
+                None => t,
+                Some(a) => self.add(a, t),
+            });
+        }
+        acc.unwrap_or_else(|| self.constant(0.0))
+    }
+
+    /// The distinct variables of an expression, in first-occurrence order.
+    pub fn vars_into(&self, root: ExprId, out: &mut Vec<VarId>, stack: &mut Vec<ExprId>) {
+        stack.clear();
+        stack.push(root);
+        while let Some(e) = stack.pop() {
+            match self.get(e) {
+                Expr::Var(v) => {
+                    if !out.contains(&v) {
+                        out.push(v);
+                    }
+                }
+                Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => {}
+                Expr::Neg(a) | Expr::Call(_, a) => stack.push(a),
+                Expr::Add(a, b)
+                | Expr::Sub(a, b)
+                | Expr::Mul(a, b)
+                | Expr::Div(a, b)
+                | Expr::Pow(a, b) => {
+                    stack.push(b);
+                    stack.push(a);
+                }
+            }
+        }
+    }
+
+    /// How many times `v` occurs in the tree of `root` (shared subterms counted
+    /// once per use).
+    pub fn occurrences(&self, root: ExprId, v: VarId) -> usize {
+        match self.get(root) {
+            Expr::Var(x) => usize::from(x == v),
+            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => 0,
+            Expr::Neg(a) | Expr::Call(_, a) => self.occurrences(a, v),
+            Expr::Add(a, b)
+            | Expr::Sub(a, b)
+            | Expr::Mul(a, b)
+            | Expr::Div(a, b)
+            | Expr::Pow(a, b) => self.occurrences(a, v) + self.occurrences(b, v),
+        }
+    }
+
+    /// Replace variables by expressions (`map` returns `None` to keep one).
+    pub fn substitute(
+        &mut self,
+        root: ExprId,
+        map: &mut dyn FnMut(VarId) -> Option<ExprId>,
+        memo: &mut HashMap<ExprId, ExprId>,
+    ) -> ExprId {
+        if let Some(&r) = memo.get(&root) {
+            return r;
+        }
+        let r = match self.get(root) {
+            Expr::Var(v) => map(v).unwrap_or(root),
+            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => root,
+            Expr::Neg(a) => {
+                let a = self.substitute(a, map, memo);
+                self.neg(a)
+            }
+            Expr::Call(f, a) => {
+                let a = self.substitute(a, map, memo);
+                self.call(f, a)
+            }
+            Expr::Add(a, b) => {
+                let (a, b) = (self.substitute(a, map, memo), self.substitute(b, map, memo));
+                self.add(a, b)
+            }
+            Expr::Sub(a, b) => {
+                let (a, b) = (self.substitute(a, map, memo), self.substitute(b, map, memo));
+                self.sub(a, b)
+            }
+            Expr::Mul(a, b) => {
+                let (a, b) = (self.substitute(a, map, memo), self.substitute(b, map, memo));
+                self.mul(a, b)
+            }
+            Expr::Div(a, b) => {
+                let (a, b) = (self.substitute(a, map, memo), self.substitute(b, map, memo));
+                self.div(a, b)
+            }
+            Expr::Pow(a, b) => {
+                let (a, b) = (self.substitute(a, map, memo), self.substitute(b, map, memo));
+                self.pow(a, b)
+            }
+        };
+        memo.insert(root, r);
+        r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ir::EntityId;
+
+    #[test]
+    fn constructors_simplify_and_share() {
+        let mut a = ExprArena::new();
+        let x = a.var(VarId::new(0));
+        let y = a.var(VarId::new(1));
+        let one = a.constant(1.0);
+        let zero = a.constant(0.0);
+        assert_eq!(a.mul(one, x), x);
+        assert_eq!(a.add(zero, x), x);
+        let ny = a.neg(y);
+        let s1 = a.sub(x, ny);
+        let s2 = a.add(x, y);
+        assert_eq!(s1, s2);
+        let nn = a.neg(ny);
+        assert_eq!(nn, y);
+        let two = a.constant(2.0);
+        let three = a.constant(3.0);
+        let six = a.mul(two, three);
+        assert_eq!(a.as_const(six), Some(6.0));
+    }
+
+    #[test]
+    fn operands_come_first() {
+        let mut a = ExprArena::new();
+        let x = a.var(VarId::new(0));
+        let c = a.constant(2.0);
+        let m = a.mul(c, x);
+        assert!(m > x && m > c);
+    }
+}

@@ -1,0 +1,20 @@
+//! The equation IR: typed ids, interned symbols, a deduplicating expression
+//! arena and the acausal [`EquationSystem`].
+//!
+//! The IR knows nothing of netlist syntax, petgraph or simulation; the only
+//! thing it takes from the rest of the crate is [`crate::diag::Span`], so that
+//! each equation can say which netlist line it came from.
+
+mod entity;
+mod expr;
+pub mod print;
+mod system;
+mod verify;
+
+pub use entity::{EntityId, IdVec};
+pub use expr::{Expr, ExprArena, ExprId, Func, bits};
+pub use system::{
+    Equation, EqId, EquationSystem, Origin, OriginKind, Param, ParamId, SourceFn, SourceId, Var,
+    VarId, VarKind, VarRole, Waveform,
+};
+pub use verify::{VerifyError, verify};

@@ -1,0 +1,497 @@
+//! The acausal equation system: variables, parameters, sources and equations,
+//! each equation remembering where in the circuit it came from.
+
+use super::entity::IdVec;
+use super::expr::{ExprArena, ExprId};
+use crate::diag::Span;
+
+crate::entity_id!(
+    /// A variable: a node potential, a branch voltage or current, or a derivative.
+    VarId,
+    "x"
+);
+crate::entity_id!(
+    /// An equation of the system.
+    EqId,
+    "eq"
+);
+crate::entity_id!(
+    /// A named constant (element value, model parameter).
+    ParamId,
+    "p"
+);
+crate::entity_id!(
+    /// An independent source's waveform, a known function of time.
+    SourceId,
+    "s"
+);
+
+/// What a variable measures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VarKind {
+    /// Potential of a node against ground.
+    Potential,
+    /// Voltage across an element, from its first to its second terminal.
+    BranchVoltage,
+    /// Current through an element, entering at its first terminal.
+    BranchCurrent,
+    /// Time derivative of a state.
+    Derivative,
+}
+
+/// How the causalizer treats a variable.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case", tag = "role")]
+pub enum VarRole {
+    /// An algebraic unknown.
+    Unknown,
+    /// Known at every instant (integrated); `der` is its derivative unknown.
+    State { der: VarId },
+    /// The derivative of a state; an unknown.
+    Derivative { of: VarId },
+}
+
+#[derive(Clone, Debug)]
+pub struct Var {
+    /// Display name, e.g. `u_R1`, `i_L1`, `v(a)`, `der(u_C1)`.
+    pub name: String,
+    pub kind: VarKind,
+    pub role: VarRole,
+    /// The element (or node) the variable belongs to.
+    pub origin: Origin,
+    /// Set when alias elimination replaced the variable by this expression;
+    /// it then occurs in no equation and is not an unknown.
+    pub alias: Option<ExprId>,
+}
+
+impl Var {
+    pub fn is_state(&self) -> bool {
+        matches!(self.role, VarRole::State { .. })
+    }
+
+    /// Unknowns are what the causalizer must compute: everything but states
+    /// and eliminated aliases.
+    pub fn is_unknown(&self) -> bool {
+        !self.is_state() && self.alias.is_none()
+    }
+}
+
+/// Where an equation or variable came from, in circuit terms.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Origin {
+    pub kind: OriginKind,
+    /// The netlist text that created it (element line, or node first use).
+    pub span: Option<Span>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum OriginKind {
+    /// The constitutive equation of an element (`u = R*i`).
+    Element { name: String },
+    /// The branch equation `u = v(a) - v(b)` of an element.
+    Branch { name: String },
+    /// Kirchhoff's current law at a node.
+    Kcl { node: String },
+    /// Kirchhoff's voltage law on the fundamental loop closed by `link`.
+    Kvl { link: String, elements: Vec<String> },
+    /// The time derivative of another equation (index reduction).
+    Derivative { of: EqId },
+    /// A node potential.
+    Node { name: String },
+}
+
+impl Origin {
+    /// The circuit entity this names, for messages: an element or node name.
+    pub fn describe(&self) -> String {
+        match &self.kind {
+            OriginKind::Element { name } => name.clone(),
+            OriginKind::Branch { name } => format!("branch of {name}"),
+            OriginKind::Kcl { node } => format!("KCL at node {node}"),
+            OriginKind::Kvl { link, .. } => format!("KVL on the loop of {link}"),
+            OriginKind::Derivative { of } => format!("d/dt of {of}"),
+            OriginKind::Node { name } => format!("node {name}"),
+        }
+    }
+
+    /// The element names this origin involves.
+    pub fn elements(&self) -> Vec<&str> {
+        match &self.kind {
+            OriginKind::Element { name } | OriginKind::Branch { name } => vec![name.as_str()],
+            OriginKind::Kvl { elements, .. } => elements.iter().map(String::as_str).collect(),
+            _ => Vec::new(),
+        }
+    }
+}
+
+/// An acausal equation `lhs = rhs`.
+#[derive(Clone, Debug)]
+pub struct Equation {
+    pub lhs: ExprId,
+    pub rhs: ExprId,
+    pub origin: Origin,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Param {
+    pub name: String,
+    pub value: f64,
+}
+
+/// A waveform of an independent source (ngspice semantics, defaults resolved).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+#[serde(rename_all = "lowercase", tag = "kind")]
+pub enum Waveform {
+    Dc {
+        value: f64,
+    },
+    Pulse {
+        v1: f64,
+        v2: f64,
+        td: f64,
+        tr: f64,
+        tf: f64,
+        pw: f64,
+        per: f64,
+    },
+    Sin {
+        vo: f64,
+        va: f64,
+        freq: f64,
+        td: f64,
+        theta: f64,
+        phase: f64,
+    },
+    Exp {
+        v1: f64,
+        v2: f64,
+        td1: f64,
+        tau1: f64,
+        td2: f64,
+        tau2: f64,
+    },
+    Pwl {
+        points: Vec<(f64, f64)>,
+    },
+}
+
+impl Waveform {
+    /// The `order`-th time derivative at `t` (order 0 is the value). Piecewise
+    /// waveforms take the right-hand derivative at their corners.
+    pub fn eval(&self, t: f64, order: u8) -> f64 {
+        use std::f64::consts::PI;
+        match *self {
+            Waveform::Dc { value } => {
+                if order == 0 {
+                    value
+                } else {
+                    0.0
+                }
+            }
+            Waveform::Pulse {
+                v1,
+                v2,
+                td,
+                tr,
+                tf,
+                pw,
+                per,
+            } => {
+                if t < td {
+                    return if order == 0 { v1 } else { 0.0 };
+                }
+                let mut tt = t - td;
+                if per > 0.0 && tt >= per {
+                    tt -= (tt / per).floor() * per;
+                }
+                let (value, slope) = if tt < tr {
+                    let s = (v2 - v1) / tr;
+                    (v1 + s * tt, s)
+                } else if tt < tr + pw {
+                    (v2, 0.0)
+                } else if tt < tr + pw + tf {
+                    let s = (v1 - v2) / tf;
+                    (v2 + s * (tt - tr - pw), s)
+                } else {
+                    (v1, 0.0)
+                };
+                match order {
+                    0 => value,
+                    1 => slope,
+                    _ => 0.0,
+                }
+            }
+            Waveform::Sin {
+                vo,
+                va,
+                freq,
+                td,
+                theta,
+                phase,
+            } => {
+                let ph = phase * PI / 180.0;
+                if t < td {
+                    return if order == 0 { vo + va * ph.sin() } else { 0.0 };
+                }
+                let s = t - td;
+                let w = 2.0 * PI * freq;
+                // va * exp(-theta s) * sin(w s + ph): derivatives via the complex
+                // exponential, d^k/ds^k Im(exp((iw - theta) s + i ph)).
+                let (re, im) = (-theta, w);
+                let (mut cr, mut ci) = (1.0, 0.0);
+                for _ in 0..order {
+                    let nr = cr * re - ci * im;
+                    let ni = cr * im + ci * re;
+                    cr = nr;
+                    ci = ni;
+                }
+                let env = (-theta * s).exp();
+                let (sn, cs) = (w * s + ph).sin_cos();
+                // Im((cr + i ci) * (cos + i sin)) = cr*sin + ci*cos
+                let d = va * env * (cr * sn + ci * cs);
+                if order == 0 { vo + d } else { d }
+            }
+            Waveform::Exp {
+                v1,
+                v2,
+                td1,
+                tau1,
+                td2,
+                tau2,
+            } => {
+                let mut value = if order == 0 { v1 } else { 0.0 };
+                let term = |t0: f64, tau: f64, amp: f64| -> f64 {
+                    let e = (-(t - t0) / tau).exp();
+                    if order == 0 {
+                        amp * (1.0 - e)
+                    } else {
+                        // d^k/dt^k (1 - e^{-(t-t0)/tau}) = -(-1/tau)^k e
+                        -amp * (-1.0 / tau).powi(order as i32) * e
+                    }
+                };
+                if t >= td1 {
+                    value += term(td1, tau1, v2 - v1);
+                }
+                if t >= td2 {
+                    value += term(td2, tau2, v1 - v2);
+                }
+                value
+            }
+            Waveform::Pwl { ref points } => {
+                let Some(&(t0, y0)) = points.first() else {
+                    return 0.0;
+                };
+                if t < t0 {
+                    return if order == 0 { y0 } else { 0.0 };
+                }
+                // The segment containing t (right-continuous at corners).
+                let k = points.partition_point(|&(tk, _)| tk <= t);
+                if k >= points.len() {
+                    let y = points[points.len() - 1].1;
+                    return if order == 0 { y } else { 0.0 };
+                }
+                let (ta, ya) = points[k - 1];
+                let (tb, yb) = points[k];
+                let s = if tb > ta { (yb - ya) / (tb - ta) } else { 0.0 };
+                match order {
+                    0 => ya + s * (t - ta),
+                    1 => s,
+                    _ => 0.0,
+                }
+            }
+        }
+    }
+
+    /// Times in `[0, t_end]` where the waveform or its slope jumps.
+    pub fn breakpoints(&self, t_end: f64) -> Vec<f64> {
+        let mut out = Vec::new();
+        match *self {
+            Waveform::Dc { .. } | Waveform::Sin { .. } => {}
+            Waveform::Pulse {
+                td,
+                tr,
+                tf,
+                pw,
+                per,
+                ..
+            } => {
+                let mut start = td;
+                let max_periods = 1_000_000usize;
+                for _ in 0..max_periods {
+                    if start > t_end {
+                        break;
+                    }
+                    for c in [start, start + tr, start + tr + pw, start + tr + pw + tf] {
+                        if c <= t_end {
+                            out.push(c);
+                        }
+                    }
+                    if per <= 0.0 {
+                        break;
+                    }
+                    start += per;
+                }
+            }
+            Waveform::Exp { td1, td2, .. } => {
+                out.extend([td1, td2].into_iter().filter(|&t| t <= t_end));
+            }
+            Waveform::Pwl { ref points } => {
+                out.extend(points.iter().map(|p| p.0).filter(|&t| t <= t_end));
+            }
+        }
+        out.retain(|&t| t > 0.0);
+        out.sort_by(f64::total_cmp);
+        out.dedup();
+        out
+    }
+}
+
+/// An independent source's time function.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SourceFn {
+    /// The element name (`V1`); printed as `V1(t)`.
+    pub name: String,
+    pub wave: Waveform,
+}
+
+/// An acausal equation system: what the causalizer sorts.
+///
+/// Invariants (checked by [`super::verify`]): every expression operand precedes
+/// its user; every `State` has a `Derivative` partner and back; the number of
+/// equations equals the number of unknowns for a well-posed circuit (checked by
+/// the analysis, not here).
+#[derive(Clone, Debug, Default)]
+pub struct EquationSystem {
+    pub title: String,
+    pub exprs: ExprArena,
+    pub vars: IdVec<VarId, Var>,
+    pub params: IdVec<ParamId, Param>,
+    pub sources: IdVec<SourceId, SourceFn>,
+    pub eqs: IdVec<EqId, Equation>,
+    /// Equations removed by alias elimination, as text for the listing.
+    pub eliminated: Vec<String>,
+}
+
+impl EquationSystem {
+    pub fn add_var(&mut self, name: String, kind: VarKind, origin: Origin) -> VarId {
+        self.vars.push(Var {
+            name,
+            kind,
+            role: VarRole::Unknown,
+            origin,
+            alias: None,
+        })
+    }
+
+    /// Make `state` a state with a fresh derivative unknown; returns the derivative.
+    pub fn add_state(&mut self, state: VarId) -> VarId {
+        let name = format!("der({})", self.vars[state].name);
+        let origin = self.vars[state].origin.clone();
+        let der = self.vars.push(Var {
+            name,
+            kind: VarKind::Derivative,
+            role: VarRole::Derivative { of: state },
+            origin,
+            alias: None,
+        });
+        self.vars[state].role = VarRole::State { der };
+        der
+    }
+
+    pub fn add_param(&mut self, name: String, value: f64) -> ParamId {
+        self.params.push(Param { name, value })
+    }
+
+    pub fn add_eq(&mut self, lhs: ExprId, rhs: ExprId, origin: Origin) -> EqId {
+        self.eqs.push(Equation { lhs, rhs, origin })
+    }
+
+    pub fn states(&self) -> impl Iterator<Item = VarId> + '_ {
+        self.vars.iter().filter(|(_, v)| v.is_state()).map(|(id, _)| id)
+    }
+
+    pub fn unknowns(&self) -> impl Iterator<Item = VarId> + '_ {
+        self.vars.iter().filter(|(_, v)| v.is_unknown()).map(|(id, _)| id)
+    }
+
+    pub fn n_unknowns(&self) -> usize {
+        self.vars.values().filter(|v| v.is_unknown()).count()
+    }
+
+    /// The distinct variables of an equation (unknowns and states).
+    pub fn eq_vars(&self, eq: EqId, out: &mut Vec<VarId>, stack: &mut Vec<ExprId>) {
+        out.clear();
+        let e = &self.eqs[eq];
+        self.exprs.vars_into(e.lhs, out, stack);
+        self.exprs.vars_into(e.rhs, out, stack);
+    }
+
+    pub fn find_var(&self, name: &str) -> Option<VarId> {
+        self.vars
+            .iter()
+            .find(|(_, v)| v.name.eq_ignore_ascii_case(name))
+            .map(|(id, _)| id)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pulse_and_pwl_values() {
+        let p = Waveform::Pulse {
+            v1: 0.0,
+            v2: 1.0,
+            td: 1.0,
+            tr: 1.0,
+            tf: 1.0,
+            pw: 2.0,
+            per: 10.0,
+        };
+        assert_eq!(p.eval(0.5, 0), 0.0);
+        assert_eq!(p.eval(1.5, 0), 0.5);
+        assert_eq!(p.eval(1.5, 1), 1.0);
+        assert_eq!(p.eval(3.0, 0), 1.0);
+        assert_eq!(p.eval(4.5, 0), 0.5);
+        assert_eq!(p.eval(11.5, 0), 0.5);
+        assert_eq!(p.breakpoints(12.0), vec![1.0, 2.0, 4.0, 5.0, 11.0, 12.0]);
+        let w = Waveform::Pwl {
+            points: vec![(0.0, 0.0), (1.0, 2.0), (3.0, 0.0)],
+        };
+        assert_eq!(w.eval(0.5, 0), 1.0);
+        assert_eq!(w.eval(2.0, 0), 1.0);
+        assert_eq!(w.eval(2.0, 1), -1.0);
+        assert_eq!(w.eval(5.0, 0), 0.0);
+    }
+
+    #[test]
+    fn sin_derivatives_match_finite_differences() {
+        let w = Waveform::Sin {
+            vo: 0.5,
+            va: 2.0,
+            freq: 3.0,
+            td: 0.1,
+            theta: 0.7,
+            phase: 30.0,
+        };
+        let (t, h) = (0.37, 1e-6);
+        for order in 0..3u8 {
+            let fd = (w.eval(t + h, order) - w.eval(t - h, order)) / (2.0 * h);
+            let d = w.eval(t, order + 1);
+            assert!((fd - d).abs() < 1e-4 * d.abs().max(1.0), "order {order}: {fd} vs {d}");
+        }
+        let e = Waveform::Exp {
+            v1: 0.0,
+            v2: 1.0,
+            td1: 0.1,
+            tau1: 0.2,
+            td2: 0.5,
+            tau2: 0.3,
+        };
+        for t in [0.3, 0.7] {
+            let fd = (e.eval(t + h, 0) - e.eval(t - h, 0)) / (2.0 * h);
+            assert!((fd - e.eval(t, 1)).abs() < 1e-6);
+        }
+    }
+}

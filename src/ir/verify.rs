@@ -1,0 +1,72 @@
+//! Checks of the IR invariants, run after every pass in tests.
+
+use super::entity::EntityId;
+use super::expr::{Expr, ExprId};
+use super::system::{EquationSystem, VarRole};
+
+/// A broken IR invariant: always a kausal bug, never a user error.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum VerifyError {
+    #[error("expression {user} uses {operand}, which does not precede it")]
+    OperandOrder { user: ExprId, operand: ExprId },
+    #[error("expression {expr} refers to an entity that does not exist")]
+    Dangling { expr: ExprId },
+    #[error("state {state} and derivative {der} do not point at each other")]
+    StatePair { state: super::VarId, der: super::VarId },
+    #[error("equation {eq} refers to expression {expr}, which does not exist")]
+    EquationExpr { eq: super::EqId, expr: ExprId },
+}
+
+/// Check every invariant of `sys`; returns all violations found.
+pub fn verify(sys: &EquationSystem) -> Vec<VerifyError> {
+    let mut errs = Vec::new();
+    for (i, &e) in sys.exprs.nodes().iter().enumerate() {
+        let user = ExprId::new(i);
+        let ops: [Option<ExprId>; 2] = match e {
+            Expr::Neg(a) | Expr::Call(_, a) => [Some(a), None],
+            Expr::Add(a, b) | Expr::Sub(a, b) | Expr::Mul(a, b) | Expr::Div(a, b) | Expr::Pow(a, b) => {
+                [Some(a), Some(b)]
+            }
+            _ => [None, None],
+        };
+        for op in ops.into_iter().flatten() {
+            if op >= user {
+                errs.push(VerifyError::OperandOrder { user, operand: op });
+            }
+        }
+        let dangling = match e {
+            Expr::Var(v) => v.index() >= sys.vars.len(),
+            Expr::Param(p) => p.index() >= sys.params.len(),
+            Expr::Source(s, _) => s.index() >= sys.sources.len(),
+            _ => false,
+        };
+        if dangling {
+            errs.push(VerifyError::Dangling { expr: user });
+        }
+    }
+    for (id, v) in sys.vars.iter() {
+        match v.role {
+            VarRole::State { der } => {
+                let ok = sys.vars.get(der).is_some_and(|d| d.role == VarRole::Derivative { of: id });
+                if !ok {
+                    errs.push(VerifyError::StatePair { state: id, der });
+                }
+            }
+            VarRole::Derivative { of } => {
+                let ok = sys.vars.get(of).is_some_and(|s| s.role == VarRole::State { der: id });
+                if !ok {
+                    errs.push(VerifyError::StatePair { state: of, der: id });
+                }
+            }
+            VarRole::Unknown => {}
+        }
+    }
+    for (id, eq) in sys.eqs.iter() {
+        for expr in [eq.lhs, eq.rhs] {
+            if expr.index() >= sys.exprs.len() {
+                errs.push(VerifyError::EquationExpr { eq: id, expr });
+            }
+        }
+    }
+    errs
+}
