@@ -1,1 +1,167 @@
-fn main() {}
+//! The `kausal` command line: arguments, file IO, rendering, exit codes.
+//! All the work is done by the library's stages.
+
+use std::io::{IsTerminal, Write};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand, ValueEnum};
+use kausal::build::{self, Kvl};
+use kausal::diag::{self, Diagnostic, RenderOptions, SourceMap};
+use kausal::io::FsLoader;
+use kausal::pipeline::{self, Failed};
+
+#[derive(Parser)]
+#[command(
+    name = "kausal",
+    version,
+    about = "SPICE netlists to causal equations: sorted, simulated, checked against ngspice"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
+enum Format {
+    Text,
+    Json,
+}
+
+#[derive(clap::Args)]
+struct BuildArgs {
+    /// How Kirchhoff's voltage law is written.
+    #[arg(long, value_enum, default_value_t = Kvl::Nodes)]
+    kvl: Kvl,
+    /// Eliminate alias equations (`x = y`, `x = -y`, `x = known`).
+    #[arg(long)]
+    alias: bool,
+}
+
+impl BuildArgs {
+    fn options(&self) -> build::Options {
+        build::Options {
+            kvl: self.kvl,
+            alias: self.alias,
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Parse and check a netlist; print problems only.
+    Check {
+        /// The netlist file.
+        netlist: PathBuf,
+    },
+    /// Print the acausal equations, unknowns, states and incidence matrix.
+    Equations {
+        /// The netlist file.
+        netlist: PathBuf,
+        #[command(flatten)]
+        build: BuildArgs,
+        /// Output format.
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
+        /// Write to this file instead of standard output.
+        #[arg(long, short)]
+        out: Option<PathBuf>,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(code) => code,
+        Err(msg) => {
+            eprintln!("error: {msg}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn render_opts() -> RenderOptions {
+    RenderOptions {
+        color: std::io::stderr().is_terminal(),
+    }
+}
+
+fn print_diags(sources: &SourceMap, diags: &[Diagnostic]) {
+    let opts = render_opts();
+    let mut err = std::io::stderr().lock();
+    for d in diags {
+        let _ = writeln!(err, "{}", diag::render(sources, d, opts));
+    }
+}
+
+fn report_failure(f: &Failed) -> ExitCode {
+    print_diags(&f.sources, &f.diagnostics);
+    let n = f.errors().count();
+    eprintln!("error: {n} error{} found", if n == 1 { "" } else { "s" });
+    ExitCode::FAILURE
+}
+
+/// Write command output to a file (atomically) or standard output.
+fn emit(out: Option<&PathBuf>, text: &str) -> Result<(), String> {
+    match out {
+        Some(path) => kausal::io::write_atomic(path, text.as_bytes())
+            .map_err(|e| format!("cannot write `{}`: {e}", path.display())),
+        None => {
+            let mut stdout = std::io::stdout().lock();
+            stdout
+                .write_all(text.as_bytes())
+                .and_then(|_| stdout.flush())
+                .or_else(|e| {
+                    // A closed pipe (`| head`) is not an error.
+                    if e.kind() == std::io::ErrorKind::BrokenPipe {
+                        Ok(())
+                    } else {
+                        Err(e.to_string())
+                    }
+                })
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<ExitCode, String> {
+    match cli.command {
+        Command::Check { netlist } => match pipeline::elaborate_file(&netlist, &FsLoader) {
+            Ok(el) => {
+                print_diags(&el.sources, &el.warnings);
+                eprintln!(
+                    "{}: ok ({} elements, {} nodes)",
+                    netlist.display(),
+                    el.circuit.elements.len(),
+                    el.circuit.nodes.len() - 1
+                );
+                Ok(ExitCode::SUCCESS)
+            }
+            Err(f) => Ok(report_failure(&f)),
+        },
+        Command::Equations {
+            netlist,
+            build,
+            format,
+            out,
+        } => {
+            let (el, built) = match pipeline::equations(&netlist, &FsLoader, build.options()) {
+                Ok(x) => x,
+                Err(f) => return Ok(report_failure(&f)),
+            };
+            print_diags(&el.sources, &el.warnings);
+            let text = match format {
+                Format::Text => kausal::ir::print::system(&built.system, 60),
+                Format::Json => {
+                    let mut s = serde_json::to_string_pretty(&kausal::ir::print::system_json(
+                        &built.system,
+                    ))
+                    .map_err(|e| e.to_string())?;
+                    s.push('\n');
+                    s
+                }
+            };
+            emit(out.as_ref(), &text)?;
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}

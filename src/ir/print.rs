@@ -123,3 +123,127 @@ impl EquationSystem {
         &self.sources[s].name
     }
 }
+
+/// The numbered equations, unknowns, states, eliminated aliases and the
+/// incidence matrix (omitted above `max_incidence` unknowns).
+pub fn system(sys: &EquationSystem, max_incidence: usize) -> String {
+    let mut out = String::new();
+    let _ = writeln!(out, "* {}", sys.title);
+    let texts: Vec<String> = sys.eqs.ids().map(|eq| equation(sys, eq)).collect();
+    let width = texts.iter().map(|t| t.len()).max().unwrap_or(0).min(60);
+    let _ = writeln!(out, "equations ({}):", sys.eqs.len());
+    for ((eq, e), text) in sys.eqs.iter().zip(&texts) {
+        let _ = writeln!(
+            out,
+            "  {:>5}  {:<width$}    ; {}",
+            eq.to_string(),
+            text,
+            e.origin.describe()
+        );
+    }
+    let unknowns: Vec<super::VarId> = sys.unknowns().collect();
+    let names = |ids: &[super::VarId]| {
+        ids.iter()
+            .map(|&v| sys.vars[v].name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let _ = writeln!(out, "unknowns ({}): {}", unknowns.len(), names(&unknowns));
+    let states: Vec<super::VarId> = sys.states().collect();
+    let _ = writeln!(out, "states ({}): {}", states.len(), names(&states));
+    if !sys.eliminated.is_empty() {
+        let _ = writeln!(out, "eliminated ({}):", sys.eliminated.len());
+        for e in &sys.eliminated {
+            let _ = writeln!(out, "  {e}");
+        }
+    }
+    if unknowns.len() > max_incidence {
+        let _ = writeln!(
+            out,
+            "incidence: omitted ({} unknowns; use --format json)",
+            unknowns.len()
+        );
+        return out;
+    }
+    let _ = writeln!(out, "incidence (rows: equations; columns: unknowns):");
+    for (k, &v) in unknowns.iter().enumerate() {
+        let _ = writeln!(out, "  c{k:<3} {}", sys.vars[v].name);
+    }
+    let mut col = vec![usize::MAX; sys.vars.len()];
+    for (k, &v) in unknowns.iter().enumerate() {
+        col[v.0 as usize] = k;
+    }
+    let _ = write!(out, "  {:>5} ", "");
+    for k in 0..unknowns.len() {
+        let _ = write!(out, "{}", k % 10);
+    }
+    out.push('\n');
+    let (mut vars, mut stack) = (Vec::new(), Vec::new());
+    for eq in sys.eqs.ids() {
+        sys.eq_vars(eq, &mut vars, &mut stack);
+        let mut row = vec!['.'; unknowns.len()];
+        for v in &vars {
+            let c = col[v.0 as usize];
+            if c != usize::MAX {
+                row[c] = 'x';
+            }
+        }
+        let _ = writeln!(out, "  {:>5} {}", eq.to_string(), row.iter().collect::<String>());
+    }
+    out
+}
+
+/// The same content as [`system`], as JSON for tools.
+pub fn system_json(sys: &EquationSystem) -> serde_json::Value {
+    use serde_json::json;
+    let (mut vars, mut stack) = (Vec::new(), Vec::new());
+    let eqs: Vec<serde_json::Value> = sys
+        .eqs
+        .iter()
+        .map(|(id, e)| {
+            sys.eq_vars(id, &mut vars, &mut stack);
+            let unknowns: Vec<String> = vars
+                .iter()
+                .filter(|&&v| sys.vars[v].is_unknown())
+                .map(|&v| sys.vars[v].name.clone())
+                .collect();
+            json!({
+                "id": id.to_string(),
+                "text": equation(sys, id),
+                "lhs": expr(sys, e.lhs),
+                "rhs": expr(sys, e.rhs),
+                "origin": e.origin.describe(),
+                "elements": e.origin.elements(),
+                "unknowns": unknowns,
+            })
+        })
+        .collect();
+    let var_list: Vec<serde_json::Value> = sys
+        .vars
+        .iter()
+        .map(|(id, v)| {
+            json!({
+                "id": id.to_string(),
+                "name": v.name,
+                "kind": v.kind,
+                "role": v.role,
+                "unknown": v.is_unknown(),
+                "alias": v.alias.map(|a| expr(sys, a)),
+            })
+        })
+        .collect();
+    let params: Vec<serde_json::Value> = sys
+        .params
+        .values()
+        .map(|p| json!({"name": p.name, "value": p.value}))
+        .collect();
+    json!({
+        "title": sys.title,
+        "equations": eqs,
+        "variables": var_list,
+        "unknowns": sys.unknowns().map(|v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
+        "states": sys.states().map(|v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
+        "params": params,
+        "eliminated": sys.eliminated,
+    })
+}
