@@ -73,6 +73,18 @@ impl SourceMap {
         id
     }
 
+    pub fn len(&self) -> usize {
+        self.files.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.files.is_empty()
+    }
+
+    pub fn ids(&self) -> impl Iterator<Item = FileId> + use<> {
+        (0..self.files.len() as u32).map(FileId)
+    }
+
     pub fn file(&self, id: FileId) -> &SourceFile {
         &self.files[id.0 as usize]
     }
@@ -286,12 +298,17 @@ impl MietteDiag {
                 source: Some(miette::NamedSource::new(f.name.clone(), f.text.clone())),
                 labels: labels
                     .iter()
-                    .map(|l| {
+                    .enumerate()
+                    .map(|(k, l)| {
                         let len = l.span.end.saturating_sub(l.span.start).max(1) as usize;
                         let start = (l.span.start as usize).min(f.text.len());
-                        let len = len.min(f.text.len().saturating_sub(start)).max(0);
+                        let len = len.min(f.text.len().saturating_sub(start));
                         let msg = (!l.message.is_empty()).then(|| l.message.clone());
-                        miette::LabeledSpan::new(msg, start, len)
+                        if k == 0 {
+                            miette::LabeledSpan::new_primary_with_span(msg, (start, len))
+                        } else {
+                            miette::LabeledSpan::new(msg, start, len)
+                        }
                     })
                     .collect(),
                 related: Vec::new(),

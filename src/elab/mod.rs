@@ -860,7 +860,12 @@ impl Elab {
         })
     }
 
+    /// Warn about nodes with one connection (skipped when errors removed
+    /// elements, which would make the warning misleading).
     fn dangling(&mut self) {
+        if self.errors.iter().any(|e| e.severity() == crate::diag::Severity::Error) {
+            return;
+        }
         let mut count = vec![0u32; self.circuit.nodes.len()];
         for e in self.circuit.elements.values() {
             for n in &e.nodes {

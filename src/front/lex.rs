@@ -39,6 +39,9 @@ impl Token<'_> {
 #[derive(Clone, Debug)]
 pub struct LogicalLine<'a> {
     pub tokens: Vec<Token<'a>>,
+    /// The lexer reported an error on this line; the parser skips it so that
+    /// one mistake gives one message.
+    pub poisoned: bool,
 }
 
 impl LogicalLine<'_> {
@@ -88,16 +91,24 @@ pub fn lex_file<'a>(
             Some(rest) => (rest, start + lead + 1, true),
             None => (trimmed, start + lead, false),
         };
+        let n_errors = errors.len();
         let toks = tokenize(body, file, body_start, errors);
+        let poisoned = errors.len() > n_errors;
         if continuation {
             match lines.last_mut() {
-                Some(prev) => prev.tokens.extend(toks),
+                Some(prev) => {
+                    prev.tokens.extend(toks);
+                    prev.poisoned |= poisoned;
+                }
                 None => errors.push(ParseError::StrayContinuation {
                     span: Span::new(file, start + lead, start + lead + 1),
                 }),
             }
         } else if !toks.is_empty() {
-            lines.push(LogicalLine { tokens: toks });
+            lines.push(LogicalLine {
+                tokens: toks,
+                poisoned,
+            });
         }
     }
     LexedFile { title, lines }

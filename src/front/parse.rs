@@ -58,6 +58,9 @@ impl<'a> Parser<'a> {
         while *idx < lines.len() {
             let line = &lines[*idx];
             *idx += 1;
+            if line.poisoned {
+                continue;
+            }
             let first = line.tokens[0];
             if first.kind != TokKind::Word {
                 self.errors.push(ParseError::Unexpected {

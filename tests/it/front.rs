@@ -1,0 +1,200 @@
+//! Front end: every fixture parses, the AST printer round-trips, random
+//! mutations never panic.
+
+use kausal::front::{self, print};
+use kausal::io::FsLoader;
+use proptest::prelude::*;
+
+use crate::netlists;
+
+fn parse_print(name: &str, path: &std::path::Path, text: String) -> (String, usize) {
+    let (sources, load_errors) = front::load(name, path, text, &FsLoader);
+    let (ast, errors) = front::parse(&sources);
+    let n_errors = load_errors.len()
+        + errors
+            .iter()
+            .filter(|e| e.severity() == kausal::diag::Severity::Error)
+            .count();
+    (print::netlist(&ast), n_errors)
+}
+
+#[test]
+fn every_netlist_parses_and_round_trips() {
+    let files = netlists();
+    assert!(files.len() >= 4, "the seed netlists are missing");
+    for path in files {
+        let text = std::fs::read_to_string(&path).unwrap();
+        let name = path.display().to_string();
+        let (printed, n_errors) = parse_print(&name, &path, text);
+        assert_eq!(n_errors, 0, "{name} has parse errors");
+        // Reparse the printed text as if it were the file itself, so that
+        // includes resolve the same way.
+        let (reprinted, n_errors2) = parse_print(&name, &path, printed.clone());
+        assert_eq!(n_errors2, 0, "{name}: printed form has parse errors:\n{printed}");
+        assert_eq!(printed, reprinted, "{name}: print/parse is not a fixpoint");
+    }
+}
+
+#[test]
+fn round_trip_preserves_values() {
+    let text = "t\n.param a=2\nR1 n1 n2 {a*2}\nC1 n2 0 1u ic=0.5\nV1 n1 0 DC 1 AC 1 PULSE(0 1 1n 1n 1n 5u 10u)\n\
+                .model dm D(IS=1e-14 N=1.5)\nD1 n2 0 dm\n.tran 1n 10u 0 1n uic\n.options reltol=1e-4 method=gear\n\
+                .ic v(n2)=0.25\n.print tran v(n1) v(n1,n2) i(v1)\n.end\n";
+    let path = std::path::Path::new("mem.cir");
+    let (printed, n) = parse_print("mem.cir", path, text.to_string());
+    assert_eq!(n, 0);
+    for needle in [
+        "{a*2}",
+        "ic=0.5",
+        "PULSE(0 1 1n 1n 1n 5u 10u)",
+        ".model dm D(IS=1e-14 N=1.5)",
+        ".tran 1n 10u 0 1n uic",
+        "method=gear",
+        ".ic v(n2)=0.25",
+        "v(n1,n2)",
+        "i(v1)",
+    ] {
+        assert!(printed.contains(needle), "`{needle}` missing from:\n{printed}");
+    }
+}
+
+/// A random edit of a netlist's text.
+#[derive(Debug, Clone)]
+enum Mutation {
+    Insert(usize, char),
+    Delete(usize, usize),
+    DuplicateLine(usize),
+    SwapLines(usize, usize),
+    ReplaceWord(usize, String),
+    Truncate(usize),
+}
+
+fn mutation() -> impl Strategy<Value = Mutation> {
+    let chars = prop_oneof![
+        Just('('), Just(')'), Just('{'), Just('}'), Just('='), Just('+'), Just('\n'),
+        Just('.'), Just('*'), Just(' '), Just('\''), Just('-'), Just('e'), Just('0'),
+        Just('x'), Just('\u{e9}'), Just(';'), Just('$'), Just(','),
+    ];
+    let words = prop_oneof![
+        Just(".subckt"), Just(".ends"), Just(".include"), Just(".param"), Just("PULSE("),
+        Just("{1/0}"), Just("X1"), Just("0"), Just("1e999"), Just("-1"), Just("K1"),
+        Just("F1 a 0 V1"), Just(".end"), Just("gnd"), Just("params:"), Just("ic="),
+        Just(".control"), Just("PWL(1 0 0 1)"), Just("1meg"), Just(""),
+    ];
+    prop_oneof![
+        (any::<usize>(), chars).prop_map(|(i, c)| Mutation::Insert(i, c)),
+        (any::<usize>(), 0usize..20).prop_map(|(i, n)| Mutation::Delete(i, n)),
+        any::<usize>().prop_map(Mutation::DuplicateLine),
+        (any::<usize>(), any::<usize>()).prop_map(|(a, b)| Mutation::SwapLines(a, b)),
+        (any::<usize>(), words).prop_map(|(i, w)| Mutation::ReplaceWord(i, w.to_string())),
+        any::<usize>().prop_map(Mutation::Truncate),
+    ]
+}
+
+fn apply(text: &str, m: &Mutation) -> String {
+    let floor = |s: &str, i: usize| {
+        let mut i = if s.is_empty() { 0 } else { i % (s.len() + 1) };
+        while !s.is_char_boundary(i) {
+            i -= 1;
+        }
+        i
+    };
+    match m {
+        Mutation::Insert(i, c) => {
+            let i = floor(text, *i);
+            format!("{}{c}{}", &text[..i], &text[i..])
+        }
+        Mutation::Delete(i, n) => {
+            let a = floor(text, *i);
+            let b = floor(text, a + n);
+            format!("{}{}", &text[..a], &text[b.max(a)..])
+        }
+        Mutation::DuplicateLine(i) | Mutation::SwapLines(i, _) | Mutation::ReplaceWord(i, _) => {
+            let mut lines: Vec<String> = text.lines().map(String::from).collect();
+            if lines.is_empty() {
+                return text.to_string();
+            }
+            let k = i % lines.len();
+            match m {
+                Mutation::DuplicateLine(_) => {
+                    let l = lines[k].clone();
+                    lines.insert(k, l);
+                }
+                Mutation::SwapLines(_, j) => {
+                    let j = j % lines.len();
+                    lines.swap(k, j);
+                }
+                Mutation::ReplaceWord(i, w) => {
+                    let mut words: Vec<String> =
+                        lines[k].split_whitespace().map(String::from).collect();
+                    if !words.is_empty() {
+                        let n = words.len();
+                        words[(i / 7) % n] = w.clone();
+                    }
+                    lines[k] = words.join(" ");
+                }
+                _ => unreachable!(),
+            }
+            lines.join("\n")
+        }
+        Mutation::Truncate(i) => text[..floor(text, *i)].to_string(),
+    }
+}
+
+fn fixtures() -> &'static [(String, String)] {
+    static FIXTURES: std::sync::OnceLock<Vec<(String, String)>> = std::sync::OnceLock::new();
+    FIXTURES.get_or_init(load_fixtures)
+}
+
+fn load_fixtures() -> Vec<(String, String)> {
+    let mut v: Vec<(String, String)> = netlists()
+        .into_iter()
+        .map(|p| (p.display().to_string(), std::fs::read_to_string(&p).unwrap()))
+        .collect();
+    let errs = crate::root().join("netlists/errors");
+    for e in std::fs::read_dir(errs).unwrap() {
+        let p = e.unwrap().path();
+        v.push((p.display().to_string(), std::fs::read_to_string(&p).unwrap()));
+    }
+    v.sort();
+    v
+}
+
+/// Run every stage that accepts the text; only a panic can fail.
+fn run_all(name: &str, text: String) {
+    let path = std::path::Path::new(name);
+    let result = kausal::pipeline::elaborate_text(name, path, text, &FsLoader);
+    if let Ok(el) = result {
+        for kvl in [kausal::build::Kvl::Nodes, kausal::build::Kvl::Loops] {
+            let built = kausal::build::build(
+                &el.circuit,
+                kausal::build::Options { kvl, alias: true },
+            );
+            assert!(kausal::ir::verify(&built.system).is_empty());
+        }
+    } else if let Err(f) = result {
+        // Rendering must cope with whatever spans the errors carry.
+        for d in &f.diagnostics {
+            let _ = kausal::diag::render(&f.sources, d, Default::default());
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 3000, failure_persistence: None, ..ProptestConfig::default() })]
+    #[test]
+    fn mutated_netlists_never_panic(k in any::<usize>(), muts in prop::collection::vec(mutation(), 1..6)) {
+        let fx = fixtures();
+        let (name, text) = &fx[k % fx.len()];
+        let mut t = text.clone();
+        for m in &muts {
+            t = apply(&t, m);
+        }
+        run_all(name, t);
+    }
+
+    #[test]
+    fn random_bytes_never_panic(s in "\\PC{0,300}") {
+        run_all("random.cir", s);
+    }
+}
