@@ -1,1 +1,30 @@
-fn main() {}
+//! Parse + elaborate + build on generated RC ladders (10^3 to 10^5 sections).
+
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use kausal::build::{self, Options};
+use kausal::io::FsLoader;
+use kausal::pipeline;
+use std::path::Path;
+
+fn front_to_equations(c: &mut Criterion) {
+    let mut g = c.benchmark_group("parse+build rc_ladder");
+    g.sample_size(10);
+    for n in [1_000usize, 10_000, 100_000] {
+        let text = kausal::generate::rc_ladder(n);
+        g.throughput(Throughput::Elements(n as u64));
+        g.bench_with_input(BenchmarkId::from_parameter(n), &text, |b, text| {
+            b.iter(|| {
+                let el = pipeline::elaborate_text("ladder.cir", Path::new("ladder.cir"), text.clone(), &FsLoader)
+                    .ok()
+                    .expect("ladder elaborates");
+                let built = build::build(&el.circuit, Options::default());
+                assert!(built.system.eqs.len() > 4 * n);
+                built
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, front_to_equations);
+criterion_main!(benches);

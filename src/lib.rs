@@ -17,6 +17,7 @@ pub mod build;
 pub mod diag;
 pub mod elab;
 pub mod front;
+pub mod generate;
 pub mod io;
 pub mod ir;
 pub mod pipeline;

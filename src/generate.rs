@@ -1,0 +1,59 @@
+//! Generated test circuits (netlist text) for benchmarks and scaling runs:
+//! RC ladders, RLC ladders and resistor meshes of any size.
+
+use std::fmt::Write;
+
+/// An RC ladder of `n` sections driven by a 1 V step: `R_k` from node k-1
+/// to k, `C_k` from k to ground. Time constants spread over three decades.
+pub fn rc_ladder(n: usize) -> String {
+    let mut s = String::with_capacity(n * 40 + 200);
+    let _ = writeln!(s, "RC ladder with {n} sections");
+    s.push_str("V1 n0 0 PULSE(0 1 1u 1u 1u 1 2)\n");
+    for k in 1..=n {
+        // Capacitances cycle through 1n..1u so that time constants differ.
+        let c = [1e-9, 1e-8, 1e-7, 1e-6][k % 4];
+        let _ = writeln!(s, "R{k} n{} n{k} 1k", k - 1);
+        let _ = writeln!(s, "C{k} n{k} 0 {c:e}");
+    }
+    s.push_str(".tran 1u 10m\n.end\n");
+    s
+}
+
+/// An RLC ladder of `n` sections (series R–L, shunt C) with a matched load.
+pub fn rlc_ladder(n: usize) -> String {
+    let mut s = String::with_capacity(n * 60 + 200);
+    let _ = writeln!(s, "RLC ladder with {n} sections");
+    s.push_str("V1 in 0 PULSE(0 1 1n 1n 1n 1 2)\nRS in n0 50\n");
+    for k in 1..=n {
+        let _ = writeln!(s, "R{k} n{} m{k} 0.1", k - 1);
+        let _ = writeln!(s, "L{k} m{k} n{k} 25n");
+        let _ = writeln!(s, "C{k} n{k} 0 10p");
+    }
+    let _ = writeln!(s, "RL n{n} 0 50");
+    s.push_str(".tran 1n 1u\n.end\n");
+    s
+}
+
+/// A `rows` × `cols` mesh of resistors with one capacitor per node, driven
+/// at a corner: every mesh is an algebraic loop.
+pub fn r_mesh(rows: usize, cols: usize) -> String {
+    let mut s = String::with_capacity(rows * cols * 60 + 200);
+    let _ = writeln!(s, "Resistor mesh {rows}x{cols}");
+    s.push_str("V1 n0_0 0 PULSE(0 1 1u 1u 1u 1 2)\n");
+    let mut k = 0;
+    for r in 0..rows {
+        for c in 0..cols {
+            if c + 1 < cols {
+                k += 1;
+                let _ = writeln!(s, "R{k} n{r}_{c} n{r}_{} 1k", c + 1);
+            }
+            if r + 1 < rows {
+                k += 1;
+                let _ = writeln!(s, "R{k} n{r}_{c} n{}_{c} 1k", r + 1);
+            }
+        }
+    }
+    let _ = writeln!(s, "RG n{}_{} 0 1k", rows - 1, cols - 1);
+    s.push_str(".tran 1u 1m\n.end\n");
+    s
+}
