@@ -8,11 +8,18 @@
 //!    into a [`elab::Circuit`] ([`elab::elaborate`]).
 //! 3. [`build`] writes the element and Kirchhoff equations as an
 //!    [`ir::EquationSystem`] ([`build::build`]).
+//! 4. [`analysis`] colours the bipartite structure graph into causal
+//!    assignments, tears algebraic loops ([`analysis::causalize`]) and orders
+//!    them into a [`analysis::Schedule`] ([`analysis::schedule`]).
+//! 5. [`back`] prints schedules ([`back::listing`]) and interprets them
+//!    ([`back::interp`]).
 //!
 //! Every stage reports problems as [`diag::Diagnostic`]s pointing at the
 //! netlist; [`diag::render`] draws them with file, line, column and a caret.
 //! [`pipeline`] strings the stages together for the CLI and tests.
 
+pub mod analysis;
+pub mod back;
 pub mod build;
 pub mod diag;
 pub mod elab;

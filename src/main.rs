@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand, ValueEnum};
 use kausal::build::{self, Kvl};
 use kausal::diag::{self, Diagnostic, RenderOptions, SourceMap};
+use kausal::back::listing;
 use kausal::io::FsLoader;
 use kausal::pipeline::{self, Failed};
 
@@ -26,6 +27,14 @@ struct Cli {
 enum Format {
     Text,
     Json,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
+enum SortFormat {
+    Text,
+    Json,
+    /// Graphviz: the coloured bipartite graph.
+    Dot,
 }
 
 #[derive(clap::Args)]
@@ -63,6 +72,29 @@ enum Command {
         /// Output format.
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
+        /// Write to this file instead of standard output.
+        #[arg(long, short)]
+        out: Option<PathBuf>,
+    },
+    /// Sort the equations into causal assignments (colour-edge algorithm),
+    /// tear algebraic loops, and print the sorted listing.
+    Sort {
+        /// The netlist file.
+        netlist: PathBuf,
+        #[command(flatten)]
+        build: BuildArgs,
+        /// Output format.
+        #[arg(long, value_enum, default_value_t = SortFormat::Text)]
+        format: SortFormat,
+        /// Also print the colouring trace (which rule fired, in which pass).
+        #[arg(long)]
+        trace: bool,
+        /// Also print the sorted incidence matrix.
+        #[arg(long)]
+        incidence: bool,
+        /// Report algebraic loops as errors instead of tearing them.
+        #[arg(long)]
+        no_tearing: bool,
         /// Write to this file instead of standard output.
         #[arg(long, short)]
         out: Option<PathBuf>,
@@ -159,6 +191,51 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                     s.push('\n');
                     s
                 }
+            };
+            emit(out.as_ref(), &text)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Sort {
+            netlist,
+            build,
+            format,
+            trace,
+            incidence,
+            no_tearing,
+            out,
+        } => {
+            let analysis = kausal::analysis::Options {
+                tearing: !no_tearing,
+            };
+            let sorted = match pipeline::sort(&netlist, &FsLoader, build.options(), analysis) {
+                Ok(x) => x,
+                Err(f) => return Ok(report_failure(&f)),
+            };
+            print_diags(&sorted.elaborated.sources, &sorted.elaborated.warnings);
+            let sys = &sorted.built.system;
+            let text = match format {
+                SortFormat::Text => {
+                    let mut t = String::new();
+                    if trace {
+                        t.push_str(&listing::trace(sys, &sorted.causal));
+                    }
+                    t.push_str(&listing::text(sys, &sorted.schedule));
+                    if incidence {
+                        t.push_str(&listing::incidence(sys, &sorted.causal, &sorted.schedule));
+                    }
+                    t
+                }
+                SortFormat::Json => {
+                    let mut s = serde_json::to_string_pretty(&listing::json(
+                        sys,
+                        &sorted.causal,
+                        &sorted.schedule,
+                    ))
+                    .map_err(|e| e.to_string())?;
+                    s.push('\n');
+                    s
+                }
+                SortFormat::Dot => listing::dot(sys, &sorted.causal),
             };
             emit(out.as_ref(), &text)?;
             Ok(ExitCode::SUCCESS)

@@ -87,3 +87,41 @@ pub fn equations(
     let built = build::build(&el.circuit, opts);
     Ok((el, built))
 }
+
+/// Everything `kausal sort` shows: the system, its causalization and schedule.
+pub struct Sorted {
+    pub elaborated: Elaborated,
+    pub built: Built,
+    pub causal: crate::analysis::Causalization,
+    pub schedule: crate::analysis::Schedule,
+}
+
+/// Elaborate, build and causalize. A structural error is reported as a
+/// diagnostic that points at the elements involved.
+pub fn sort(
+    path: &Path,
+    loader: &dyn Loader,
+    opts: build::Options,
+    analysis: crate::analysis::Options,
+) -> Result<Sorted, Box<Failed>> {
+    let (el, built) = equations(path, loader, opts)?;
+    match crate::analysis::causalize(&built.system, analysis) {
+        Ok(causal) => {
+            let schedule = crate::analysis::schedule(&built.system, &causal);
+            Ok(Sorted {
+                elaborated: el,
+                built,
+                causal,
+                schedule,
+            })
+        }
+        Err(e) => {
+            let mut diagnostics = el.warnings;
+            diagnostics.push(e.to_diagnostic());
+            Err(Box::new(Failed {
+                sources: el.sources,
+                diagnostics,
+            }))
+        }
+    }
+}

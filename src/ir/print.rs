@@ -5,7 +5,7 @@
 
 use std::fmt::Write;
 
-use super::expr::{Expr, ExprId};
+use super::expr::{Expr, ExprArena, ExprId};
 use super::system::{EqId, EquationSystem};
 
 /// Format a constant the way listings show it (`1000`, `1e-9`, `0.5`).
@@ -34,13 +34,18 @@ fn prec(e: Expr) -> u8 {
 
 /// Append the text of expression `id` to `out`.
 pub fn write_expr(sys: &EquationSystem, id: ExprId, out: &mut String) {
-    let e = sys.exprs.get(id);
+    write_expr_in(sys, &sys.exprs, id, out)
+}
+
+/// Like [`write_expr`] for an arena that extends the system's (a schedule's).
+pub fn write_expr_in(sys: &EquationSystem, x: &ExprArena, id: ExprId, out: &mut String) {
+    let e = x.get(id);
     let child = |c: ExprId, min: u8, out: &mut String| {
-        let paren = prec(sys.exprs.get(c)) < min;
+        let paren = prec(x.get(c)) < min;
         if paren {
             out.push('(');
         }
-        write_expr(sys, c, out);
+        write_expr_in(sys, x, c, out);
         if paren {
             out.push(')');
         }
@@ -96,7 +101,7 @@ pub fn write_expr(sys: &EquationSystem, id: ExprId, out: &mut String) {
         Expr::Call(f, a) => {
             out.push_str(f.name());
             out.push('(');
-            write_expr(sys, a, out);
+            write_expr_in(sys, x, a, out);
             out.push(')');
         }
     }

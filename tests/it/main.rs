@@ -4,6 +4,7 @@
 mod equations;
 mod errors;
 mod front;
+mod sort;
 
 use std::path::{Path, PathBuf};
 

@@ -1,0 +1,251 @@
+//! The [`Schedule`]: execution order of the sorted assignments, with torn
+//! algebraic loops grouped into blocks. Without tearing it is the colouring's
+//! numbering; with tearing, the strongly connected components of the
+//! assignment dependency graph in topological order (ties broken by the
+//! colouring's numbers, so that the listing reads like the seeds').
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+use super::graph::strong_components;
+use super::solve::{self, Solved};
+use super::{Causalization, Rule};
+use crate::ir::{EqId, EquationSystem, ExprArena, VarId};
+
+/// `var := expr` (or an implicit equation for `var`).
+#[derive(Clone, Debug)]
+pub struct Assignment {
+    pub eq: EqId,
+    pub var: VarId,
+    pub solved: Solved,
+    /// The colouring's sort number of the equation.
+    pub number: u32,
+    pub rule: Rule,
+}
+
+/// An algebraic loop, solved by guessing the tearing variables, evaluating
+/// the inner assignments in order, and driving the residuals to zero.
+#[derive(Clone, Debug)]
+pub struct Block {
+    /// 1-based, in schedule order.
+    pub index: usize,
+    pub tears: Vec<VarId>,
+    pub inner: Vec<Assignment>,
+    /// The residual equation of each tearing variable, solved for it where
+    /// possible (for display; numerically `lhs - rhs = 0`).
+    pub residuals: Vec<Assignment>,
+    /// Every equation is affine in the block's unknowns: one linear solve.
+    pub linear: bool,
+    /// The circuit elements the block's equations come from.
+    pub elements: Vec<String>,
+}
+
+impl Block {
+    pub fn n_eqs(&self) -> usize {
+        self.inner.len() + self.residuals.len()
+    }
+}
+
+#[derive(Clone, Debug)]
+pub enum Step {
+    Assign(Assignment),
+    Block(Block),
+}
+
+/// Execution order of a causalized system. Back ends follow it and never
+/// reorder it.
+#[derive(Clone, Debug)]
+pub struct Schedule {
+    /// The system's expressions plus the solved forms.
+    pub exprs: ExprArena,
+    pub steps: Vec<Step>,
+}
+
+impl Schedule {
+    pub fn blocks(&self) -> impl Iterator<Item = &Block> {
+        self.steps.iter().filter_map(|s| match s {
+            Step::Block(b) => Some(b),
+            Step::Assign(_) => None,
+        })
+    }
+
+    /// Every assignment, blocks flattened (inner first, then residuals).
+    pub fn assignments(&self) -> impl Iterator<Item = &Assignment> {
+        self.steps.iter().flat_map(|s| -> Box<dyn Iterator<Item = &Assignment>> {
+            match s {
+                Step::Assign(a) => Box::new(std::iter::once(a)),
+                Step::Block(b) => Box::new(b.inner.iter().chain(b.residuals.iter())),
+            }
+        })
+    }
+}
+
+fn assignment(x: &mut ExprArena, sys: &EquationSystem, c: &Causalization, eq: EqId) -> Assignment {
+    let var = c.assigned[eq].expect("scheduled equations are assigned");
+    let e = &sys.eqs[eq];
+    Assignment {
+        eq,
+        var,
+        solved: solve::solve_for(x, e.lhs, e.rhs, var),
+        number: c.number[eq],
+        rule: c.rule[eq].unwrap_or(Rule::Equation),
+    }
+}
+
+/// Priority topological order of `n` nodes given `edges` (a DAG), smallest
+/// key first among the ready ones.
+fn kahn(n: usize, edges: &[(u32, u32)], key: impl Fn(usize) -> u32) -> Vec<usize> {
+    let mut indeg = vec![0u32; n];
+    let mut succ_start = vec![0usize; n + 1];
+    for &(a, _) in edges {
+        succ_start[a as usize + 1] += 1;
+    }
+    for k in 0..n {
+        succ_start[k + 1] += succ_start[k];
+    }
+    let mut fill = succ_start.clone();
+    let mut succ = vec![0u32; edges.len()];
+    for &(a, b) in edges {
+        succ[fill[a as usize]] = b;
+        fill[a as usize] += 1;
+        indeg[b as usize] += 1;
+    }
+    let mut heap: BinaryHeap<Reverse<(u32, usize)>> = (0..n)
+        .filter(|&i| indeg[i] == 0)
+        .map(|i| Reverse((key(i), i)))
+        .collect();
+    let mut order = Vec::with_capacity(n);
+    while let Some(Reverse((_, i))) = heap.pop() {
+        order.push(i);
+        for &s in &succ[succ_start[i]..succ_start[i + 1]] {
+            indeg[s as usize] -= 1;
+            if indeg[s as usize] == 0 {
+                heap.push(Reverse((key(s as usize), s as usize)));
+            }
+        }
+    }
+    order
+}
+
+/// Order the assignments of a causalization and solve each for its unknown.
+pub fn schedule(sys: &EquationSystem, c: &Causalization) -> Schedule {
+    let mut x = sys.exprs.clone();
+    let n = sys.eqs.len();
+    if c.tears.is_empty() {
+        // The colouring's numbers are already a topological order.
+        let mut by_number = vec![EqId(0); n];
+        for (eq, &num) in c.number.iter() {
+            by_number[num as usize - 1] = eq;
+        }
+        let steps = by_number
+            .into_iter()
+            .map(|eq| Step::Assign(assignment(&mut x, sys, c, eq)))
+            .collect();
+        return Schedule { exprs: x, steps };
+    }
+    // Dependency edges producer -> consumer between equations.
+    let mut edges: Vec<(u32, u32)> = Vec::new();
+    for eq in sys.eqs.ids() {
+        let own = c.assigned[eq];
+        for w in c.graph.eq_vars(eq) {
+            if Some(w) == own {
+                continue;
+            }
+            if let Some(p) = c.computed_by[w] {
+                edges.push((p.0, eq.0));
+            }
+        }
+    }
+    let comps = strong_components(n, edges.iter().copied());
+    let mut comp_of = vec![0u32; n];
+    for (k, comp) in comps.iter().enumerate() {
+        for &e in comp {
+            comp_of[e as usize] = k as u32;
+        }
+    }
+    let comp_key: Vec<u32> = comps
+        .iter()
+        .map(|comp| comp.iter().map(|&e| c.number[EqId(e)]).min().unwrap_or(0))
+        .collect();
+    let mut comp_edges: Vec<(u32, u32)> = edges
+        .iter()
+        .map(|&(a, b)| (comp_of[a as usize], comp_of[b as usize]))
+        .filter(|(a, b)| a != b)
+        .collect();
+    comp_edges.sort_unstable();
+    comp_edges.dedup();
+    let order = kahn(comps.len(), &comp_edges, |k| comp_key[k]);
+    let mut steps = Vec::with_capacity(n);
+    let mut n_blocks = 0;
+    for k in order {
+        let comp = &comps[k];
+        let is_tear = |e: u32| c.rule[EqId(e)] == Some(Rule::Tear);
+        if comp.len() == 1 && !is_tear(comp[0]) {
+            steps.push(Step::Assign(assignment(&mut x, sys, c, EqId(comp[0]))));
+            continue;
+        }
+        n_blocks += 1;
+        steps.push(Step::Block(block(&mut x, sys, c, comp, &edges, n_blocks)));
+    }
+    Schedule { exprs: x, steps }
+}
+
+fn block(
+    x: &mut ExprArena,
+    sys: &EquationSystem,
+    c: &Causalization,
+    comp: &[u32],
+    edges: &[(u32, u32)],
+    index: usize,
+) -> Block {
+    let local: std::collections::HashMap<u32, usize> =
+        comp.iter().enumerate().map(|(i, &e)| (e, i)).collect();
+    let is_residual = |e: u32| c.rule[EqId(e)] == Some(Rule::Tear);
+    // Inside the block the tearing variables are guessed: drop the edges out
+    // of residual equations, the rest is acyclic.
+    let inner_edges: Vec<(u32, u32)> = edges
+        .iter()
+        .filter(|(a, b)| local.contains_key(a) && local.contains_key(b) && !is_residual(*a))
+        .map(|&(a, b)| (local[&a] as u32, local[&b] as u32))
+        .collect();
+    let order = kahn(comp.len(), &inner_edges, |i| c.number[EqId(comp[i])]);
+    let mut inner = Vec::new();
+    let mut residuals = Vec::new();
+    for i in order {
+        let eq = EqId(comp[i]);
+        if is_residual(eq.0) {
+            residuals.push(assignment(x, sys, c, eq));
+        } else {
+            inner.push(assignment(x, sys, c, eq));
+        }
+    }
+    residuals.sort_by_key(|a| a.number);
+    let tears: Vec<VarId> = residuals.iter().map(|a| a.var).collect();
+    let block_vars: std::collections::HashSet<VarId> = comp
+        .iter()
+        .filter_map(|&e| c.assigned[EqId(e)])
+        .collect();
+    let linear = comp.iter().all(|&e| {
+        let eq = &sys.eqs[EqId(e)];
+        let f = x.sub(eq.lhs, eq.rhs);
+        solve::is_linear_in(x, f, &|v| block_vars.contains(&v))
+    });
+    let mut elements: Vec<String> = Vec::new();
+    let mut sorted: Vec<u32> = comp.to_vec();
+    sorted.sort_unstable();
+    for e in sorted {
+        for name in sys.eqs[EqId(e)].origin.elements() {
+            if !elements.iter().any(|n| n == name) {
+                elements.push(name.to_string());
+            }
+        }
+    }
+    Block {
+        index,
+        tears,
+        inner,
+        residuals,
+        linear,
+        elements,
+    }
+}

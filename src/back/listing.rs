@@ -1,0 +1,352 @@
+//! Human-readable and tool-readable forms of a causalized system: the sorted
+//! listing in the seeds' style, the colouring trace, JSON, Graphviz DOT of the
+//! coloured bipartite graph, and the sorted incidence matrix.
+
+use std::fmt::Write;
+
+use serde_json::json;
+
+use crate::analysis::{Assignment, Block, Causalization, EdgeColour, Rule, Schedule, Solved, Step};
+use crate::ir::{EquationSystem, ExprArena, ExprId, VarId, print};
+
+/// Print an expression of the schedule's arena (a superset of the system's).
+fn expr(sys: &EquationSystem, x: &ExprArena, e: ExprId) -> String {
+    // The printer reads names from the system and nodes from the arena.
+    let mut out = String::new();
+    write_expr(sys, x, e, &mut out);
+    out
+}
+
+fn write_expr(sys: &EquationSystem, x: &ExprArena, e: ExprId, out: &mut String) {
+    print::write_expr_in(sys, x, e, out);
+}
+
+fn assignment_text(sys: &EquationSystem, s: &Schedule, a: &Assignment) -> String {
+    let name = &sys.vars[a.var].name;
+    match a.solved {
+        Solved::Explicit(e) => format!("{name} := {}", expr(sys, &s.exprs, e)),
+        Solved::Implicit(e) => format!("0 = {}  (solved numerically for {name})", expr(sys, &s.exprs, e)),
+    }
+}
+
+/// Summary figures of a schedule.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Summary {
+    pub equations: usize,
+    pub states: usize,
+    pub blocks: usize,
+    pub largest_block: usize,
+    pub tearing_variables: Vec<String>,
+    pub implicit: usize,
+}
+
+pub fn summary(sys: &EquationSystem, s: &Schedule) -> Summary {
+    let blocks: Vec<&Block> = s.blocks().collect();
+    Summary {
+        equations: sys.eqs.len(),
+        states: sys.states().count(),
+        blocks: blocks.len(),
+        largest_block: blocks.iter().map(|b| b.n_eqs()).max().unwrap_or(0),
+        tearing_variables: blocks
+            .iter()
+            .flat_map(|b| b.tears.iter().map(|&v| sys.vars[v].name.clone()))
+            .collect(),
+        implicit: s
+            .assignments()
+            .filter(|a| matches!(a.solved, Solved::Implicit(_)))
+            .count(),
+    }
+}
+
+fn block_header(b: &Block) -> String {
+    let kind = if b.linear { "linear" } else { "nonlinear" };
+    format!(
+        "algebraic loop through {} ({} equations, {kind})",
+        b.elements.join(", "),
+        b.n_eqs()
+    )
+}
+
+/// The numbered sorted assignments with blocks marked, then a summary.
+pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
+    let mut rows: Vec<(String, String, String)> = Vec::new();
+    let mut k = 0;
+    let mut line = |rows: &mut Vec<(String, String, String)>, a: &Assignment, indent: &str, note: &str| {
+        k += 1;
+        let origin = &sys.eqs[a.eq].origin;
+        rows.push((
+            format!("{k:>5}  {indent}{}{note}", assignment_text(sys, s, a)),
+            a.eq.to_string(),
+            origin.describe(),
+        ));
+    };
+    for step in &s.steps {
+        match step {
+            Step::Assign(a) => line(&mut rows, a, "", ""),
+            Step::Block(b) => {
+                let tears: Vec<&str> = b.tears.iter().map(|&v| sys.vars[v].name.as_str()).collect();
+                rows.push((
+                    format!("       block {}: {}; tearing: {}", b.index, block_header(b), tears.join(", ")),
+                    String::new(),
+                    String::new(),
+                ));
+                for a in &b.inner {
+                    line(&mut rows, a, "  ", "");
+                }
+                for a in &b.residuals {
+                    line(&mut rows, a, "  ", "  (residual)");
+                }
+                rows.push((format!("       end of block {}", b.index), String::new(), String::new()));
+            }
+        }
+    }
+    let width = rows
+        .iter()
+        .filter(|r| !r.1.is_empty())
+        .map(|r| r.0.chars().count())
+        .max()
+        .unwrap_or(0)
+        .min(72);
+    let mut out = String::new();
+    let _ = writeln!(out, "* {}", sys.title);
+    let _ = writeln!(out, "sorted assignments:");
+    for (text, id, origin) in rows {
+        if id.is_empty() {
+            let _ = writeln!(out, "{text}");
+        } else {
+            let pad = width.saturating_sub(text.chars().count());
+            let _ = writeln!(out, "{text}{}    ; {id} {origin}", " ".repeat(pad));
+        }
+    }
+    let sm = summary(sys, s);
+    let _ = write!(
+        out,
+        "summary: {} equations, {} state{}, {} algebraic block{}",
+        sm.equations,
+        sm.states,
+        if sm.states == 1 { "" } else { "s" },
+        sm.blocks,
+        if sm.blocks == 1 { "" } else { "s" }
+    );
+    if sm.blocks > 0 {
+        let _ = write!(out, " (largest: {} equations)", sm.largest_block);
+    }
+    let _ = write!(out, ", {} tearing variable{}", sm.tearing_variables.len(), if sm.tearing_variables.len() == 1 { "" } else { "s" });
+    if !sm.tearing_variables.is_empty() {
+        let _ = write!(out, " ({})", sm.tearing_variables.join(", "));
+    }
+    if sm.implicit > 0 {
+        let _ = write!(out, ", {} implicit", sm.implicit);
+    }
+    out.push('\n');
+    out
+}
+
+/// The colouring trace: every rule firing in order, stalls and tears.
+pub fn trace(sys: &EquationSystem, c: &Causalization) -> String {
+    let mut out = String::new();
+    let _ = writeln!(out, "colouring trace:");
+    let mut stalls = c.stalls.iter().peekable();
+    let mut tears = c.tears.iter();
+    for (k, step) in c.trace.iter().enumerate() {
+        while let Some(st) = stalls.next_if(|st| st.after == k) {
+            let sizes: Vec<String> = st.blocks.iter().map(|b| b.eqs.len().to_string()).collect();
+            let _ = writeln!(
+                out,
+                "  stall after {} assignments: {} block{} left (sizes {})",
+                st.after,
+                st.blocks.len(),
+                if st.blocks.len() == 1 { "" } else { "s" },
+                sizes.join(", ")
+            );
+            for b in &st.blocks {
+                let eqs: Vec<String> = b.eqs.iter().map(|e| e.to_string()).collect();
+                let vars: Vec<&str> = b.vars.iter().map(|&v| sys.vars[v].name.as_str()).collect();
+                let _ = writeln!(out, "    block {{{}}} in {{{}}}", eqs.join(", "), vars.join(", "));
+            }
+        }
+        let rule = match step.rule {
+            Rule::Equation => "equation rule",
+            Rule::Unknown => "unknown rule ",
+            Rule::Tear => "tearing      ",
+        };
+        let _ = write!(
+            out,
+            "  pass {:>3}  {rule}  {:>5} -> {:<14} number {}",
+            step.pass,
+            step.eq.to_string(),
+            sys.vars[step.var].name,
+            step.number
+        );
+        if step.rule == Rule::Tear
+            && let Some(t) = tears.next()
+        {
+            let _ = write!(out, "   (causalizes {} equations; {} candidates)", t.gain, t.candidates);
+        }
+        out.push('\n');
+    }
+    out
+}
+
+fn assignment_json(sys: &EquationSystem, s: &Schedule, a: &Assignment, k: &mut usize) -> serde_json::Value {
+    *k += 1;
+    let e = &sys.eqs[a.eq];
+    let (form, text) = match a.solved {
+        Solved::Explicit(x) => ("explicit", expr(sys, &s.exprs, x)),
+        Solved::Implicit(x) => ("implicit", expr(sys, &s.exprs, x)),
+    };
+    json!({
+        "position": *k,
+        "eq": a.eq.to_string(),
+        "number": a.number,
+        "rule": a.rule,
+        "var": sys.vars[a.var].name,
+        "form": form,
+        "expr": text,
+        "equation": print::equation(sys, a.eq),
+        "origin": e.origin.describe(),
+        "elements": e.origin.elements(),
+    })
+}
+
+pub fn json(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> serde_json::Value {
+    let mut k = 0;
+    let steps: Vec<serde_json::Value> = s
+        .steps
+        .iter()
+        .map(|step| match step {
+            Step::Assign(a) => json!({"assign": assignment_json(sys, s, a, &mut k)}),
+            Step::Block(b) => {
+                let inner: Vec<_> = b.inner.iter().map(|a| assignment_json(sys, s, a, &mut k)).collect();
+                let res: Vec<_> = b.residuals.iter().map(|a| assignment_json(sys, s, a, &mut k)).collect();
+                json!({"block": {
+                    "index": b.index,
+                    "description": block_header(b),
+                    "elements": b.elements,
+                    "linear": b.linear,
+                    "tearing": b.tears.iter().map(|&v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
+                    "inner": inner,
+                    "residuals": res,
+                }})
+            }
+        })
+        .collect();
+    let trace: Vec<serde_json::Value> = c
+        .trace
+        .iter()
+        .map(|t| json!({"pass": t.pass, "rule": t.rule, "eq": t.eq.to_string(), "var": sys.vars[t.var].name, "number": t.number}))
+        .collect();
+    let stalls: Vec<serde_json::Value> = c
+        .stalls
+        .iter()
+        .map(|st| {
+            json!({
+                "after": st.after,
+                "blocks": st.blocks.iter().map(|b| json!({
+                    "eqs": b.eqs.iter().map(|e| e.to_string()).collect::<Vec<_>>(),
+                    "vars": b.vars.iter().map(|&v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
+                })).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    let tears: Vec<serde_json::Value> = c
+        .tears
+        .iter()
+        .map(|t| json!({"var": sys.vars[t.var].name, "residual": t.eq.to_string(), "causalizes": t.gain, "candidates": t.candidates}))
+        .collect();
+    json!({
+        "title": sys.title,
+        "steps": steps,
+        "summary": summary(sys, s),
+        "trace": trace,
+        "stalls": stalls,
+        "tears": tears,
+    })
+}
+
+fn dot_escape(s: &str) -> String {
+    s.replace('\\', "\\\\").replace('"', "\\\"")
+}
+
+/// The coloured bipartite graph: equations (boxes, with their sort numbers)
+/// and unknowns (ellipses); red edges solve, blue edges read.
+pub fn dot(sys: &EquationSystem, c: &Causalization) -> String {
+    let mut out = String::new();
+    let _ = writeln!(out, "graph kausal {{");
+    let _ = writeln!(out, "  rankdir=LR; node [fontname=\"Helvetica\"];");
+    let _ = writeln!(out, "  label=\"{}\";", dot_escape(&sys.title));
+    for (eq, _) in sys.eqs.iter() {
+        let _ = writeln!(
+            out,
+            "  {eq} [shape=box, label=\"{}: {}\"];",
+            c.number[eq],
+            dot_escape(&print::equation(sys, eq))
+        );
+    }
+    for (v, var) in sys.vars.iter() {
+        if var.is_unknown() {
+            let tear = c.tears.iter().any(|t| t.var == v);
+            let _ = writeln!(
+                out,
+                "  {v} [shape=ellipse, label=\"{}\"{}];",
+                dot_escape(&var.name),
+                if tear { ", peripheries=2" } else { "" }
+            );
+        }
+    }
+    let g = &c.graph;
+    for (k, (&v, &eq)) in g.edge_var.iter().zip(&g.edge_eq).enumerate() {
+        let colour = match c.colours[k] {
+            EdgeColour::Red => "red",
+            EdgeColour::Blue => "blue",
+            EdgeColour::Black => "black",
+        };
+        let width = if c.colours[k] == EdgeColour::Red { ", penwidth=2" } else { "" };
+        let _ = writeln!(out, "  {eq} -- {v} [color={colour}{width}];");
+    }
+    out.push_str("}\n");
+    out
+}
+
+/// The incidence matrix with rows in schedule order and columns in the order
+/// the unknowns are computed: `#` where a row computes its unknown, `x` where
+/// it reads one, `|` marks block boundaries. Lower-triangular without loops.
+pub fn incidence(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> String {
+    let order: Vec<&Assignment> = s.assignments().collect();
+    let mut col = vec![usize::MAX; sys.vars.len()];
+    // Inside a block the tearing variables come first: they are guessed.
+    let mut cols: Vec<VarId> = Vec::new();
+    for step in &s.steps {
+        match step {
+            Step::Assign(a) => cols.push(a.var),
+            Step::Block(b) => {
+                cols.extend(b.tears.iter().copied());
+                cols.extend(b.inner.iter().map(|a| a.var));
+            }
+        }
+    }
+    for (k, &v) in cols.iter().enumerate() {
+        col[v.0 as usize] = k;
+    }
+    let mut out = String::new();
+    let _ = writeln!(out, "sorted incidence (rows: assignments in order; columns: unknowns as computed):");
+    for (k, &v) in cols.iter().enumerate() {
+        let _ = writeln!(out, "  c{k:<4} {}", sys.vars[v].name);
+    }
+    let _ = write!(out, "  {:>6} ", "");
+    for k in 0..cols.len() {
+        let _ = write!(out, "{}", k % 10);
+    }
+    out.push('\n');
+    for a in order {
+        let mut row = vec!['.'; cols.len()];
+        for v in c.graph.eq_vars(a.eq) {
+            let k = col[v.0 as usize];
+            if k != usize::MAX {
+                row[k] = if v == a.var { '#' } else { 'x' };
+            }
+        }
+        let _ = writeln!(out, "  {:>6} {}", a.eq.to_string(), row.iter().collect::<String>());
+    }
+    out
+}
