@@ -14,9 +14,14 @@ fn front_to_equations(c: &mut Criterion) {
         g.throughput(Throughput::Elements(n as u64));
         g.bench_with_input(BenchmarkId::from_parameter(n), &text, |b, text| {
             b.iter(|| {
-                let el = pipeline::elaborate_text("ladder.cir", Path::new("ladder.cir"), text.clone(), &FsLoader)
-                    .ok()
-                    .expect("ladder elaborates");
+                let el = pipeline::elaborate_text(
+                    "ladder.cir",
+                    Path::new("ladder.cir"),
+                    text.clone(),
+                    &FsLoader,
+                )
+                .ok()
+                .expect("ladder elaborates");
                 let built = build::build(&el.circuit, Options::default());
                 assert!(built.system.eqs.len() > 4 * n);
                 built

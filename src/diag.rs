@@ -63,7 +63,12 @@ pub struct SourceMap {
 }
 
 impl SourceMap {
-    pub fn add(&mut self, name: impl Into<String>, path: impl Into<PathBuf>, text: String) -> FileId {
+    pub fn add(
+        &mut self,
+        name: impl Into<String>,
+        path: impl Into<PathBuf>,
+        text: String,
+    ) -> FileId {
         let id = FileId(self.files.len() as u32);
         self.files.push(SourceFile {
             name: name.into(),
@@ -317,8 +322,11 @@ impl MietteDiag {
         let mut main = make(primary.file, &by_file[0].1, diag.message.clone());
         main.help = help;
         for (file, labels) in &by_file[1..] {
-            main.related
-                .push(make(*file, labels, format!("see also `{}`", sources.file(*file).name)));
+            main.related.push(make(
+                *file,
+                labels,
+                format!("see also `{}`", sources.file(*file).name),
+            ));
         }
         main
     }

@@ -34,8 +34,8 @@ pub fn rlc_ladder(n: usize) -> String {
     s
 }
 
-/// A `rows` × `cols` mesh of resistors with one capacitor per node, driven
-/// at a corner: every mesh is an algebraic loop.
+/// A `rows` × `cols` mesh of resistors, driven at a corner: every mesh is an
+/// algebraic loop (one block for the whole mesh).
 pub fn r_mesh(rows: usize, cols: usize) -> String {
     let mut s = String::with_capacity(rows * cols * 60 + 200);
     let _ = writeln!(s, "Resistor mesh {rows}x{cols}");
@@ -55,5 +55,22 @@ pub fn r_mesh(rows: usize, cols: usize) -> String {
     }
     let _ = writeln!(s, "RG n{}_{} 0 1k", rows - 1, cols - 1);
     s.push_str(".tran 1u 1m\n.end\n");
+    s
+}
+
+/// A resistor mesh as [`r_mesh`] with a capacitor from every `stride`-th
+/// node to ground: loops between the capacitors' nodes, one state each.
+pub fn rc_mesh(rows: usize, cols: usize) -> String {
+    let mut s = r_mesh(rows, cols);
+    let end = s.rfind(".tran").unwrap_or(s.len());
+    let mut caps = String::new();
+    for r in 0..rows {
+        for c in 0..cols {
+            if (r + c) % 3 == 0 && (r, c) != (0, 0) {
+                let _ = writeln!(caps, "C{r}_{c} n{r}_{c} 0 1n");
+            }
+        }
+    }
+    s.insert_str(end, &caps);
     s
 }

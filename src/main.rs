@@ -6,9 +6,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
+use kausal::back::listing;
 use kausal::build::{self, Kvl};
 use kausal::diag::{self, Diagnostic, RenderOptions, SourceMap};
-use kausal::back::listing;
 use kausal::io::FsLoader;
 use kausal::pipeline::{self, Failed};
 

@@ -88,7 +88,26 @@ pub struct Colouring<'g> {
     trial_inversions: usize,
 }
 
+/// What a finished colouring leaves behind.
+pub struct Parts {
+    pub colour: Vec<EdgeColour>,
+    pub trace: Vec<TraceStep>,
+    pub number: Vec<u32>,
+    pub constraints: Vec<EqId>,
+    pub orphans: Vec<VarId>,
+}
+
 impl<'g> Colouring<'g> {
+    pub fn into_parts(self) -> Parts {
+        Parts {
+            colour: self.colour,
+            trace: self.trace,
+            number: self.number,
+            constraints: self.constraints,
+            orphans: self.orphans,
+        }
+    }
+
     pub fn new(g: &'g StructureGraph) -> Colouring<'g> {
         let n_eqs = g.n_eqs();
         let n_vars = g.n_vars();

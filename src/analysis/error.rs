@@ -37,7 +37,12 @@ impl Culprit {
             id: v.to_string(),
             text: var.name.clone(),
             origin: var.origin.describe(),
-            elements: var.origin.elements().into_iter().map(String::from).collect(),
+            elements: var
+                .origin
+                .elements()
+                .into_iter()
+                .map(String::from)
+                .collect(),
             span: var.origin.span,
         }
     }
@@ -61,18 +66,28 @@ pub enum StructuralError {
 fn summary(constraints: &[Culprit], orphans: &[Culprit]) -> String {
     let mut parts = Vec::new();
     if !constraints.is_empty() {
-        let names: Vec<String> = constraints.iter().map(|c| format!("`{}` ({})", c.text, c.origin)).collect();
+        let names: Vec<String> = constraints
+            .iter()
+            .map(|c| format!("`{}` ({})", c.text, c.origin))
+            .collect();
         parts.push(format!("{} has no unknown left", names.join(", ")));
     }
     if !orphans.is_empty() {
         let names: Vec<String> = orphans.iter().map(|c| format!("`{}`", c.text)).collect();
-        parts.push(format!("no equation is left to compute {}", names.join(", ")));
+        parts.push(format!(
+            "no equation is left to compute {}",
+            names.join(", ")
+        ));
     }
     parts.join("; ")
 }
 
 impl StructuralError {
-    pub fn singular(sys: &EquationSystem, constraints: &[EqId], orphans: &[VarId]) -> StructuralError {
+    pub fn singular(
+        sys: &EquationSystem,
+        constraints: &[EqId],
+        orphans: &[VarId],
+    ) -> StructuralError {
         let mut cs: Vec<EqId> = constraints.to_vec();
         cs.sort();
         cs.dedup();
@@ -103,7 +118,10 @@ impl StructuralError {
 impl ToDiagnostic for StructuralError {
     fn to_diagnostic(&self) -> Diagnostic {
         match self {
-            StructuralError::Singular { constraints, orphans } => {
+            StructuralError::Singular {
+                constraints,
+                orphans,
+            } => {
                 let mut d = Diagnostic::error("K0300", self.to_string());
                 for c in constraints {
                     if let Some(span) = c.span {
@@ -115,7 +133,9 @@ impl ToDiagnostic for StructuralError {
                         d = d.with_label(span, format!("{} cannot be computed", o.text));
                     }
                 }
-                d.with_help("states are algebraically coupled or a part of the circuit is undetermined")
+                d.with_help(
+                    "states are algebraically coupled or a part of the circuit is undetermined",
+                )
             }
             StructuralError::Loops { blocks } => {
                 let mut d = Diagnostic::error("K0301", self.to_string());

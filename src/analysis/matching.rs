@@ -155,7 +155,8 @@ pub fn blt(c: &Colouring<'_>) -> Blt {
         .into_iter()
         .filter(|comp| comp.iter().all(|&l| m[l as usize] != FREE))
         .map(|comp| {
-            let mut bvars: Vec<VarId> = comp.iter().map(|&l| vars[m[l as usize] as usize]).collect();
+            let mut bvars: Vec<VarId> =
+                comp.iter().map(|&l| vars[m[l as usize] as usize]).collect();
             bvars.sort();
             BltBlock {
                 eqs: comp.iter().map(|&l| eqs[l as usize]).collect(),

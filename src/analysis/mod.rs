@@ -75,45 +75,61 @@ pub fn causalize(sys: &EquationSystem, opts: Options) -> Result<Causalization, S
         let mut tears = Vec::new();
         let mut stalls = Vec::new();
         c.propagate();
-        // The block currently being torn: its equations, while any is open.
-        let mut current: Vec<EqId> = Vec::new();
-        while c.constraints.is_empty() && c.orphans.is_empty() {
-            current.retain(|&e| !c.is_done(e));
-            if c.remaining().next().is_none() {
-                break;
-            }
-            if current.is_empty() {
-                let blt = matching::blt(&c);
-                if !blt.unmatched_eqs.is_empty() || !blt.unmatched_vars.is_empty() {
-                    c.constraints.extend(blt.unmatched_eqs.iter().copied());
-                    c.orphans.extend(blt.unmatched_vars.iter().copied());
-                    break;
-                }
-                current = blt.blocks.first().map(|b| b.eqs.clone()).unwrap_or_default();
-                tear::mark_nonlinear(&mut c, sys, &current);
-                stalls.push(Stall {
-                    after: c.n_assigned(),
-                    blocks: blt.blocks,
-                });
-            }
+        let n_eqs = sys.eqs.len();
+        // Blocks of the last BLT decomposition still to tear, in order.
+        let mut pending: std::collections::VecDeque<Vec<EqId>> = Default::default();
+        let mut current: Option<tear::BlockTearer> = None;
+        while c.constraints.is_empty() && c.orphans.is_empty() && c.n_assigned() < n_eqs {
             if !opts.tearing {
+                if stalls.is_empty() {
+                    stalls.push(Stall {
+                        after: c.n_assigned(),
+                        blocks: matching::blt(&c).blocks,
+                    });
+                }
                 break;
             }
-            let Some(t) = tear::choose(&mut c, &current) else {
-                break;
+            let choice = current.as_mut().and_then(|t| t.choose(&mut c));
+            let Some(t) = choice else {
+                // The current block is done: go on with the next one.
+                current = None;
+                while let Some(b) = pending.pop_front() {
+                    if b.iter().any(|&e| !c.is_done(e)) {
+                        current = Some(tear::BlockTearer::new(&mut c, sys, &b));
+                        break;
+                    }
+                }
+                if current.is_none() {
+                    let blt = matching::blt(&c);
+                    if !blt.unmatched_eqs.is_empty() || !blt.unmatched_vars.is_empty() {
+                        c.constraints.extend(blt.unmatched_eqs.iter().copied());
+                        c.orphans.extend(blt.unmatched_vars.iter().copied());
+                        break;
+                    }
+                    if blt.blocks.is_empty() {
+                        break;
+                    }
+                    pending.extend(blt.blocks.iter().map(|b| b.eqs.clone()));
+                    stalls.push(Stall {
+                        after: c.n_assigned(),
+                        blocks: blt.blocks,
+                    });
+                }
+                continue;
             };
             c.tear(t.eq, t.var);
             tears.push(t);
             c.propagate();
         }
+        let parts = c.into_parts();
         (
-            c.colour.clone(),
-            c.trace.clone(),
-            c.number.clone(),
+            parts.colour,
+            parts.trace,
+            parts.number,
             tears,
             stalls,
-            c.constraints.clone(),
-            c.orphans.clone(),
+            parts.constraints,
+            parts.orphans,
         )
     };
     let mut assigned = IdVec::filled(sys.eqs.len(), None);

@@ -71,12 +71,14 @@ impl Schedule {
 
     /// Every assignment, blocks flattened (inner first, then residuals).
     pub fn assignments(&self) -> impl Iterator<Item = &Assignment> {
-        self.steps.iter().flat_map(|s| -> Box<dyn Iterator<Item = &Assignment>> {
-            match s {
-                Step::Assign(a) => Box::new(std::iter::once(a)),
-                Step::Block(b) => Box::new(b.inner.iter().chain(b.residuals.iter())),
-            }
-        })
+        self.steps
+            .iter()
+            .flat_map(|s| -> Box<dyn Iterator<Item = &Assignment>> {
+                match s {
+                    Step::Assign(a) => Box::new(std::iter::once(a)),
+                    Step::Block(b) => Box::new(b.inner.iter().chain(b.residuals.iter())),
+                }
+            })
     }
 }
 
@@ -221,10 +223,8 @@ fn block(
     }
     residuals.sort_by_key(|a| a.number);
     let tears: Vec<VarId> = residuals.iter().map(|a| a.var).collect();
-    let block_vars: std::collections::HashSet<VarId> = comp
-        .iter()
-        .filter_map(|&e| c.assigned[EqId(e)])
-        .collect();
+    let block_vars: std::collections::HashSet<VarId> =
+        comp.iter().filter_map(|&e| c.assigned[EqId(e)]).collect();
     let linear = comp.iter().all(|&e| {
         let eq = &sys.eqs[EqId(e)];
         let f = x.sub(eq.lhs, eq.rhs);

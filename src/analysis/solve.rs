@@ -10,17 +10,34 @@ use crate::ir::{Expr, ExprArena, ExprId, Func, VarId};
 
 /// The nodes of the DAG below `root`, ascending (children first).
 pub fn subtree(x: &ExprArena, root: ExprId) -> Vec<ExprId> {
-    let mut seen = std::collections::HashSet::new();
     let mut stack = vec![root];
-    let mut out = Vec::new();
+    let mut out: Vec<ExprId> = Vec::new();
+    // Small trees (the usual equation) check repeats by scanning; large DAGs
+    // switch to a hash set so shared subterms are visited once.
+    let mut seen: Option<std::collections::HashSet<ExprId>> = None;
     while let Some(e) = stack.pop() {
-        if !seen.insert(e) {
+        let repeat = match &mut seen {
+            Some(set) => !set.insert(e),
+            None => {
+                if out.len() >= 64 {
+                    seen = Some(out.iter().copied().chain([e]).collect());
+                    false
+                } else {
+                    out.contains(&e)
+                }
+            }
+        };
+        if repeat {
             continue;
         }
         out.push(e);
         match x.get(e) {
             Expr::Neg(a) | Expr::Call(_, a) => stack.push(a),
-            Expr::Add(a, b) | Expr::Sub(a, b) | Expr::Mul(a, b) | Expr::Div(a, b) | Expr::Pow(a, b) => {
+            Expr::Add(a, b)
+            | Expr::Sub(a, b)
+            | Expr::Mul(a, b)
+            | Expr::Div(a, b)
+            | Expr::Pow(a, b) => {
                 stack.push(a);
                 stack.push(b);
             }
@@ -28,23 +45,52 @@ pub fn subtree(x: &ExprArena, root: ExprId) -> Vec<ExprId> {
         }
     }
     out.sort_unstable();
+    out.dedup();
     out
+}
+
+/// A map from the nodes of a [`subtree`] (sorted ids) to values.
+struct NodeMap<'n, T> {
+    nodes: &'n [ExprId],
+    vals: Vec<T>,
+}
+
+impl<T: Copy> NodeMap<'_, T> {
+    fn idx(&self, e: ExprId) -> usize {
+        self.nodes.binary_search(&e).expect("node of the subtree")
+    }
+}
+
+impl<T: Copy> std::ops::Index<&ExprId> for NodeMap<'_, T> {
+    type Output = T;
+    fn index(&self, e: &ExprId) -> &T {
+        &self.vals[self.idx(*e)]
+    }
 }
 
 /// For each node of `nodes` (ascending), whether it depends on a variable
 /// for which `is_var` holds.
-fn dependence(x: &ExprArena, nodes: &[ExprId], is_var: &dyn Fn(VarId) -> bool) -> HashMap<ExprId, bool> {
-    let mut dep: HashMap<ExprId, bool> = HashMap::with_capacity(nodes.len());
+fn dependence<'n>(
+    x: &ExprArena,
+    nodes: &'n [ExprId],
+    is_var: &dyn Fn(VarId) -> bool,
+) -> NodeMap<'n, bool> {
+    let mut dep = NodeMap {
+        nodes,
+        vals: Vec::with_capacity(nodes.len()),
+    };
     for &n in nodes {
         let d = match x.get(n) {
             Expr::Var(v) => is_var(v),
             Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => false,
             Expr::Neg(a) | Expr::Call(_, a) => dep[&a],
-            Expr::Add(a, b) | Expr::Sub(a, b) | Expr::Mul(a, b) | Expr::Div(a, b) | Expr::Pow(a, b) => {
-                dep[&a] || dep[&b]
-            }
+            Expr::Add(a, b)
+            | Expr::Sub(a, b)
+            | Expr::Mul(a, b)
+            | Expr::Div(a, b)
+            | Expr::Pow(a, b) => dep[&a] || dep[&b],
         };
-        dep.insert(n, d);
+        dep.vals.push(d);
     }
     dep
 }
@@ -66,7 +112,7 @@ pub fn is_linear_in(x: &ExprArena, root: ExprId, is_var: &dyn Fn(VarId) -> bool)
 pub fn linear_coeffs(x: &mut ExprArena, root: ExprId, v: VarId) -> Option<(ExprId, ExprId)> {
     let nodes = subtree(x, root);
     let dep = dependence(x, &nodes, &|w| w == v);
-    let mut lin: HashMap<ExprId, (ExprId, ExprId)> = HashMap::new();
+    let mut lin: HashMap<ExprId, (ExprId, ExprId)> = HashMap::with_capacity(8);
     let zero = x.constant(0.0);
     let one = x.constant(1.0);
     for &n in &nodes {
@@ -189,6 +235,13 @@ pub enum Solved {
 
 /// Solve `lhs = rhs` for `v`.
 pub fn solve_for(x: &mut ExprArena, lhs: ExprId, rhs: ExprId, v: VarId) -> Solved {
+    // The common case first: `v = expr` or `expr = v`.
+    if x.get(lhs) == Expr::Var(v) && x.occurrences(rhs, v) == 0 {
+        return Solved::Explicit(rhs);
+    }
+    if x.get(rhs) == Expr::Var(v) && x.occurrences(lhs, v) == 0 {
+        return Solved::Explicit(lhs);
+    }
     let in_l = x.occurrences(lhs, v) > 0;
     let in_r = x.occurrences(rhs, v) > 0;
     let (side, other) = match (in_l, in_r) {
@@ -239,9 +292,13 @@ mod tests {
         let p = s.add_param("R1".into(), 1e3);
         let (pe, ue, ie) = (s.exprs.param(p), s.exprs.var(u), s.exprs.var(i));
         let rhs = s.exprs.mul(pe, ie);
-        let Solved::Explicit(e) = solve_for(&mut s.exprs, ue, rhs, i) else { panic!() };
+        let Solved::Explicit(e) = solve_for(&mut s.exprs, ue, rhs, i) else {
+            panic!()
+        };
         assert_eq!(print::expr(&s, e), "u/R1");
-        let Solved::Explicit(e) = solve_for(&mut s.exprs, ue, rhs, u) else { panic!() };
+        let Solved::Explicit(e) = solve_for(&mut s.exprs, ue, rhs, u) else {
+            panic!()
+        };
         assert_eq!(print::expr(&s, e), "R1*i");
     }
 
@@ -257,7 +314,9 @@ mod tests {
         let one = x.constant(1.0);
         let em1 = x.sub(ex, one);
         let rhs = x.mul(ise, em1);
-        let Solved::Explicit(e) = solve_for(x, ie, rhs, u) else { panic!() };
+        let Solved::Explicit(e) = solve_for(x, ie, rhs, u) else {
+            panic!()
+        };
         assert_eq!(print::expr(&s, e), "ln(i/is + 1)*nvt");
     }
 
@@ -268,7 +327,9 @@ mod tests {
         let (ue, ie) = (x.var(u), x.var(i));
         let zero = x.constant(0.0);
         let sum = x.add(ue, ie);
-        let Solved::Explicit(e) = solve_for(x, zero, sum, u) else { panic!() };
+        let Solved::Explicit(e) = solve_for(x, zero, sum, u) else {
+            panic!()
+        };
         assert_eq!(print::expr(&s, e), "-i");
     }
 }

@@ -38,7 +38,14 @@ fn residual_of(sys: &EquationSystem, s: &Schedule, a: &Assignment, vals: &[f64],
     eval(sys, &s.exprs, eq.lhs, vals, t) - eval(sys, &s.exprs, eq.rhs, vals, t)
 }
 
-fn assign(sys: &EquationSystem, s: &Schedule, a: &Assignment, vals: &mut [f64], t: f64, block: usize) -> Result<(), InterpError> {
+fn assign(
+    sys: &EquationSystem,
+    s: &Schedule,
+    a: &Assignment,
+    vals: &mut [f64],
+    t: f64,
+    block: usize,
+) -> Result<(), InterpError> {
     match a.solved {
         Solved::Explicit(e) => {
             vals[a.var.0 as usize] = eval(sys, &s.exprs, e, vals, t);
@@ -105,7 +112,12 @@ fn solve_dense(n: usize, a: &mut [f64], b: &mut [f64]) -> bool {
 
 /// Execute the schedule: on entry `vals` holds the states (and warm-start
 /// guesses for tearing variables); on exit every unknown is computed.
-pub fn run(sys: &EquationSystem, s: &Schedule, vals: &mut [f64], t: f64) -> Result<(), InterpError> {
+pub fn run(
+    sys: &EquationSystem,
+    s: &Schedule,
+    vals: &mut [f64],
+    t: f64,
+) -> Result<(), InterpError> {
     for step in &s.steps {
         match step {
             Step::Assign(a) => assign(sys, s, a, vals, t, 0)?,
@@ -116,14 +128,20 @@ pub fn run(sys: &EquationSystem, s: &Schedule, vals: &mut [f64], t: f64) -> Resu
                     for a in &b.inner {
                         assign(sys, s, a, vals, t, b.index)?;
                     }
-                    Ok(b.residuals.iter().map(|a| residual_of(sys, s, a, vals, t)).collect())
+                    Ok(b.residuals
+                        .iter()
+                        .map(|a| residual_of(sys, s, a, vals, t))
+                        .collect())
                 };
                 let mut converged = false;
                 let mut last = f64::INFINITY;
                 let norm = |r: &[f64]| r.iter().map(|x| x.abs()).fold(0.0, f64::max);
                 let mut r = resid(vals)?;
                 for _ in 0..200 {
-                    let scale: f64 = tears.iter().map(|v| vals[v.0 as usize].abs()).fold(1.0, f64::max);
+                    let scale: f64 = tears
+                        .iter()
+                        .map(|v| vals[v.0 as usize].abs())
+                        .fold(1.0, f64::max);
                     last = norm(&r);
                     if last <= 1e-13 * scale {
                         converged = true;

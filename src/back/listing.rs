@@ -25,7 +25,10 @@ fn assignment_text(sys: &EquationSystem, s: &Schedule, a: &Assignment) -> String
     let name = &sys.vars[a.var].name;
     match a.solved {
         Solved::Explicit(e) => format!("{name} := {}", expr(sys, &s.exprs, e)),
-        Solved::Implicit(e) => format!("0 = {}  (solved numerically for {name})", expr(sys, &s.exprs, e)),
+        Solved::Implicit(e) => format!(
+            "0 = {}  (solved numerically for {name})",
+            expr(sys, &s.exprs, e)
+        ),
     }
 }
 
@@ -71,22 +74,28 @@ fn block_header(b: &Block) -> String {
 pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
     let mut rows: Vec<(String, String, String)> = Vec::new();
     let mut k = 0;
-    let mut line = |rows: &mut Vec<(String, String, String)>, a: &Assignment, indent: &str, note: &str| {
-        k += 1;
-        let origin = &sys.eqs[a.eq].origin;
-        rows.push((
-            format!("{k:>5}  {indent}{}{note}", assignment_text(sys, s, a)),
-            a.eq.to_string(),
-            origin.describe(),
-        ));
-    };
+    let mut line =
+        |rows: &mut Vec<(String, String, String)>, a: &Assignment, indent: &str, note: &str| {
+            k += 1;
+            let origin = &sys.eqs[a.eq].origin;
+            rows.push((
+                format!("{k:>5}  {indent}{}{note}", assignment_text(sys, s, a)),
+                a.eq.to_string(),
+                origin.describe(),
+            ));
+        };
     for step in &s.steps {
         match step {
             Step::Assign(a) => line(&mut rows, a, "", ""),
             Step::Block(b) => {
                 let tears: Vec<&str> = b.tears.iter().map(|&v| sys.vars[v].name.as_str()).collect();
                 rows.push((
-                    format!("       block {}: {}; tearing: {}", b.index, block_header(b), tears.join(", ")),
+                    format!(
+                        "       block {}: {}; tearing: {}",
+                        b.index,
+                        block_header(b),
+                        tears.join(", ")
+                    ),
                     String::new(),
                     String::new(),
                 ));
@@ -96,7 +105,11 @@ pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
                 for a in &b.residuals {
                     line(&mut rows, a, "  ", "  (residual)");
                 }
-                rows.push((format!("       end of block {}", b.index), String::new(), String::new()));
+                rows.push((
+                    format!("       end of block {}", b.index),
+                    String::new(),
+                    String::new(),
+                ));
             }
         }
     }
@@ -131,9 +144,23 @@ pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
     if sm.blocks > 0 {
         let _ = write!(out, " (largest: {} equations)", sm.largest_block);
     }
-    let _ = write!(out, ", {} tearing variable{}", sm.tearing_variables.len(), if sm.tearing_variables.len() == 1 { "" } else { "s" });
+    let _ = write!(
+        out,
+        ", {} tearing variable{}",
+        sm.tearing_variables.len(),
+        if sm.tearing_variables.len() == 1 {
+            ""
+        } else {
+            "s"
+        }
+    );
     if !sm.tearing_variables.is_empty() {
-        let _ = write!(out, " ({})", sm.tearing_variables.join(", "));
+        const SHOWN: usize = 8;
+        let mut names = sm.tearing_variables[..sm.tearing_variables.len().min(SHOWN)].join(", ");
+        if sm.tearing_variables.len() > SHOWN {
+            let _ = write!(names, ", and {} more", sm.tearing_variables.len() - SHOWN);
+        }
+        let _ = write!(out, " ({names})");
     }
     if sm.implicit > 0 {
         let _ = write!(out, ", {} implicit", sm.implicit);
@@ -162,7 +189,12 @@ pub fn trace(sys: &EquationSystem, c: &Causalization) -> String {
             for b in &st.blocks {
                 let eqs: Vec<String> = b.eqs.iter().map(|e| e.to_string()).collect();
                 let vars: Vec<&str> = b.vars.iter().map(|&v| sys.vars[v].name.as_str()).collect();
-                let _ = writeln!(out, "    block {{{}}} in {{{}}}", eqs.join(", "), vars.join(", "));
+                let _ = writeln!(
+                    out,
+                    "    block {{{}}} in {{{}}}",
+                    eqs.join(", "),
+                    vars.join(", ")
+                );
             }
         }
         let rule = match step.rule {
@@ -181,14 +213,23 @@ pub fn trace(sys: &EquationSystem, c: &Causalization) -> String {
         if step.rule == Rule::Tear
             && let Some(t) = tears.next()
         {
-            let _ = write!(out, "   (causalizes {} equations; {} candidates)", t.gain, t.candidates);
+            let _ = write!(
+                out,
+                "   (causalizes {} equations; {} candidates)",
+                t.gain, t.candidates
+            );
         }
         out.push('\n');
     }
     out
 }
 
-fn assignment_json(sys: &EquationSystem, s: &Schedule, a: &Assignment, k: &mut usize) -> serde_json::Value {
+fn assignment_json(
+    sys: &EquationSystem,
+    s: &Schedule,
+    a: &Assignment,
+    k: &mut usize,
+) -> serde_json::Value {
     *k += 1;
     let e = &sys.eqs[a.eq];
     let (form, text) = match a.solved {
@@ -301,7 +342,11 @@ pub fn dot(sys: &EquationSystem, c: &Causalization) -> String {
             EdgeColour::Blue => "blue",
             EdgeColour::Black => "black",
         };
-        let width = if c.colours[k] == EdgeColour::Red { ", penwidth=2" } else { "" };
+        let width = if c.colours[k] == EdgeColour::Red {
+            ", penwidth=2"
+        } else {
+            ""
+        };
         let _ = writeln!(out, "  {eq} -- {v} [color={colour}{width}];");
     }
     out.push_str("}\n");
@@ -329,7 +374,10 @@ pub fn incidence(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> Strin
         col[v.0 as usize] = k;
     }
     let mut out = String::new();
-    let _ = writeln!(out, "sorted incidence (rows: assignments in order; columns: unknowns as computed):");
+    let _ = writeln!(
+        out,
+        "sorted incidence (rows: assignments in order; columns: unknowns as computed):"
+    );
     for (k, &v) in cols.iter().enumerate() {
         let _ = writeln!(out, "  c{k:<4} {}", sys.vars[v].name);
     }
@@ -346,7 +394,12 @@ pub fn incidence(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> Strin
                 row[k] = if v == a.var { '#' } else { 'x' };
             }
         }
-        let _ = writeln!(out, "  {:>6} {}", a.eq.to_string(), row.iter().collect::<String>());
+        let _ = writeln!(
+            out,
+            "  {:>6} {}",
+            a.eq.to_string(),
+            row.iter().collect::<String>()
+        );
     }
     out
 }

@@ -165,7 +165,11 @@ pub fn eliminate(b: &mut Built, circuit: &Circuit) {
             if is_fixed(r) || al.value[r].is_some() {
                 continue;
             }
-            let scaled = if s < 0.0 { b.system.exprs.neg(val) } else { val };
+            let scaled = if s < 0.0 {
+                b.system.exprs.neg(val)
+            } else {
+                val
+            };
             al.value[r] = Some(scaled);
             removed.push(eq);
             notes.push(format!(

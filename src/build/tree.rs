@@ -110,7 +110,9 @@ pub fn potentials_from_tree(
             }
         }
     }
-    pot.into_iter().map(|p| p.expect("every node visited")).collect()
+    pot.into_iter()
+        .map(|p| p.expect("every node visited"))
+        .collect()
 }
 
 /// `u_link = v(a) - v(b)` for every element outside the tree, with the tree

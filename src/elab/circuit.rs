@@ -63,22 +63,51 @@ impl Default for DiodeModel {
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum ElementKind {
-    Resistor { r: f64 },
-    Capacitor { c: f64, ic: Option<f64> },
-    Inductor { l: f64, ic: Option<f64> },
+    Resistor {
+        r: f64,
+    },
+    Capacitor {
+        c: f64,
+        ic: Option<f64>,
+    },
+    Inductor {
+        l: f64,
+        ic: Option<f64>,
+    },
     /// Mutual coupling `k` between two inductors.
-    Coupling { l1: ElemId, l2: ElemId, k: f64 },
-    VSource { wave: Waveform },
-    ISource { wave: Waveform },
+    Coupling {
+        l1: ElemId,
+        l2: ElemId,
+        k: f64,
+    },
+    VSource {
+        wave: Waveform,
+    },
+    ISource {
+        wave: Waveform,
+    },
     /// E: nodes are out+, out-, ctrl+, ctrl-.
-    Vcvs { gain: f64 },
+    Vcvs {
+        gain: f64,
+    },
     /// G: nodes are out+, out-, ctrl+, ctrl-.
-    Vccs { gm: f64 },
+    Vccs {
+        gm: f64,
+    },
     /// F: current gain on the current of V source `ctrl`.
-    Cccs { gain: f64, ctrl: ElemId },
+    Cccs {
+        gain: f64,
+        ctrl: ElemId,
+    },
     /// H: transresistance on the current of V source `ctrl`.
-    Ccvs { r: f64, ctrl: ElemId },
-    Diode { model: DiodeModel, area: f64 },
+    Ccvs {
+        r: f64,
+        ctrl: ElemId,
+    },
+    Diode {
+        model: DiodeModel,
+        area: f64,
+    },
 }
 
 impl ElementKind {
@@ -190,7 +219,9 @@ impl Circuit {
     pub fn find_element(&self, name: &str) -> Option<ElemId> {
         self.elements
             .iter()
-            .find(|(_, e)| e.name.eq_ignore_ascii_case(name) || e.ngspice_name() == name.to_ascii_lowercase())
+            .find(|(_, e)| {
+                e.name.eq_ignore_ascii_case(name) || e.ngspice_name() == name.to_ascii_lowercase()
+            })
             .map(|(id, _)| id)
     }
 

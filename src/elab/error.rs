@@ -40,7 +40,11 @@ pub enum ElabError {
         def: Span,
     },
     #[error("element `{name}` is defined twice")]
-    DuplicateElement { span: Span, name: String, first: Span },
+    DuplicateElement {
+        span: Span,
+        name: String,
+        first: Span,
+    },
     #[error("`{name}` has both terminals on node `{node}`")]
     SingleNode {
         span: Span,

@@ -114,10 +114,10 @@ const DIODE_PARAMS: &[&str] = &[
 /// the nominal temperature.
 const DIODE_IGNORED: &[&str] = &[
     "eg", "xti", "kf", "af", "tnom", "level", "ikf", "ik", "ikr", "isr", "nr", "nbv", "ibvl",
-    "nbvl", "tbv1", "tbv2", "trs", "trs1", "trs2", "tt1", "tt2", "tm1", "tm2", "cta", "ctp",
-    "tpb", "tphp", "jsw", "cjsw", "cjp", "php", "mjsw", "fcs", "area", "pj", "vp", "lm", "lp",
-    "wm", "wp", "xom", "xoi", "xm", "xp", "d", "bvj", "iave", "vrev", "version", "bv_max",
-    "fv_max", "id_max", "pd_max", "te_max", "rth0", "cth0", "kms",
+    "nbvl", "tbv1", "tbv2", "trs", "trs1", "trs2", "tt1", "tt2", "tm1", "tm2", "cta", "ctp", "tpb",
+    "tphp", "jsw", "cjsw", "cjp", "php", "mjsw", "fcs", "area", "pj", "vp", "lm", "lp", "wm", "wp",
+    "xom", "xoi", "xm", "xp", "d", "bvj", "iave", "vrev", "version", "bv_max", "fv_max", "id_max",
+    "pd_max", "te_max", "rth0", "cth0", "kms",
 ];
 
 impl Elab {
@@ -685,13 +685,9 @@ impl Elab {
             let elem_name = self.circuit.elements[p.elem].name.clone();
             match p.what {
                 PendingRef::Control { vsrc } => {
-                    let found = self
-                        .elem_map
-                        .get(&vsrc)
-                        .map(|&(id, _)| id)
-                        .filter(|&id| {
-                            matches!(self.circuit.elements[id].kind, ElementKind::VSource { .. })
-                        });
+                    let found = self.elem_map.get(&vsrc).map(|&(id, _)| id).filter(|&id| {
+                        matches!(self.circuit.elements[id].kind, ElementKind::VSource { .. })
+                    });
                     match found {
                         Some(id) => match &mut self.circuit.elements[p.elem].kind {
                             ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => {
@@ -805,10 +801,10 @@ impl Elab {
                 }
                 Stmt::Output { vectors, .. } => {
                     for v in vectors {
-                        if let Some(o) = self.output(v) {
-                            if !self.circuit.outputs.contains(&o) {
-                                self.circuit.outputs.push(o);
-                            }
+                        if let Some(o) = self.output(v)
+                            && !self.circuit.outputs.contains(&o)
+                        {
+                            self.circuit.outputs.push(o);
                         }
                     }
                 }
@@ -863,7 +859,11 @@ impl Elab {
     /// Warn about nodes with one connection (skipped when errors removed
     /// elements, which would make the warning misleading).
     fn dangling(&mut self) {
-        if self.errors.iter().any(|e| e.severity() == crate::diag::Severity::Error) {
+        if self
+            .errors
+            .iter()
+            .any(|e| e.severity() == crate::diag::Severity::Error)
+        {
             return;
         }
         let mut count = vec![0u32; self.circuit.nodes.len()];
@@ -887,10 +887,12 @@ fn try_value(v: &Value<'_>, scope: &Scope<'_, '_>) -> Result<f64, ElabError> {
     use crate::front::expr::EvalError;
     match v {
         Value::Num { value, .. } => Ok(*value),
-        Value::Ident(n) => scope.param(&n.key()).ok_or_else(|| ElabError::UndefinedParam {
-            span: n.span,
-            name: n.text.to_string(),
-        }),
+        Value::Ident(n) => scope
+            .param(&n.key())
+            .ok_or_else(|| ElabError::UndefinedParam {
+                span: n.span,
+                name: n.text.to_string(),
+            }),
         Value::Expr { expr, text, span } => {
             expr.eval(&|name| scope.param(name)).map_err(|e| match e {
                 EvalError::Undefined(name) => ElabError::UndefinedParam { span: *span, name },

@@ -25,8 +25,16 @@ impl Name<'_> {
 /// A numeric value: a literal, a `{…}` expression or a bare parameter name.
 #[derive(Clone, Debug)]
 pub enum Value<'a> {
-    Num { value: f64, text: &'a str, span: Span },
-    Expr { expr: PExpr, text: &'a str, span: Span },
+    Num {
+        value: f64,
+        text: &'a str,
+        span: Span,
+    },
+    Expr {
+        expr: PExpr,
+        text: &'a str,
+        span: Span,
+    },
     Ident(Name<'a>),
 }
 

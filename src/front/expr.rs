@@ -171,7 +171,10 @@ fn mul_op(i: &str) -> IResult<&str, BinOp> {
 fn product(input: &str) -> IResult<&str, PExpr> {
     let (mut i, mut acc) = unary(input)?;
     loop {
-        let op = ws(alt((mul_op, |i| char('/')(i).map(|(i, _)| (i, BinOp::Div))))).parse(i);
+        let op = ws(alt((mul_op, |i| {
+            char('/')(i).map(|(i, _)| (i, BinOp::Div))
+        })))
+        .parse(i);
         match op {
             Ok((r, op)) => {
                 let (r, rhs) = unary(r)?;

@@ -147,8 +147,7 @@ pub fn tokenize<'a>(
     let mut toks = Vec::new();
     let mut rest = body;
     let at = |rest: &str| base + (body.len() - rest.len());
-    loop {
-        let Ok((r, _)) = separators(rest) else { break };
+    while let Ok((r, _)) = separators(rest) {
         rest = r;
         let Some(c) = rest.chars().next() else { break };
         // End-of-line comments: `;` anywhere, `$` and `//` after white space.
@@ -260,14 +259,17 @@ mod tests {
             kinds("R1 a b {2*rval} $ x"),
             vec![(Word, "R1"), (Word, "a"), (Word, "b"), (Expr, "2*rval")]
         );
-        assert_eq!(kinds(".ic v(a)=1"), vec![
-            (Word, ".ic"),
-            (Word, "v"),
-            (LParen, "("),
-            (Word, "a"),
-            (RParen, ")"),
-            (Eq, "="),
-            (Word, "1")
-        ]);
+        assert_eq!(
+            kinds(".ic v(a)=1"),
+            vec![
+                (Word, ".ic"),
+                (Word, "v"),
+                (LParen, "("),
+                (Word, "a"),
+                (RParen, ")"),
+                (Eq, "="),
+                (Word, "1")
+            ]
+        );
     }
 }

@@ -98,7 +98,8 @@ impl<'a> Parser<'a> {
                         if closed {
                             self.errors.push(ParseError::SkippedControl { span: start });
                         } else {
-                            self.errors.push(ParseError::UnclosedControl { span: start });
+                            self.errors
+                                .push(ParseError::UnclosedControl { span: start });
                         }
                     }
                     _ => {
@@ -720,9 +721,11 @@ impl<'a> Parser<'a> {
                 });
                 continue;
             }
-            if ["sffm", "am", "trnoise", "trrandom", "pat", "distof1", "distof2"]
-                .iter()
-                .any(|w| t.is_word(w))
+            if [
+                "sffm", "am", "trnoise", "trrandom", "pat", "distof1", "distof2",
+            ]
+            .iter()
+            .any(|w| t.is_word(w))
             {
                 self.errors.push(ParseError::UnsupportedSource {
                     span: t.span,
@@ -881,7 +884,10 @@ pub(super) fn value_of<'a>(t: &Token<'a>) -> Result<Value<'a>, ParseError> {
                     text: t.text,
                     span: t.span,
                 })
-            } else if t.text.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_') {
+            } else if t
+                .text
+                .starts_with(|c: char| c.is_ascii_alphabetic() || c == '_')
+            {
                 Ok(Value::Ident(name_of(t)))
             } else {
                 Err(ParseError::BadNumber {

@@ -14,7 +14,7 @@ mod verify;
 pub use entity::{EntityId, IdVec};
 pub use expr::{Expr, ExprArena, ExprId, Func, bits};
 pub use system::{
-    Equation, EqId, EquationSystem, Origin, OriginKind, Param, ParamId, SourceFn, SourceId, Var,
+    EqId, Equation, EquationSystem, Origin, OriginKind, Param, ParamId, SourceFn, SourceId, Var,
     VarId, VarKind, VarRole, Waveform,
 };
 pub use verify::{VerifyError, verify};

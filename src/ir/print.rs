@@ -193,7 +193,12 @@ pub fn system(sys: &EquationSystem, max_incidence: usize) -> String {
                 row[c] = 'x';
             }
         }
-        let _ = writeln!(out, "  {:>5} {}", eq.to_string(), row.iter().collect::<String>());
+        let _ = writeln!(
+            out,
+            "  {:>5} {}",
+            eq.to_string(),
+            row.iter().collect::<String>()
+        );
     }
     out
 }

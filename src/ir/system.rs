@@ -407,11 +407,17 @@ impl EquationSystem {
     }
 
     pub fn states(&self) -> impl Iterator<Item = VarId> + '_ {
-        self.vars.iter().filter(|(_, v)| v.is_state()).map(|(id, _)| id)
+        self.vars
+            .iter()
+            .filter(|(_, v)| v.is_state())
+            .map(|(id, _)| id)
     }
 
     pub fn unknowns(&self) -> impl Iterator<Item = VarId> + '_ {
-        self.vars.iter().filter(|(_, v)| v.is_unknown()).map(|(id, _)| id)
+        self.vars
+            .iter()
+            .filter(|(_, v)| v.is_unknown())
+            .map(|(id, _)| id)
     }
 
     pub fn n_unknowns(&self) -> usize {
@@ -479,7 +485,10 @@ mod tests {
         for order in 0..3u8 {
             let fd = (w.eval(t + h, order) - w.eval(t - h, order)) / (2.0 * h);
             let d = w.eval(t, order + 1);
-            assert!((fd - d).abs() < 1e-4 * d.abs().max(1.0), "order {order}: {fd} vs {d}");
+            assert!(
+                (fd - d).abs() < 1e-4 * d.abs().max(1.0),
+                "order {order}: {fd} vs {d}"
+            );
         }
         let e = Waveform::Exp {
             v1: 0.0,

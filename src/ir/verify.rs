@@ -12,7 +12,10 @@ pub enum VerifyError {
     #[error("expression {expr} refers to an entity that does not exist")]
     Dangling { expr: ExprId },
     #[error("state {state} and derivative {der} do not point at each other")]
-    StatePair { state: super::VarId, der: super::VarId },
+    StatePair {
+        state: super::VarId,
+        der: super::VarId,
+    },
     #[error("equation {eq} refers to expression {expr}, which does not exist")]
     EquationExpr { eq: super::EqId, expr: ExprId },
 }
@@ -24,9 +27,11 @@ pub fn verify(sys: &EquationSystem) -> Vec<VerifyError> {
         let user = ExprId::new(i);
         let ops: [Option<ExprId>; 2] = match e {
             Expr::Neg(a) | Expr::Call(_, a) => [Some(a), None],
-            Expr::Add(a, b) | Expr::Sub(a, b) | Expr::Mul(a, b) | Expr::Div(a, b) | Expr::Pow(a, b) => {
-                [Some(a), Some(b)]
-            }
+            Expr::Add(a, b)
+            | Expr::Sub(a, b)
+            | Expr::Mul(a, b)
+            | Expr::Div(a, b)
+            | Expr::Pow(a, b) => [Some(a), Some(b)],
             _ => [None, None],
         };
         for op in ops.into_iter().flatten() {
@@ -47,13 +52,19 @@ pub fn verify(sys: &EquationSystem) -> Vec<VerifyError> {
     for (id, v) in sys.vars.iter() {
         match v.role {
             VarRole::State { der } => {
-                let ok = sys.vars.get(der).is_some_and(|d| d.role == VarRole::Derivative { of: id });
+                let ok = sys
+                    .vars
+                    .get(der)
+                    .is_some_and(|d| d.role == VarRole::Derivative { of: id });
                 if !ok {
                     errs.push(VerifyError::StatePair { state: id, der });
                 }
             }
             VarRole::Derivative { of } => {
-                let ok = sys.vars.get(of).is_some_and(|s| s.role == VarRole::State { der: id });
+                let ok = sys
+                    .vars
+                    .get(of)
+                    .is_some_and(|s| s.role == VarRole::State { der: id });
                 if !ok {
                     errs.push(VerifyError::StatePair { state: of, der: id });
                 }

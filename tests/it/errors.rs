@@ -77,7 +77,11 @@ fn check_file(path: &std::path::Path) -> String {
         .collect();
     for e in &expects {
         let found = located.iter().any(|(f, l, c, d)| {
-            *f == e.file && *l == e.line && *c == e.col && d.code == e.code && d.message.contains(&e.text)
+            *f == e.file
+                && *l == e.line
+                && *c == e.col
+                && d.code == e.code
+                && d.message.contains(&e.text)
         });
         assert!(
             found,
@@ -97,7 +101,9 @@ fn check_file(path: &std::path::Path) -> String {
     for (f, l, c, d) in &located {
         if d.is_error() {
             assert!(
-                expects.iter().any(|e| e.file == *f && e.line == *l && e.col == *c && e.code == d.code),
+                expects
+                    .iter()
+                    .any(|e| e.file == *f && e.line == *l && e.col == *c && e.code == d.code),
                 "{}: unexpected error {f}:{l}:{c} {} {}",
                 path.display(),
                 d.code,

@@ -30,7 +30,10 @@ fn every_netlist_parses_and_round_trips() {
         // Reparse the printed text as if it were the file itself, so that
         // includes resolve the same way.
         let (reprinted, n_errors2) = parse_print(&name, &path, printed.clone());
-        assert_eq!(n_errors2, 0, "{name}: printed form has parse errors:\n{printed}");
+        assert_eq!(
+            n_errors2, 0,
+            "{name}: printed form has parse errors:\n{printed}"
+        );
         assert_eq!(printed, reprinted, "{name}: print/parse is not a fixpoint");
     }
 }
@@ -54,7 +57,10 @@ fn round_trip_preserves_values() {
         "v(n1,n2)",
         "i(v1)",
     ] {
-        assert!(printed.contains(needle), "`{needle}` missing from:\n{printed}");
+        assert!(
+            printed.contains(needle),
+            "`{needle}` missing from:\n{printed}"
+        );
     }
 }
 
@@ -71,15 +77,47 @@ enum Mutation {
 
 fn mutation() -> impl Strategy<Value = Mutation> {
     let chars = prop_oneof![
-        Just('('), Just(')'), Just('{'), Just('}'), Just('='), Just('+'), Just('\n'),
-        Just('.'), Just('*'), Just(' '), Just('\''), Just('-'), Just('e'), Just('0'),
-        Just('x'), Just('\u{e9}'), Just(';'), Just('$'), Just(','),
+        Just('('),
+        Just(')'),
+        Just('{'),
+        Just('}'),
+        Just('='),
+        Just('+'),
+        Just('\n'),
+        Just('.'),
+        Just('*'),
+        Just(' '),
+        Just('\''),
+        Just('-'),
+        Just('e'),
+        Just('0'),
+        Just('x'),
+        Just('\u{e9}'),
+        Just(';'),
+        Just('$'),
+        Just(','),
     ];
     let words = prop_oneof![
-        Just(".subckt"), Just(".ends"), Just(".include"), Just(".param"), Just("PULSE("),
-        Just("{1/0}"), Just("X1"), Just("0"), Just("1e999"), Just("-1"), Just("K1"),
-        Just("F1 a 0 V1"), Just(".end"), Just("gnd"), Just("params:"), Just("ic="),
-        Just(".control"), Just("PWL(1 0 0 1)"), Just("1meg"), Just(""),
+        Just(".subckt"),
+        Just(".ends"),
+        Just(".include"),
+        Just(".param"),
+        Just("PULSE("),
+        Just("{1/0}"),
+        Just("X1"),
+        Just("0"),
+        Just("1e999"),
+        Just("-1"),
+        Just("K1"),
+        Just("F1 a 0 V1"),
+        Just(".end"),
+        Just("gnd"),
+        Just("params:"),
+        Just("ic="),
+        Just(".control"),
+        Just("PWL(1 0 0 1)"),
+        Just("1meg"),
+        Just(""),
     ];
     prop_oneof![
         (any::<usize>(), chars).prop_map(|(i, c)| Mutation::Insert(i, c)),
@@ -149,12 +187,20 @@ fn fixtures() -> &'static [(String, String)] {
 fn load_fixtures() -> Vec<(String, String)> {
     let mut v: Vec<(String, String)> = netlists()
         .into_iter()
-        .map(|p| (p.display().to_string(), std::fs::read_to_string(&p).unwrap()))
+        .map(|p| {
+            (
+                p.display().to_string(),
+                std::fs::read_to_string(&p).unwrap(),
+            )
+        })
         .collect();
     let errs = crate::root().join("netlists/errors");
     for e in std::fs::read_dir(errs).unwrap() {
         let p = e.unwrap().path();
-        v.push((p.display().to_string(), std::fs::read_to_string(&p).unwrap()));
+        v.push((
+            p.display().to_string(),
+            std::fs::read_to_string(&p).unwrap(),
+        ));
     }
     v.sort();
     v
@@ -166,10 +212,8 @@ fn run_all(name: &str, text: String) {
     let result = kausal::pipeline::elaborate_text(name, path, text, &FsLoader);
     if let Ok(el) = result {
         for kvl in [kausal::build::Kvl::Nodes, kausal::build::Kvl::Loops] {
-            let built = kausal::build::build(
-                &el.circuit,
-                kausal::build::Options { kvl, alias: true },
-            );
+            let built =
+                kausal::build::build(&el.circuit, kausal::build::Options { kvl, alias: true });
             assert!(kausal::ir::verify(&built.system).is_empty());
         }
     } else if let Err(f) = result {

@@ -20,7 +20,10 @@ fn sorted(file: &str, opts: Options) -> Sorted {
     let path = root().join("netlists").join(file);
     match pipeline::sort(&path, &FsLoader, opts, analysis::Options::default()) {
         Ok(s) => s,
-        Err(f) => panic!("{file}: {:?}", f.errors().map(|d| &d.message).collect::<Vec<_>>()),
+        Err(f) => panic!(
+            "{file}: {:?}",
+            f.errors().map(|d| &d.message).collect::<Vec<_>>()
+        ),
     }
 }
 
@@ -29,7 +32,12 @@ fn computed_from(s: &Sorted) -> HashMap<String, String> {
     let sys = &s.built.system;
     s.schedule
         .assignments()
-        .map(|a| (sys.vars[a.var].name.clone(), sys.eqs[a.eq].origin.describe()))
+        .map(|a| {
+            (
+                sys.vars[a.var].name.clone(),
+                sys.eqs[a.eq].origin.describe(),
+            )
+        })
         .collect()
 }
 
@@ -45,7 +53,13 @@ fn expect_from(map: &HashMap<String, String>, pairs: &[(&str, &str)]) {
 
 #[test]
 fn seed_a_sorts_as_in_seed_000() {
-    let s = sorted("seed_a_rc_rl.cir", Options { kvl: Kvl::Loops, alias: true });
+    let s = sorted(
+        "seed_a_rc_rl.cir",
+        Options {
+            kvl: Kvl::Loops,
+            alias: true,
+        },
+    );
     let sys = &s.built.system;
     // uR2 := R2*iL; uR1 := u1 - uC; uL := uC - uR2; i := uR1/R1;
     // iC := i - iL; duC/dt := iC/C; diL/dt := uL/L.
@@ -70,7 +84,10 @@ fn seed_a_sorts_as_in_seed_000() {
         "der(u_C1) := i_C1/C1",
         "der(i_L1) := u_L1/L1",
     ] {
-        assert!(text.contains(&want.to_string()), "missing `{want}` in {text:?}");
+        assert!(
+            text.contains(&want.to_string()),
+            "missing `{want}` in {text:?}"
+        );
     }
     assert_eq!(text.len(), 7);
     assert!(s.causal.tears.is_empty());
@@ -110,7 +127,10 @@ fn seed_c_tears_i1_as_in_seed_001() {
     let b = blocks[0];
     let tears: Vec<&str> = b.tears.iter().map(|&v| sys.vars[v].name.as_str()).collect();
     assert_eq!(tears, ["i_R1"], "the seed tears i1, the current of R1");
-    assert_eq!(sys.eqs[b.residuals[0].eq].origin.describe(), "KCL at node 2");
+    assert_eq!(
+        sys.eqs[b.residuals[0].eq].origin.describe(),
+        "KCL at node 2"
+    );
     assert!(b.linear);
     assert_eq!(b.elements, ["R1", "R2", "R3"]);
     let m = computed_from(&s);
@@ -127,20 +147,37 @@ fn seed_c_tears_i1_as_in_seed_001() {
         ],
     );
     // The seed's loop form: same tearing variable and residual.
-    let s = sorted("seed_c_algebraic_loop.cir", Options { kvl: Kvl::Loops, alias: true });
+    let s = sorted(
+        "seed_c_algebraic_loop.cir",
+        Options {
+            kvl: Kvl::Loops,
+            alias: true,
+        },
+    );
     let sys = &s.built.system;
     let b = s.schedule.blocks().next().expect("a block");
     assert_eq!(sys.vars[b.tears[0]].name, "i_R1");
-    assert_eq!(sys.eqs[b.residuals[0].eq].origin.describe(), "KCL at node 2");
+    assert_eq!(
+        sys.eqs[b.residuals[0].eq].origin.describe(),
+        "KCL at node 2"
+    );
     assert_eq!(b.n_eqs(), 6, "the seed's loop has six equations");
 }
 
 #[test]
 fn controlled_source_ring_is_named_and_torn() {
     let s = sorted("controlled_loop.cir", Options::default());
-    let b = s.schedule.blocks().next().expect("the ring is an algebraic loop");
+    let b = s
+        .schedule
+        .blocks()
+        .next()
+        .expect("the ring is an algebraic loop");
     for g in ["G1", "G2", "G3", "G4", "G5", "R1", "R5"] {
-        assert!(b.elements.iter().any(|e| e == g), "{g} missing from {:?}", b.elements);
+        assert!(
+            b.elements.iter().any(|e| e == g),
+            "{g} missing from {:?}",
+            b.elements
+        );
     }
     assert!(b.linear);
     assert_eq!(b.tears.len(), 1);
@@ -160,7 +197,10 @@ fn check_order(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> Vec<Str
     let check = |a: &kausal::analysis::Assignment, known: &Vec<bool>, bad: &mut Vec<String>| {
         for w in c.graph.eq_vars(a.eq) {
             if w != a.var && !known[w.0 as usize] {
-                bad.push(format!("{} reads {} before it is computed", a.eq, sys.vars[w].name));
+                bad.push(format!(
+                    "{} reads {} before it is computed",
+                    a.eq, sys.vars[w].name
+                ));
             }
         }
     };
@@ -193,9 +233,13 @@ fn check_order(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> Vec<Str
 /// Random state values, run the schedule, then check every equation.
 fn check_equations(sys: &EquationSystem, s: &Schedule, seed: u64) -> Result<(), String> {
     let mut vals = vec![0.0; sys.vars.len()];
-    let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    let mut x = seed
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
     for v in sys.states() {
-        x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        x = x
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         vals[v.0 as usize] = ((x >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0;
     }
     // Aliases are computed from their expressions after the run.
@@ -210,8 +254,12 @@ fn check_equations(sys: &EquationSystem, s: &Schedule, seed: u64) -> Result<(), 
         let l = interp::eval(sys, &sys.exprs, e.lhs, &vals, t);
         let r = interp::eval(sys, &sys.exprs, e.rhs, &vals, t);
         let scale = l.abs().max(r.abs()).max(1e-3);
-        if !((l - r).abs() <= 1e-9 * scale) {
-            return Err(format!("{eq} `{}`: {l} != {r}", kausal::ir::print::equation(sys, eq)));
+        let ok = (l - r).abs() <= 1e-9 * scale;
+        if !ok {
+            return Err(format!(
+                "{eq} `{}`: {l} != {r}",
+                kausal::ir::print::equation(sys, eq)
+            ));
         }
     }
     Ok(())
@@ -225,7 +273,12 @@ fn every_fixture_sorts_or_explains_why_not() {
             let text = match pipeline::sort(&path, &FsLoader, opts, analysis::Options::default()) {
                 Ok(s) => {
                     let sys = &s.built.system;
-                    assert_eq!(check_order(sys, &s.causal, &s.schedule), Vec::<String>::new(), "{}", path.display());
+                    assert_eq!(
+                        check_order(sys, &s.causal, &s.schedule),
+                        Vec::<String>::new(),
+                        "{}",
+                        path.display()
+                    );
                     if let Err(e) = check_equations(sys, &s.schedule, 7) {
                         panic!("{} ({kvl:?}): {e}", path.display());
                     }
@@ -240,7 +293,8 @@ fn every_fixture_sorts_or_explains_why_not() {
                     .join("\n"),
             };
             if kvl == Kvl::Nodes {
-                goldens("sorted").bind(|| insta::assert_snapshot!(format!("{}{suffix}", stem(&path)), text));
+                goldens("sorted")
+                    .bind(|| insta::assert_snapshot!(format!("{}{suffix}", stem(&path)), text));
             }
         }
     }
@@ -249,17 +303,30 @@ fn every_fixture_sorts_or_explains_why_not() {
 #[test]
 fn singular_seed_d_names_the_constraint() {
     let path = root().join("netlists/seed_d_singular.cir");
-    let (_, built) = pipeline::equations(&path, &FsLoader, Options::default()).ok().unwrap();
+    let (_, built) = pipeline::equations(&path, &FsLoader, Options::default())
+        .ok()
+        .unwrap();
     let err = analysis::causalize(&built.system, analysis::Options::default()).unwrap_err();
     let d = err.to_diagnostic();
-    assert!(d.message.contains("0 = i_I1 + i_I3 + i_L2 + i_C1"), "{}", d.message);
+    assert!(
+        d.message.contains("0 = i_I1 + i_I3 + i_L2 + i_C1"),
+        "{}",
+        d.message
+    );
     assert!(d.message.contains("KCL at node 1"));
 }
 
 /// A random circuit that is well posed for almost any values: every node has
 /// a resistor to ground, sources and storage elements sit on top.
 fn circuit() -> impl Strategy<Value = String> {
-    let elem = (0u8..9, 1usize..7, 0usize..7, 1u32..1000, 0usize..7, 0usize..7);
+    let elem = (
+        0u8..9,
+        1usize..7,
+        0usize..7,
+        1u32..1000,
+        0usize..7,
+        0usize..7,
+    );
     (2usize..7, prop::collection::vec(elem, 1..14)).prop_map(|(n, elems)| {
         let mut s = String::from("random circuit\n");
         for k in 1..=n {
@@ -285,7 +352,9 @@ fn circuit() -> impl Strategy<Value = String> {
                 }
                 5 => s.push_str(&format!("I{i} {a} {b} PULSE(0 1m 0 1u 1u 1m 2m)\n")),
                 6 => s.push_str(&format!("G{i} {a} {b} {c} {d} {}m\n", v / 2000.0)),
-                7 if c != d => s.push_str(&format!("E{i} {a} e{i} {c} {d} 0.3\nRE{i} e{i} {b} 50\n")),
+                7 if c != d => {
+                    s.push_str(&format!("E{i} {a} e{i} {c} {d} 0.3\nRE{i} e{i} {b} 50\n"))
+                }
                 8 if !vsrc.is_empty() => {
                     let ctrl = &vsrc[i % vsrc.len()];
                     s.push_str(&format!("F{i} {a} {b} {ctrl} 0.4\n"));
@@ -327,10 +396,16 @@ proptest! {
 #[test]
 fn tearing_off_reports_the_loop_with_its_elements() {
     let path = root().join("netlists/seed_c_algebraic_loop.cir");
-    let (_, built) = pipeline::equations(&path, &FsLoader, Options::default()).ok().unwrap();
+    let (_, built) = pipeline::equations(&path, &FsLoader, Options::default())
+        .ok()
+        .unwrap();
     let err = analysis::causalize(&built.system, analysis::Options { tearing: false }).unwrap_err();
     let d = err.to_diagnostic();
-    assert!(d.message.contains("algebraic loop of 7 equations"), "{}", d.message);
+    assert!(
+        d.message.contains("algebraic loop of 7 equations"),
+        "{}",
+        d.message
+    );
     let texts: Vec<String> = d.labels.iter().map(|l| l.message.clone()).collect();
     assert!(texts.iter().any(|t| t.contains("i_R1")), "{texts:?}");
 }
@@ -342,7 +417,10 @@ fn states_are_never_computed() {
         let sys = &s.built.system;
         for a in s.schedule.assignments() {
             assert!(sys.vars[a.var].is_unknown());
-            assert!(!matches!(sys.eqs[a.eq].origin.kind, OriginKind::Derivative { .. }));
+            assert!(!matches!(
+                sys.eqs[a.eq].origin.kind,
+                OriginKind::Derivative { .. }
+            ));
         }
         let states: Vec<VarId> = sys.states().collect();
         assert!(!states.is_empty());
