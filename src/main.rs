@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand, ValueEnum};
 use kausal::back::listing;
 use kausal::build::{self, Kvl};
-use kausal::diag::{self, Diagnostic, RenderOptions, SourceMap};
+use kausal::diag::{self, Diagnostic, RenderOptions, SourceMap, ToDiagnostic};
 use kausal::io::FsLoader;
 use kausal::pipeline::{self, Failed};
 
@@ -95,6 +95,10 @@ enum Command {
         /// Report algebraic loops as errors instead of tearing them.
         #[arg(long)]
         no_tearing: bool,
+        /// Keep this capacitor's or inductor's state when index reduction must
+        /// remove one (repeatable).
+        #[arg(long, value_name = "ELEMENT")]
+        prefer_state: Vec<String>,
         /// Write to this file instead of standard output.
         #[arg(long, short)]
         out: Option<PathBuf>,
@@ -202,20 +206,30 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             trace,
             incidence,
             no_tearing,
+            prefer_state,
             out,
         } => {
-            let analysis = kausal::analysis::Options {
-                tearing: !no_tearing,
+            let opts = pipeline::SortOptions {
+                build: build.options(),
+                analysis: kausal::analysis::Options {
+                    tearing: !no_tearing,
+                },
+                prefer_state,
             };
-            let sorted = match pipeline::sort(&netlist, &FsLoader, build.options(), analysis) {
+            let sorted = match pipeline::sort(&netlist, &FsLoader, &opts) {
                 Ok(x) => x,
                 Err(f) => return Ok(report_failure(&f)),
             };
             print_diags(&sorted.elaborated.sources, &sorted.elaborated.warnings);
-            let sys = &sorted.built.system;
+            let faults: Vec<Diagnostic> = sorted.faults.iter().map(|f| f.to_diagnostic()).collect();
+            print_diags(&sorted.elaborated.sources, &faults);
+            let sys = sorted.system();
             let text = match format {
                 SortFormat::Text => {
                     let mut t = String::new();
+                    if let Some(red) = &sorted.reduction {
+                        t.push_str(&listing::index_reduction(&sorted.built.system, red));
+                    }
                     if trace {
                         t.push_str(&listing::trace(sys, &sorted.causal));
                     }
@@ -226,12 +240,12 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                     t
                 }
                 SortFormat::Json => {
-                    let mut s = serde_json::to_string_pretty(&listing::json(
-                        sys,
-                        &sorted.causal,
-                        &sorted.schedule,
-                    ))
-                    .map_err(|e| e.to_string())?;
+                    let mut v = listing::json(sys, &sorted.causal, &sorted.schedule);
+                    if let Some(red) = &sorted.reduction {
+                        v["index_reduction"] =
+                            listing::index_reduction_json(&sorted.built.system, red);
+                    }
+                    let mut s = serde_json::to_string_pretty(&v).map_err(|e| e.to_string())?;
                     s.push('\n');
                     s
                 }

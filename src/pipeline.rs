@@ -3,10 +3,13 @@
 
 use std::path::Path;
 
+use crate::analysis::IndexReduction;
 use crate::build::{self, Built};
 use crate::diag::{Diagnostic, SourceMap, ToDiagnostic};
+use crate::elab::topology::{self, Fault, TopologyError};
 use crate::elab::{self, Circuit};
 use crate::front::{self, Loader};
+use crate::ir::EquationSystem;
 
 /// A netlist taken through the front end and elaboration.
 pub struct Elaborated {
@@ -88,40 +91,147 @@ pub fn equations(
     Ok((el, built))
 }
 
-/// Everything `kausal sort` shows: the system, its causalization and schedule.
+/// Options of [`sort`].
+#[derive(Clone, Debug, Default)]
+pub struct SortOptions {
+    pub build: build::Options,
+    pub analysis: crate::analysis::Options,
+    /// Storage elements whose state index reduction should keep (`--prefer-state`).
+    pub prefer_state: Vec<String>,
+}
+
+/// Everything `kausal sort` shows: the system, the index reduction (when the
+/// circuit needed one), the causalization and the schedule.
 pub struct Sorted {
     pub elaborated: Elaborated,
     pub built: Built,
+    /// Circuit faults that index reduction fixed (reported as warnings).
+    pub faults: Vec<TopologyError>,
+    pub reduction: Option<IndexReduction>,
     pub causal: crate::analysis::Causalization,
     pub schedule: crate::analysis::Schedule,
 }
 
-/// Elaborate, build and causalize. A structural error is reported as a
-/// diagnostic that points at the elements involved.
-pub fn sort(
-    path: &Path,
-    loader: &dyn Loader,
-    opts: build::Options,
-    analysis: crate::analysis::Options,
-) -> Result<Sorted, Box<Failed>> {
-    let (el, built) = equations(path, loader, opts)?;
-    match crate::analysis::causalize(&built.system, analysis) {
-        Ok(causal) => {
-            let schedule = crate::analysis::schedule(&built.system, &causal);
-            Ok(Sorted {
-                elaborated: el,
-                built,
-                causal,
-                schedule,
-            })
-        }
-        Err(e) => {
-            let mut diagnostics = el.warnings;
-            diagnostics.push(e.to_diagnostic());
-            Err(Box::new(Failed {
-                sources: el.sources,
-                diagnostics,
-            }))
+impl Sorted {
+    /// The system that was sorted: the index-reduced one when there is one.
+    pub fn system(&self) -> &EquationSystem {
+        match &self.reduction {
+            Some(r) => &r.system,
+            None => &self.built.system,
         }
     }
+}
+
+fn fail(el: Elaborated, extra: Vec<Diagnostic>) -> Box<Failed> {
+    let mut diagnostics = el.warnings;
+    diagnostics.extend(extra);
+    Box::new(Failed {
+        sources: el.sources,
+        diagnostics,
+    })
+}
+
+/// Elaborate, build and causalize, reducing the index first when states are
+/// coupled. Unfixable circuit faults and structural errors are reported as
+/// diagnostics that point at the elements involved.
+pub fn sort(path: &Path, loader: &dyn Loader, opts: &SortOptions) -> Result<Sorted, Box<Failed>> {
+    let (el, built) = equations(path, loader, opts.build)?;
+    sort_built(el, built, opts)
+}
+
+/// [`sort`] from an elaborated circuit and its equations.
+pub fn sort_built(el: Elaborated, built: Built, opts: &SortOptions) -> Result<Sorted, Box<Failed>> {
+    let c = &el.circuit;
+    let mut keep = Vec::new();
+    for name in &opts.prefer_state {
+        match c.find_element(name) {
+            Some(e) => keep.push(e),
+            None => {
+                let d = Diagnostic::error(
+                    "K0320",
+                    format!(
+                        "--prefer-state names `{name}`, which is not an element of the circuit"
+                    ),
+                )
+                .with_help("name a capacitor or inductor, e.g. --prefer-state C1");
+                return Err(fail(el, vec![d]));
+            }
+        }
+    }
+    let errors: Vec<TopologyError> = topology::faults(c, &keep)
+        .iter()
+        .map(|f| TopologyError::new(c, f))
+        .collect();
+    let (fixable, fatal): (Vec<TopologyError>, Vec<TopologyError>) =
+        errors.into_iter().partition(|e| e.fixable);
+    if !fatal.is_empty() {
+        let diags = fatal
+            .iter()
+            .chain(&fixable)
+            .map(|e| e.to_diagnostic())
+            .collect();
+        return Err(fail(el, diags));
+    }
+    let state_of = |e: crate::elab::ElemId| -> Option<crate::ir::VarId> {
+        let ev = built.elem_vars.get(e.0 as usize).copied().flatten()?;
+        [ev.u, ev.i]
+            .into_iter()
+            .find(|&v| built.system.vars[v].is_state())
+    };
+    let fixed: Vec<crate::ir::VarId> = topology::faults(c, &keep)
+        .iter()
+        .filter_map(|f| match f {
+            Fault::CapacitorLoop { fixed, .. } | Fault::InductorCutset { fixed, .. } => {
+                state_of(*fixed)
+            }
+            _ => None,
+        })
+        .collect();
+    let popts = crate::analysis::pantelides::Options {
+        keep: keep.iter().filter_map(|&e| state_of(e)).collect(),
+        tied: fixed,
+        max_rounds: None,
+    };
+    let first = crate::analysis::causalize(&built.system, opts.analysis);
+    let (reduction, causal) = match first {
+        Ok(causal) => (None, causal),
+        Err(crate::analysis::StructuralError::Singular {
+            ref constraints, ..
+        }) if !constraints.is_empty() => {
+            let red = match crate::analysis::reduce_index(&built.system, &popts) {
+                Ok(Some(r)) => r,
+                Ok(None) => unreachable!("a constraint was found"),
+                Err(e) => {
+                    let mut diags: Vec<Diagnostic> =
+                        fixable.iter().map(|e| e.to_diagnostic()).collect();
+                    diags.push(e.to_diagnostic());
+                    return Err(fail(el, diags));
+                }
+            };
+            match crate::analysis::causalize(&red.system, opts.analysis) {
+                Ok(causal) => (Some(red), causal),
+                Err(e) => {
+                    let mut diags: Vec<Diagnostic> =
+                        fixable.iter().map(|e| e.to_diagnostic()).collect();
+                    diags.push(e.to_diagnostic());
+                    return Err(fail(el, diags));
+                }
+            }
+        }
+        Err(e) => {
+            let mut diags: Vec<Diagnostic> = fixable.iter().map(|e| e.to_diagnostic()).collect();
+            diags.push(e.to_diagnostic());
+            return Err(fail(el, diags));
+        }
+    };
+    let system = reduction.as_ref().map_or(&built.system, |r| &r.system);
+    let schedule = crate::analysis::schedule(system, &causal);
+    Ok(Sorted {
+        elaborated: el,
+        built,
+        faults: fixable,
+        reduction,
+        causal,
+        schedule,
+    })
 }

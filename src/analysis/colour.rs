@@ -86,6 +86,12 @@ pub struct Colouring<'g> {
     /// tearing for the equations of the block at hand; false elsewhere).
     pub nonlinear: Vec<bool>,
     trial_inversions: usize,
+    /// In strict mode a rule that would solve along a nonlinear edge tears
+    /// instead: the unknown is guessed and the equation becomes its residual,
+    /// evaluated forward (no `ln` of a diode current that may be negative).
+    pub strict: bool,
+    /// Tears made by strict mode since last taken.
+    pub auto_tears: Vec<(EqId, VarId)>,
 }
 
 /// What a finished colouring leaves behind.
@@ -137,6 +143,8 @@ impl<'g> Colouring<'g> {
             trial_count: 0,
             nonlinear: vec![false; g.n_edges()],
             trial_inversions: 0,
+            strict: false,
+            auto_tears: Vec::new(),
         };
         for e in 0..n_eqs {
             match c.eq_black[e] {
@@ -254,7 +262,9 @@ impl<'g> Colouring<'g> {
         self.set_var_black(v, 0);
         if trial {
             self.trial_count += 1;
-            self.trial_inversions += usize::from(self.nonlinear[red as usize]);
+            if !self.strict {
+                self.trial_inversions += usize::from(self.nonlinear[red as usize]);
+            }
             return;
         }
         let number = match rule {
@@ -275,6 +285,21 @@ impl<'g> Colouring<'g> {
             var: VarId(v),
             number,
         });
+    }
+
+    /// `rule`, or a tear when strict mode forbids solving along edge `k`.
+    fn rule_for(&mut self, k: EdgeIdx, rule: Rule) -> Rule {
+        if self.strict && self.nonlinear[k as usize] {
+            if self.undo.is_some() {
+                self.trial_inversions += 1;
+            } else {
+                let (e, v) = (self.g.edge_eq[k as usize], self.g.edge_var[k as usize]);
+                self.auto_tears.push((e, v));
+            }
+            Rule::Tear
+        } else {
+            rule
+        }
     }
 
     fn black_edge_of_eq(&self, e: u32) -> Option<EdgeIdx> {
@@ -309,7 +334,8 @@ impl<'g> Colouring<'g> {
                     continue;
                 };
                 let v = self.g.edge_var[k as usize].0;
-                self.assign(e, v, k, Rule::Equation);
+                let rule = self.rule_for(k, Rule::Equation);
+                self.assign(e, v, k, rule);
                 progressed = true;
             }
             self.eq_queue.clear();
@@ -325,7 +351,8 @@ impl<'g> Colouring<'g> {
                 if self.eq_var[e as usize] != NONE {
                     continue;
                 }
-                self.assign(e, v, k, Rule::Unknown);
+                let rule = self.rule_for(k, Rule::Unknown);
+                self.assign(e, v, k, rule);
                 progressed = true;
                 if !self.eq_queue.is_empty() {
                     // Let the equation rule run before more unknowns are taken.

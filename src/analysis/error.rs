@@ -17,6 +17,10 @@ pub struct Culprit {
     pub elements: Vec<String>,
     #[serde(skip)]
     pub span: Option<Span>,
+    #[serde(skip)]
+    pub eq: Option<EqId>,
+    #[serde(skip)]
+    pub var: Option<VarId>,
 }
 
 impl Culprit {
@@ -28,6 +32,8 @@ impl Culprit {
             origin: e.origin.describe(),
             elements: e.origin.elements().into_iter().map(String::from).collect(),
             span: e.origin.span,
+            eq: Some(eq),
+            var: None,
         }
     }
 
@@ -44,6 +50,8 @@ impl Culprit {
                 .map(String::from)
                 .collect(),
             span: var.origin.span,
+            eq: None,
+            var: Some(v),
         }
     }
 }
@@ -61,6 +69,10 @@ pub enum StructuralError {
     Loops { blocks: Vec<Vec<Culprit>> },
     #[error("{n_eqs} equations for {n_unknowns} unknowns")]
     Unbalanced { n_eqs: usize, n_unknowns: usize },
+    #[error("index reduction did not finish after {iterations} differentiations (limit {limit})")]
+    IndexLimit { iterations: usize, limit: usize },
+    #[error("constraint {} cannot be removed by differentiation: it involves no state", constraint.text)]
+    NoStateInConstraint { constraint: Box<Culprit> },
 }
 
 fn summary(constraints: &[Culprit], orphans: &[Culprit]) -> String {
@@ -148,6 +160,15 @@ impl ToDiagnostic for StructuralError {
             }
             StructuralError::Unbalanced { .. } => Diagnostic::error("K0302", self.to_string())
                 .with_help("this is a kausal bug: the equation builder must balance the system"),
+            StructuralError::IndexLimit { .. } => Diagnostic::error("K0303", self.to_string())
+                .with_help("the circuit's structure keeps producing constraints; please report it"),
+            StructuralError::NoStateInConstraint { constraint } => {
+                let mut d = Diagnostic::error("K0304", self.to_string());
+                if let Some(span) = constraint.span {
+                    d = d.with_label(span, format!("{}: {}", constraint.id, constraint.text));
+                }
+                d.with_help("sources or ideal elements fix the same quantity twice")
+            }
         }
     }
 }

@@ -22,6 +22,8 @@ pub struct Blt {
     pub unmatched_eqs: Vec<EqId>,
     /// Unknowns no equation is left for (under-determined part).
     pub unmatched_vars: Vec<VarId>,
+    /// The maximum matching found: equation and the unknown it computes.
+    pub pairs: Vec<(EqId, VarId)>,
 }
 
 const FREE: u32 = u32::MAX;
@@ -164,10 +166,17 @@ pub fn blt(c: &Colouring<'_>) -> Blt {
             }
         })
         .collect();
+    let pairs = m
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| **r != FREE)
+        .map(|(l, &r)| (eqs[l], vars[r as usize]))
+        .collect();
     Blt {
         blocks,
         unmatched_eqs,
         unmatched_vars,
+        pairs,
     }
 }
 

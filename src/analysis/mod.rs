@@ -10,6 +10,7 @@ pub mod colour;
 mod error;
 pub mod graph;
 pub mod matching;
+pub mod pantelides;
 mod schedule;
 pub mod solve;
 pub mod tear;
@@ -18,6 +19,7 @@ pub use colour::{EdgeColour, Rule, TraceStep};
 pub use error::StructuralError;
 pub use graph::StructureGraph;
 pub use matching::{Blt, BltBlock};
+pub use pantelides::{IndexReduction, reduce_index};
 pub use schedule::{Assignment, Block, Schedule, Step, schedule};
 pub use solve::Solved;
 pub use tear::Tear;
@@ -79,6 +81,7 @@ pub fn causalize(sys: &EquationSystem, opts: Options) -> Result<Causalization, S
         // Blocks of the last BLT decomposition still to tear, in order.
         let mut pending: std::collections::VecDeque<Vec<EqId>> = Default::default();
         let mut current: Option<tear::BlockTearer> = None;
+        let mut mates = tear::Mates::new(n_eqs, sys.vars.len());
         while c.constraints.is_empty() && c.orphans.is_empty() && c.n_assigned() < n_eqs {
             if !opts.tearing {
                 if stalls.is_empty() {
@@ -89,7 +92,7 @@ pub fn causalize(sys: &EquationSystem, opts: Options) -> Result<Causalization, S
                 }
                 break;
             }
-            let choice = current.as_mut().and_then(|t| t.choose(&mut c));
+            let choice = current.as_mut().and_then(|t| t.choose(&mut c, &mut mates));
             let Some(t) = choice else {
                 // The current block is done: go on with the next one.
                 current = None;
@@ -109,6 +112,7 @@ pub fn causalize(sys: &EquationSystem, opts: Options) -> Result<Causalization, S
                     if blt.blocks.is_empty() {
                         break;
                     }
+                    mates.set(&blt.pairs);
                     pending.extend(blt.blocks.iter().map(|b| b.eqs.clone()));
                     stalls.push(Stall {
                         after: c.n_assigned(),
@@ -120,6 +124,16 @@ pub fn causalize(sys: &EquationSystem, opts: Options) -> Result<Causalization, S
             c.tear(t.eq, t.var);
             tears.push(t);
             c.propagate();
+            // Tears strict mode made instead of nonlinear inversions.
+            for (eq, var) in std::mem::take(&mut c.auto_tears) {
+                tears.push(Tear {
+                    eq,
+                    var,
+                    gain: 1,
+                    inversions: 0,
+                    candidates: 0,
+                });
+            }
         }
         let parts = c.into_parts();
         (

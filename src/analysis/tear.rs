@@ -46,6 +46,7 @@ pub struct BlockTearer {
 impl BlockTearer {
     /// Start tearing `block`; marks its nonlinear edges in `c`.
     pub fn new(c: &mut Colouring<'_>, sys: &EquationSystem, block: &[EqId]) -> BlockTearer {
+        c.strict = true;
         let mut buckets: Vec<Vec<EqId>> = Vec::new();
         let mut nonlinear_edges = Vec::new();
         for &e in block {
@@ -116,7 +117,9 @@ impl BlockTearer {
     }
 
     /// Pick a tearing variable; `None` when the block is fully assigned.
-    pub fn choose(&mut self, c: &mut Colouring<'_>) -> Option<Tear> {
+    /// `mates` is a perfect matching of what is left (kept up to date here),
+    /// so that the residual chosen always leaves the rest solvable.
+    pub fn choose(&mut self, c: &mut Colouring<'_>, mates: &mut Mates) -> Option<Tear> {
         let widest = self.widest(c, MAX_TRIED);
         let &first = widest.first()?;
         if c.eq_black[first.0 as usize] == 0 {
@@ -170,6 +173,13 @@ impl BlockTearer {
         }
         let mut best: Option<Tear> = None;
         for &(e, v) in &candidates {
+            // The residual a perfect matching allows (the candidate's own
+            // equation when possible).
+            let e = if mates.path(c, e, v).is_some() {
+                e
+            } else {
+                mates.mate(v).unwrap_or(e)
+            };
             let (gain, inversions) = c.trial_tear(e, v);
             let better = match best {
                 None => true,
@@ -188,6 +198,114 @@ impl BlockTearer {
                 });
             }
         }
-        best
+        let mut t = best?;
+        t.eq = mates.pair(c, t.eq, t.var);
+        Some(t)
+    }
+}
+
+/// A perfect matching of the unassigned part (equation ↔ unknown), from the
+/// last BLT decomposition. Forced colouring moves belong to every perfect
+/// matching, so it stays valid as long as tears agree with it.
+pub struct Mates {
+    of_eq: Vec<u32>,
+    of_var: Vec<u32>,
+}
+
+const NONE: u32 = u32::MAX;
+
+impl Mates {
+    pub fn new(n_eqs: usize, n_vars: usize) -> Mates {
+        Mates {
+            of_eq: vec![NONE; n_eqs],
+            of_var: vec![NONE; n_vars],
+        }
+    }
+
+    pub fn set(&mut self, pairs: &[(EqId, VarId)]) {
+        for &(e, v) in pairs {
+            self.of_eq[e.0 as usize] = v.0;
+            self.of_var[v.0 as usize] = e.0;
+        }
+    }
+
+    fn mate(&self, v: VarId) -> Option<EqId> {
+        let e = self.of_var[v.0 as usize];
+        (e != NONE).then_some(EqId(e))
+    }
+
+    /// The residual equation for tearing `v`: `e` when some perfect matching
+    /// pairs them (the matching is moved onto it along an alternating path),
+    /// else the equation `v` is matched to.
+    fn pair(&mut self, c: &Colouring<'_>, e: EqId, v: VarId) -> EqId {
+        let e0 = self.of_var[v.0 as usize];
+        if e0 == NONE || e0 == e.0 {
+            return e;
+        }
+        let Some(prev_var) = self.path(c, e, v) else {
+            return EqId(e0);
+        };
+        let w = self.of_eq[e.0 as usize];
+        // Shift the matching along the path, then pair (e, v).
+        let mut x = w;
+        loop {
+            let q = prev_var[&x];
+            let old = self.of_eq[q as usize];
+            self.of_eq[q as usize] = x;
+            self.of_var[x as usize] = q;
+            if q == e0 {
+                break;
+            }
+            x = old;
+        }
+        self.of_eq[e.0 as usize] = v.0;
+        self.of_var[v.0 as usize] = e.0;
+        e
+    }
+
+    /// An alternating path that lets `e` take `v`: from `v`'s equation to
+    /// `e`'s unknown, as predecessor links (`None` when there is none; an
+    /// empty map when `e` already has `v`).
+    fn path(
+        &self,
+        c: &Colouring<'_>,
+        e: EqId,
+        v: VarId,
+    ) -> Option<std::collections::HashMap<u32, u32>> {
+        let e0 = self.of_var[v.0 as usize];
+        if e0 == NONE || e0 == e.0 {
+            return Some(Default::default());
+        }
+        let w = self.of_eq[e.0 as usize];
+        if w == NONE {
+            return None;
+        }
+        // Breadth-first from e0 (which gives up v) to var w (which gives up e):
+        // e0 -x1- M(x1) -x2- ... -w, along black edges of unassigned nodes.
+        let mut prev_var: std::collections::HashMap<u32, u32> = Default::default();
+        let mut queue = std::collections::VecDeque::from([e0]);
+        let mut seen_eq: std::collections::HashSet<u32> = [e0, e.0].into_iter().collect();
+        let mut found = false;
+        'bfs: while let Some(q) = queue.pop_front() {
+            for k in c.g.eq_edges(EqId(q)) {
+                if c.colour[k as usize] != EdgeColour::Black {
+                    continue;
+                }
+                let x = c.g.edge_var[k as usize].0;
+                if x == v.0 || prev_var.contains_key(&x) {
+                    continue;
+                }
+                prev_var.insert(x, q);
+                if x == w {
+                    found = true;
+                    break 'bfs;
+                }
+                let next = self.of_var[x as usize];
+                if next != NONE && seen_eq.insert(next) {
+                    queue.push_back(next);
+                }
+            }
+        }
+        found.then_some(prev_var)
     }
 }

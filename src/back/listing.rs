@@ -403,3 +403,64 @@ pub fn incidence(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> Strin
     }
     out
 }
+
+/// What index reduction did: constraints, removed integrators, the
+/// differentiated equations (with the equation each came from), final states.
+pub fn index_reduction(orig: &EquationSystem, red: &crate::analysis::IndexReduction) -> String {
+    let sys = &red.system;
+    let mut out = String::new();
+    let _ = writeln!(out, "index reduction (Pantelides):");
+    for r in &red.removed {
+        let _ = writeln!(
+            out,
+            "  constraint {}: {}    ; {}",
+            r.constraint,
+            print::equation(orig, r.constraint),
+            orig.eqs[r.constraint].origin.describe()
+        );
+        let _ = writeln!(
+            out,
+            "    integrator of {} removed: {} and {} are algebraic unknowns",
+            sys.vars[r.state].name, sys.vars[r.state].name, sys.vars[r.der].name
+        );
+    }
+    let _ = writeln!(
+        out,
+        "  differentiated equations ({}):",
+        red.differentiated.len()
+    );
+    for d in &red.differentiated {
+        let _ = writeln!(
+            out,
+            "    {:>5}  {}    ; d/dt of {}",
+            d.eq.to_string(),
+            print::equation(sys, d.eq),
+            d.of
+        );
+    }
+    let states: Vec<&str> = sys.states().map(|v| sys.vars[v].name.as_str()).collect();
+    let _ = writeln!(out, "  states ({}): {}", states.len(), states.join(", "));
+    out
+}
+
+pub fn index_reduction_json(
+    orig: &EquationSystem,
+    red: &crate::analysis::IndexReduction,
+) -> serde_json::Value {
+    let sys = &red.system;
+    json!({
+        "constraints": red.removed.iter().map(|r| json!({
+            "eq": r.constraint.to_string(),
+            "equation": print::equation(orig, r.constraint),
+            "origin": orig.eqs[r.constraint].origin.describe(),
+            "removed_integrator": sys.vars[r.state].name,
+            "now_algebraic": [sys.vars[r.state].name.clone(), sys.vars[r.der].name.clone()],
+        })).collect::<Vec<_>>(),
+        "differentiated": red.differentiated.iter().map(|d| json!({
+            "eq": d.eq.to_string(),
+            "equation": print::equation(sys, d.eq),
+            "of": d.of.to_string(),
+        })).collect::<Vec<_>>(),
+        "states": sys.states().map(|v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
+    })
+}

@@ -145,7 +145,9 @@ pub fn eliminate(b: &mut Built, circuit: &Circuit) {
             } else {
                 (ra, rc)
             };
-            if is_fixed(child) {
+            // A state never takes a value: `state = known` is a constraint
+            // for the analysis to report, not an alias.
+            if is_fixed(child) || (is_fixed(parent) && al.value[child].is_some()) {
                 continue;
             }
             al.link[child] = Some(Link { parent, sign: k });

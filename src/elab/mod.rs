@@ -6,6 +6,7 @@
 
 mod circuit;
 mod error;
+pub mod topology;
 
 use std::collections::HashMap;
 

@@ -333,6 +333,47 @@ impl ExprArena {
         }
     }
 
+    /// The nodes of the DAG below `root`, ascending (children first).
+    pub fn subtree(&self, root: ExprId) -> Vec<ExprId> {
+        let mut stack = vec![root];
+        let mut out: Vec<ExprId> = Vec::new();
+        // Small trees (the usual equation) check repeats by scanning; large DAGs
+        // switch to a hash set so shared subterms are visited once.
+        let mut seen: Option<std::collections::HashSet<ExprId>> = None;
+        while let Some(e) = stack.pop() {
+            let repeat = match &mut seen {
+                Some(set) => !set.insert(e),
+                None => {
+                    if out.len() >= 64 {
+                        seen = Some(out.iter().copied().chain([e]).collect());
+                        false
+                    } else {
+                        out.contains(&e)
+                    }
+                }
+            };
+            if repeat {
+                continue;
+            }
+            out.push(e);
+            match self.get(e) {
+                Expr::Neg(a) | Expr::Call(_, a) => stack.push(a),
+                Expr::Add(a, b)
+                | Expr::Sub(a, b)
+                | Expr::Mul(a, b)
+                | Expr::Div(a, b)
+                | Expr::Pow(a, b) => {
+                    stack.push(a);
+                    stack.push(b);
+                }
+                _ => {}
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
     /// How many times `v` occurs in the tree of `root` (shared subterms counted
     /// once per use).
     pub fn occurrences(&self, root: ExprId, v: VarId) -> usize {

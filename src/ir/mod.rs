@@ -5,6 +5,7 @@
 //! thing it takes from the rest of the crate is [`crate::diag::Span`], so that
 //! each equation can say which netlist line it came from.
 
+pub mod derive;
 mod entity;
 mod expr;
 pub mod print;

@@ -63,9 +63,19 @@ fn check_file(path: &std::path::Path) -> String {
             Ok(el) => (el.sources, el.warnings),
             Err(f) => (f.sources, f.diagnostics),
         };
+    check_annotations(path, &sources, &diags)
+}
+
+/// Match the annotations of every file in `sources` against `diags`; every
+/// error must be annotated. Returns the rendered diagnostics.
+pub fn check_annotations(
+    path: &std::path::Path,
+    sources: &SourceMap,
+    diags: &[Diagnostic],
+) -> String {
     let mut expects = Vec::new();
     for id in sources.ids() {
-        expects.extend(annotations(&sources, id));
+        expects.extend(annotations(sources, id));
     }
     let located: Vec<(String, usize, usize, &Diagnostic)> = diags
         .iter()
@@ -114,7 +124,7 @@ fn check_file(path: &std::path::Path) -> String {
     assert!(!expects.is_empty(), "{}: no annotations", path.display());
     diags
         .iter()
-        .map(|d| diag::render(&sources, d, Default::default()))
+        .map(|d| diag::render(sources, d, Default::default()))
         .collect::<Vec<_>>()
         .join("\n")
 }

@@ -2,8 +2,9 @@
 //! snapshots in `goldens/<stage>/`.
 
 mod equations;
-mod errors;
+pub mod errors;
 mod front;
+mod singular;
 mod sort;
 
 use std::path::{Path, PathBuf};

@@ -1,0 +1,530 @@
+//! Topological faults of a circuit, found on its graph and named by its
+//! elements: loops of voltage sources (with or without capacitors), cutsets
+//! of current sources (with or without inductors), floating nodes.
+//!
+//! These are the circuit-level reasons for the structural singularities the
+//! causalizer meets. Loops of capacitors and voltage sources and cutsets of
+//! inductors and current sources only couple states: index reduction fixes
+//! them. Loops of voltage sources alone, cutsets of current sources alone and
+//! floating nodes leave the circuit over- or under-determined: errors.
+
+use super::{Circuit, ElemId, ElementKind, GROUND, NodeId};
+use crate::diag::{Diagnostic, Severity, Span, ToDiagnostic};
+
+/// What fixes an element's branch: its voltage, its current, or neither.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Defines {
+    Voltage,
+    Current,
+    Capacitor,
+    Inductor,
+    Other,
+}
+
+fn defines(k: &ElementKind) -> Defines {
+    match k {
+        ElementKind::VSource { .. } | ElementKind::Vcvs { .. } | ElementKind::Ccvs { .. } => {
+            Defines::Voltage
+        }
+        ElementKind::ISource { .. } | ElementKind::Vccs { .. } | ElementKind::Cccs { .. } => {
+            Defines::Current
+        }
+        ElementKind::Capacitor { .. } => Defines::Capacitor,
+        ElementKind::Inductor { .. } => Defines::Inductor,
+        _ => Defines::Other,
+    }
+}
+
+/// A fault and the elements that make it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Fault {
+    /// Capacitors and voltage sources in a loop; `fixed` is the capacitor
+    /// whose voltage the others fix (it cannot keep a state).
+    CapacitorLoop {
+        elements: Vec<ElemId>,
+        fixed: ElemId,
+    },
+    /// Inductors and current sources forming a cutset; `fixed` is the
+    /// inductor whose current the others fix.
+    InductorCutset {
+        elements: Vec<ElemId>,
+        fixed: ElemId,
+    },
+    /// Voltage sources alone in a loop: conflicting.
+    VoltageLoop { elements: Vec<ElemId> },
+    /// Current sources alone forming a cutset around `nodes`: conflicting.
+    CurrentCutset {
+        elements: Vec<ElemId>,
+        nodes: Vec<NodeId>,
+    },
+    /// Nodes with no path to ground but through current sources (or none).
+    Floating {
+        nodes: Vec<NodeId>,
+        via: Vec<ElemId>,
+    },
+}
+
+impl Fault {
+    /// Index reduction can remove it (it only couples states).
+    pub fn is_fixable(&self) -> bool {
+        matches!(
+            self,
+            Fault::CapacitorLoop { .. } | Fault::InductorCutset { .. }
+        )
+    }
+}
+
+struct Forest {
+    parent: Vec<usize>,
+    /// The element that joined a node to its parent in the spanning forest.
+    via: Vec<Option<ElemId>>,
+    uf: Vec<usize>,
+}
+
+impl Forest {
+    fn new(n: usize) -> Forest {
+        Forest {
+            parent: (0..n).collect(),
+            via: vec![None; n],
+            uf: (0..n).collect(),
+        }
+    }
+
+    fn find(&mut self, mut x: usize) -> usize {
+        while self.uf[x] != x {
+            self.uf[x] = self.uf[self.uf[x]];
+            x = self.uf[x];
+        }
+        x
+    }
+
+    /// Add edge `e` between `a` and `b`; if it closes a loop, return the
+    /// forest path from `a` to `b` (the loop's other elements).
+    fn add(&mut self, a: usize, b: usize, e: ElemId) -> Option<Vec<ElemId>> {
+        let (ra, rb) = (self.find(a), self.find(b));
+        if ra == rb {
+            return Some(self.path(a, b));
+        }
+        // Re-root b's tree at b, then hang it under a.
+        self.reroot(b);
+        self.parent[b] = a;
+        self.via[b] = Some(e);
+        self.uf[rb] = ra;
+        None
+    }
+
+    fn reroot(&mut self, x: usize) {
+        let mut prev = x;
+        let mut prev_via = None;
+        let mut cur = x;
+        loop {
+            let next = self.parent[cur];
+            let next_via = self.via[cur];
+            self.parent[cur] = prev;
+            self.via[cur] = prev_via;
+            if next == cur {
+                break;
+            }
+            prev = cur;
+            prev_via = next_via;
+            cur = next;
+        }
+        self.parent[x] = x;
+        self.via[x] = None;
+    }
+
+    fn ancestors(&self, mut x: usize) -> Vec<usize> {
+        let mut out = vec![x];
+        while self.parent[x] != x {
+            x = self.parent[x];
+            out.push(x);
+        }
+        out
+    }
+
+    fn path(&self, a: usize, b: usize) -> Vec<ElemId> {
+        let pa = self.ancestors(a);
+        let pb = self.ancestors(b);
+        let common = pa.iter().find(|n| pb.contains(n)).copied().unwrap_or(a);
+        let mut out = Vec::new();
+        for p in [&pa, &pb] {
+            for &n in p.iter() {
+                if n == common {
+                    break;
+                }
+                if let Some(e) = self.via[n] {
+                    out.push(e);
+                }
+            }
+        }
+        out
+    }
+}
+
+fn components(n: usize, edges: impl Iterator<Item = (usize, usize)>) -> Vec<usize> {
+    let mut f = Forest::new(n);
+    for (a, b) in edges {
+        let (ra, rb) = (f.find(a), f.find(b));
+        if ra != rb {
+            f.uf[ra] = rb;
+        }
+    }
+    (0..n).map(|x| f.find(x)).collect()
+}
+
+/// Whether storage element `e` is directly tied to a source: a capacitor
+/// across the same two nodes as a voltage source, an inductor sharing a
+/// two-element node with a current source.
+fn tied_to_source(c: &Circuit, e: ElemId, degree: &[usize]) -> bool {
+    let el = &c.elements[e];
+    let pair = |x: &super::Element| {
+        let (a, b) = (x.nodes[0], x.nodes[1]);
+        if a < b { (a, b) } else { (b, a) }
+    };
+    c.elements.iter().any(|(id, x)| {
+        id != e
+            && x.nodes.len() >= 2
+            && match defines(&el.kind) {
+                Defines::Capacitor => defines(&x.kind) == Defines::Voltage && pair(x) == pair(el),
+                Defines::Inductor => {
+                    defines(&x.kind) == Defines::Current
+                        && el.nodes[..2].iter().any(|n| {
+                            *n != GROUND && degree[n.0 as usize] == 2 && x.nodes[..2].contains(n)
+                        })
+                }
+                _ => false,
+            }
+    })
+}
+
+/// The storage element of a loop or cutset that loses its state: not one the
+/// user keeps, then one tied to a source, then the last in netlist order.
+fn pick_fixed(
+    c: &Circuit,
+    storage: &[ElemId],
+    keep: &[ElemId],
+    degree: &[usize],
+    taken: &mut Vec<ElemId>,
+) -> Option<ElemId> {
+    // One element per fault: one already fixed by another fault goes last.
+    let e = storage.iter().copied().min_by_key(|&e| {
+        (
+            taken.contains(&e),
+            keep.contains(&e),
+            !tied_to_source(c, e, degree),
+            std::cmp::Reverse(e),
+        )
+    })?;
+    taken.push(e);
+    Some(e)
+}
+
+/// Every fault of `c`, loops first, then cutsets, then floating nodes.
+/// `keep` lists storage elements the user wants to keep their state.
+pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
+    let mut degree = vec![0usize; c.nodes.len()];
+    for e in c.elements.values() {
+        for n in &e.nodes {
+            degree[n.0 as usize] += 1;
+        }
+    }
+    let n = c.nodes.len();
+    let two = |e: &super::Element| (e.nodes[0].0 as usize, e.nodes[1].0 as usize);
+    let mut out = Vec::new();
+    let mut taken: Vec<ElemId> = Vec::new();
+    // Loops: voltage sources first, then capacitors.
+    let mut f = Forest::new(n);
+    for pass in [Defines::Voltage, Defines::Capacitor] {
+        for (id, e) in c.elements.iter() {
+            if defines(&e.kind) != pass {
+                continue;
+            }
+            let (a, b) = two(e);
+            if let Some(path) = f.add(a, b, id) {
+                let mut elements = path;
+                elements.push(id);
+                elements.sort();
+                let caps: Vec<ElemId> = elements
+                    .iter()
+                    .copied()
+                    .filter(|&e| defines(&c.elements[e].kind) == Defines::Capacitor)
+                    .collect();
+                match pick_fixed(c, &caps, keep, &degree, &mut taken) {
+                    Some(fixed) => out.push(Fault::CapacitorLoop { elements, fixed }),
+                    None => out.push(Fault::VoltageLoop { elements }),
+                }
+            }
+        }
+    }
+    // Floating parts: no path to ground except through current sources.
+    let comp_all = components(
+        n,
+        c.elements
+            .values()
+            .filter(|e| !matches!(defines(&e.kind), Defines::Current) && e.nodes.len() >= 2)
+            .map(two),
+    );
+    let ground = comp_all[GROUND.0 as usize];
+    let mut floating: Vec<(usize, Vec<NodeId>)> = Vec::new();
+    for (id, _) in c.nodes.iter() {
+        let k = comp_all[id.0 as usize];
+        if k == ground {
+            continue;
+        }
+        match floating.iter_mut().find(|(r, _)| *r == k) {
+            Some((_, v)) => v.push(id),
+            None => floating.push((k, vec![id])),
+        }
+    }
+    for (k, nodes) in &floating {
+        let via: Vec<ElemId> = c
+            .elements
+            .iter()
+            .filter(|(_, e)| {
+                defines(&e.kind) == Defines::Current
+                    && e.nodes.len() >= 2
+                    && ((comp_all[e.nodes[0].0 as usize] == *k)
+                        != (comp_all[e.nodes[1].0 as usize] == *k))
+            })
+            .map(|(id, _)| id)
+            .collect();
+        out.push(Fault::Floating {
+            nodes: nodes.clone(),
+            via,
+        });
+    }
+    // Cutsets: parts cut off from ground when inductors and current
+    // sources are removed (and not already floating).
+    let comp = components(
+        n,
+        c.elements
+            .values()
+            .filter(|e| {
+                !matches!(defines(&e.kind), Defines::Current | Defines::Inductor)
+                    && e.nodes.len() >= 2
+            })
+            .map(two),
+    );
+    let root = comp[GROUND.0 as usize];
+    let mut parts: Vec<usize> = Vec::new();
+    for (id, _) in c.nodes.iter() {
+        let k = comp[id.0 as usize];
+        if k != root && !parts.contains(&k) && comp_all[id.0 as usize] == ground {
+            parts.push(k);
+        }
+    }
+    for k in parts {
+        let cut: Vec<ElemId> = c
+            .elements
+            .iter()
+            .filter(|(_, e)| {
+                e.nodes.len() >= 2
+                    && matches!(defines(&e.kind), Defines::Current | Defines::Inductor)
+                    && ((comp[e.nodes[0].0 as usize] == k) != (comp[e.nodes[1].0 as usize] == k))
+            })
+            .map(|(id, _)| id)
+            .collect();
+        let inductors: Vec<ElemId> = cut
+            .iter()
+            .copied()
+            .filter(|&e| defines(&c.elements[e].kind) == Defines::Inductor)
+            .collect();
+        match pick_fixed(c, &inductors, keep, &degree, &mut taken) {
+            Some(fixed) => out.push(Fault::InductorCutset {
+                elements: cut,
+                fixed,
+            }),
+            None => out.push(Fault::CurrentCutset {
+                elements: cut,
+                nodes: c.nodes.ids().filter(|n| comp[n.0 as usize] == k).collect(),
+            }),
+        }
+    }
+    out
+}
+
+fn list(names: &[String]) -> String {
+    match names.len() {
+        0 => String::new(),
+        1 => names[0].clone(),
+        n => format!("{} and {}", names[..n - 1].join(", "), names[n - 1]),
+    }
+}
+
+/// A fault with the names and spans needed to report it.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{message}")]
+pub struct TopologyError {
+    pub fixable: bool,
+    pub message: String,
+    pub labels: Vec<(Span, String)>,
+    pub help: String,
+}
+
+impl TopologyError {
+    pub fn new(c: &Circuit, f: &Fault) -> TopologyError {
+        let name = |e: &ElemId| c.elements[*e].name.clone();
+        let names = |v: &[ElemId]| v.iter().map(name).collect::<Vec<_>>();
+        let labels_of = |v: &[ElemId], what: &str| -> Vec<(Span, String)> {
+            v.iter()
+                .map(|e| (c.elements[*e].span, what.to_string()))
+                .collect()
+        };
+        match f {
+            Fault::CapacitorLoop { elements, fixed } => {
+                let others: Vec<ElemId> = elements.iter().copied().filter(|e| e != fixed).collect();
+                let all = names(elements);
+                let kind = if others
+                    .iter()
+                    .any(|&e| defines(&c.elements[e].kind) == Defines::Voltage)
+                {
+                    "a loop of capacitors and voltage sources"
+                } else {
+                    "a loop of capacitors"
+                };
+                let mut labels = labels_of(
+                    std::slice::from_ref(fixed),
+                    "cannot hold an independent state",
+                );
+                labels.extend(labels_of(&others, "in the loop"));
+                TopologyError {
+                    fixable: true,
+                    message: format!(
+                        "{} form {kind}: {}'s voltage is fixed by {}, so {} cannot hold an independent state (derivative causality)",
+                        list(&all),
+                        name(fixed),
+                        list(&names(&others)),
+                        name(fixed)
+                    ),
+                    labels,
+                    help: "kausal removes the integrator by index reduction (Pantelides); --prefer-state chooses which capacitor keeps its state".into(),
+                }
+            }
+            Fault::InductorCutset { elements, fixed } => {
+                let others: Vec<ElemId> = elements.iter().copied().filter(|e| e != fixed).collect();
+                let sources: Vec<String> = others
+                    .iter()
+                    .filter(|&&e| defines(&c.elements[e].kind) == Defines::Current)
+                    .map(name)
+                    .collect();
+                let inductors: Vec<String> = others
+                    .iter()
+                    .filter(|&&e| defines(&c.elements[e].kind) != Defines::Current)
+                    .map(name)
+                    .collect();
+                let src = |v: &[String]| {
+                    format!(
+                        "current source{} {}",
+                        if v.len() == 1 { "" } else { "s" },
+                        list(v)
+                    )
+                };
+                let with = match (inductors.is_empty(), sources.is_empty()) {
+                    (true, true) => "alone (no other element carries its current)".to_string(),
+                    (false, true) => format!("with {}", list(&inductors)),
+                    (true, false) => format!("with {}", src(&sources)),
+                    (false, false) => format!("with {} and {}", list(&inductors), src(&sources)),
+                };
+                let by = if others.len() == 1 { "it" } else { "them" };
+                let mut labels = labels_of(
+                    std::slice::from_ref(fixed),
+                    "cannot hold an independent state",
+                );
+                labels.extend(labels_of(&others, "in the cutset"));
+                TopologyError {
+                    fixable: true,
+                    message: format!(
+                        "{} is in a cutset {with}: its current is fixed by {by}, so {} cannot hold an independent state (derivative causality)",
+                        name(fixed),
+                        name(fixed)
+                    ),
+                    labels,
+                    help: "kausal removes the integrator by index reduction (Pantelides); --prefer-state chooses which inductor keeps its state".into(),
+                }
+            }
+            Fault::VoltageLoop { elements } => TopologyError {
+                fixable: false,
+                message: format!(
+                    "{} form a loop of voltage sources (conflicting)",
+                    list(&names(elements))
+                ),
+                labels: labels_of(elements, "in the loop"),
+                help: "put a resistor in the loop, or remove one of the sources".into(),
+            },
+            Fault::CurrentCutset { elements, nodes } => {
+                let node_names: Vec<String> =
+                    nodes.iter().map(|n| c.nodes[*n].name.clone()).collect();
+                TopologyError {
+                    fixable: false,
+                    message: format!(
+                        "current sources {} form a cutset around node{} {} (conflicting currents)",
+                        list(&names(elements)),
+                        if nodes.len() == 1 { "" } else { "s" },
+                        list(&node_names)
+                    ),
+                    labels: labels_of(elements, "in the cutset"),
+                    help: "give the node a path for current, e.g. a resistor to ground".into(),
+                }
+            }
+            Fault::Floating { nodes, via } => {
+                let node_names: Vec<String> =
+                    nodes.iter().map(|n| c.nodes[*n].name.clone()).collect();
+                let around = if nodes.len() == 1 {
+                    format!("node {}", node_names[0])
+                } else {
+                    format!("nodes {}", list(&node_names))
+                };
+                let (what, how) = if via.is_empty() {
+                    let (verb, it) = if nodes.len() == 1 {
+                        ("is", "it")
+                    } else {
+                        ("are", "them")
+                    };
+                    (
+                        format!("{around} {verb} floating"),
+                        format!("no element connects {it} to ground"),
+                    )
+                } else {
+                    (
+                        format!(
+                            "current sources {} form a cutset around {around}",
+                            list(&names(via))
+                        ),
+                        "their currents must balance and nothing sets the voltage".to_string(),
+                    )
+                };
+                let node_label = if via.is_empty() {
+                    "floating"
+                } else {
+                    "inside the cutset"
+                };
+                let mut labels = labels_of(via, "in the cutset");
+                labels.extend(
+                    nodes
+                        .iter()
+                        .map(|n| (c.nodes[*n].span, node_label.to_string())),
+                );
+                TopologyError {
+                    fixable: false,
+                    message: format!("{what}: {how}, so the circuit is under-determined"),
+                    labels,
+                    help: "give every node a path to ground, e.g. a resistor (ngspice needs a DC path too)".into(),
+                }
+            }
+        }
+    }
+}
+
+impl ToDiagnostic for TopologyError {
+    fn to_diagnostic(&self) -> Diagnostic {
+        let code = if self.fixable { "K0310" } else { "K0311" };
+        let mut d = Diagnostic::error(code, self.message.clone()).with_help(self.help.clone());
+        if self.fixable {
+            d.severity = Severity::Warning;
+        }
+        for (span, label) in &self.labels {
+            d = d.with_label(*span, label.clone());
+        }
+        d
+    }
+}

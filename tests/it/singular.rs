@@ -1,0 +1,210 @@
+//! Structural singularities: circuit faults named by their elements,
+//! Pantelides' index reduction (seed example D step by step), and the
+//! fixable circuits sorting with fewer states than storage elements.
+
+use kausal::analysis::{self, StructuralError, pantelides};
+use kausal::build::Options;
+use kausal::diag::ToDiagnostic;
+use kausal::elab::ElementKind;
+use kausal::io::FsLoader;
+use kausal::ir::{OriginKind, print};
+use kausal::pipeline::{self, SortOptions};
+
+use crate::errors::check_annotations;
+use crate::{goldens, root, stem};
+
+fn sort(file: &str, prefer: &[&str]) -> Result<pipeline::Sorted, Box<pipeline::Failed>> {
+    let opts = SortOptions {
+        prefer_state: prefer.iter().map(|s| s.to_string()).collect(),
+        ..Default::default()
+    };
+    pipeline::sort(&root().join(file), &FsLoader, &opts)
+}
+
+#[test]
+fn unfixable_faults_are_errors_that_name_the_elements() {
+    let dir = root().join("netlists/faults");
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "cir"))
+        .collect();
+    files.sort();
+    assert!(files.len() >= 5);
+    for path in files {
+        let rel = path.strip_prefix(root()).unwrap().to_path_buf();
+        let f = match pipeline::sort(&rel, &FsLoader, &SortOptions::default()) {
+            Ok(_) => panic!("{} should not sort", rel.display()),
+            Err(f) => f,
+        };
+        assert!(f.errors().next().is_some());
+        let rendered = check_annotations(&rel, &f.sources, &f.diagnostics);
+        goldens("faults").bind(|| insta::assert_snapshot!(stem(&rel), rendered));
+    }
+}
+
+/// Storage elements of a circuit.
+fn n_storage(s: &pipeline::Sorted) -> usize {
+    s.elaborated
+        .circuit
+        .elements
+        .values()
+        .filter(|e| {
+            matches!(
+                e.kind,
+                ElementKind::Capacitor { .. } | ElementKind::Inductor { .. }
+            )
+        })
+        .count()
+}
+
+#[test]
+fn fixable_faults_are_reported_and_reduced() {
+    let cases: [(&str, &str, &[&str]); 5] = [
+        (
+            "cv_loop.cir",
+            "C2's voltage is fixed by V1 and C1",
+            &["V1", "C1", "C2"],
+        ),
+        (
+            "parallel_caps.cir",
+            "C1 and C2 form a loop of capacitors",
+            &["C1", "C2"],
+        ),
+        (
+            "li_cutset.cir",
+            "L1 is in a cutset with current source I1",
+            &["L1", "I1"],
+        ),
+        (
+            "series_inductors_isrc.cir",
+            "L2 is in a cutset with L1",
+            &["L1", "L2"],
+        ),
+        (
+            "seed_d_singular.cir",
+            "L2 is in a cutset with L1 and current sources I1, I2 and I3",
+            &["L2", "I1", "I3"],
+        ),
+    ];
+    for (file, message, names) in cases {
+        let s = sort(&format!("netlists/{file}"), &[]).unwrap_or_else(|f| {
+            panic!(
+                "{file}: {:?}",
+                f.errors().map(|d| &d.message).collect::<Vec<_>>()
+            )
+        });
+        let msgs: Vec<String> = s.faults.iter().map(|f| f.message.clone()).collect();
+        assert!(msgs.iter().any(|m| m.contains(message)), "{file}: {msgs:?}");
+        let all = msgs.join(" ");
+        for n in names {
+            assert!(all.contains(n), "{file}: `{n}` not named in {msgs:?}");
+        }
+        let red = s.reduction.as_ref().expect("index reduction ran");
+        let n_states = s.system().states().count();
+        assert!(n_states < n_storage(&s), "{file}: {n_states} states");
+        assert_eq!(n_states + red.removed.len(), n_storage(&s));
+        assert_eq!(kausal::ir::verify(s.system()), vec![]);
+    }
+}
+
+#[test]
+fn seed_d_is_reduced_as_in_seed_001() {
+    let s = sort("netlists/seed_d_singular.cir", &[]).ok().unwrap();
+    let orig = &s.built.system;
+    let red = s.reduction.as_ref().unwrap();
+    let sys = &red.system;
+    // The constraint: KCL at node 1, every unknown known.
+    assert_eq!(red.constraints.len(), 1);
+    let g = red.constraints[0];
+    assert_eq!(print::equation(orig, g), "0 = i_I1 + i_I3 + i_L2 + i_C1");
+    assert_eq!(orig.eqs[g].origin.describe(), "KCL at node 1");
+    // Five added equations: the constraint, the three sources, iC = iL1 + I2.
+    let of: Vec<String> = red
+        .differentiated
+        .iter()
+        .map(|d| orig.eqs[d.of].origin.describe())
+        .collect();
+    let mut sorted_of = of.clone();
+    sorted_of.sort();
+    assert_eq!(
+        sorted_of,
+        ["I1", "I2", "I3", "KCL at node 1", "KCL at node 2"]
+    );
+    let texts: Vec<String> = red
+        .differentiated
+        .iter()
+        .map(|d| print::equation(sys, d.eq))
+        .collect();
+    assert!(
+        texts.contains(&"0 = der(i_I1) + der(i_I3) + der(i_L2) + der(i_C1)".to_string()),
+        "{texts:?}"
+    );
+    assert!(
+        texts.contains(&"der(i_C1) = der(i_I2) + der(i_L1)".to_string()),
+        "{texts:?}"
+    );
+    for d in &red.differentiated {
+        assert!(matches!(sys.eqs[d.eq].origin.kind, OriginKind::Derivative { of } if of == d.of));
+    }
+    // iL2 loses its integrator.
+    assert_eq!(red.removed.len(), 1);
+    assert_eq!(sys.vars[red.removed[0].state].name, "i_L2");
+    let states: Vec<&str> = sys.states().map(|v| sys.vars[v].name.as_str()).collect();
+    assert_eq!(states, ["i_L1", "u_C1"]);
+    // The re-sort finds a 7x7 algebraic loop and tears it.
+    let blocks: Vec<_> = s.schedule.blocks().collect();
+    assert_eq!(blocks.len(), 1);
+    assert_eq!(blocks[0].n_eqs(), 7);
+    assert_eq!(blocks[0].tears.len(), 1);
+    assert!(blocks[0].linear);
+    let mut text = kausal::back::listing::index_reduction(orig, red);
+    text.push_str(&kausal::back::listing::text(sys, &s.schedule));
+    goldens("singular").bind(|| insta::assert_snapshot!("seed_d_singular", text));
+}
+
+#[test]
+fn prefer_state_chooses_which_capacitor_keeps_its_state() {
+    let s = sort("netlists/parallel_caps.cir", &[]).ok().unwrap();
+    let states: Vec<&str> = s
+        .system()
+        .states()
+        .map(|v| s.system().vars[v].name.as_str())
+        .collect();
+    assert_eq!(states, ["u_C1"]);
+    let s = sort("netlists/parallel_caps.cir", &["C2"]).ok().unwrap();
+    let states: Vec<&str> = s
+        .system()
+        .states()
+        .map(|v| s.system().vars[v].name.as_str())
+        .collect();
+    assert_eq!(states, ["u_C2"]);
+    assert!(
+        s.faults[0].message.contains("C1's voltage is fixed by C2"),
+        "{}",
+        s.faults[0].message
+    );
+    let f = sort("netlists/parallel_caps.cir", &["C9"]).err().unwrap();
+    assert!(f.errors().any(|d| d.message.contains("C9")));
+}
+
+#[test]
+fn index_reduction_is_bounded() {
+    // Every round removes a state, so the rounds are bounded by the system;
+    // the bound itself is an error, not a hang.
+    let path = root().join("netlists/series_inductors_isrc.cir");
+    let (_, built) = pipeline::equations(&path, &FsLoader, Options::default())
+        .ok()
+        .unwrap();
+    let opts = pantelides::Options {
+        max_rounds: Some(1),
+        ..Default::default()
+    };
+    let err = analysis::reduce_index(&built.system, &opts).unwrap_err();
+    assert!(matches!(err, StructuralError::IndexLimit { .. }), "{err}");
+    assert!(err.to_diagnostic().message.contains("did not finish"));
+    let red = analysis::reduce_index(&built.system, &pantelides::Options::default())
+        .unwrap()
+        .unwrap();
+    assert_eq!(red.removed.len(), 2);
+}
