@@ -1,9 +1,10 @@
-//! Parse + elaborate + build on generated RC ladders (10^3 to 10^5 sections).
+//! Parse + elaborate + build on generated RC ladders (10^3 to 10^5
+//! sections), whole and stage by stage.
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use kausal::build::{self, Options};
 use kausal::io::FsLoader;
-use kausal::pipeline;
+use kausal::{elab, front, pipeline};
 use std::path::Path;
 
 fn front_to_equations(c: &mut Criterion) {
@@ -12,7 +13,7 @@ fn front_to_equations(c: &mut Criterion) {
     for n in [1_000usize, 10_000, 100_000] {
         let text = kausal::generate::rc_ladder(n);
         g.throughput(Throughput::Elements(n as u64));
-        g.bench_with_input(BenchmarkId::from_parameter(n), &text, |b, text| {
+        g.bench_with_input(BenchmarkId::new("all", n), &text, |b, text| {
             b.iter(|| {
                 let el = pipeline::elaborate_text(
                     "ladder.cir",
@@ -26,6 +27,23 @@ fn front_to_equations(c: &mut Criterion) {
                 assert!(built.system.eqs.len() > 4 * n);
                 built
             })
+        });
+        let (sources, _) = front::load(
+            "ladder.cir",
+            Path::new("ladder.cir"),
+            text.clone(),
+            &FsLoader,
+        );
+        g.bench_with_input(BenchmarkId::new("parse", n), &sources, |b, sources| {
+            b.iter(|| front::parse(sources).0.stmts.len())
+        });
+        let (ast, _) = front::parse(&sources);
+        g.bench_with_input(BenchmarkId::new("elaborate", n), &ast, |b, ast| {
+            b.iter(|| elab::elaborate(ast).0.elements.len())
+        });
+        let (circuit, _) = elab::elaborate(&ast);
+        g.bench_with_input(BenchmarkId::new("build", n), &circuit, |b, circuit| {
+            b.iter(|| build::build(circuit, Options::default()).system.eqs.len())
         });
     }
     g.finish();

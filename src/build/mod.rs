@@ -17,7 +17,7 @@ use std::collections::HashMap;
 
 use crate::elab::{Circuit, ElemId, ElementKind, GROUND, NodeId};
 use crate::ir::{
-    EquationSystem, ExprId, Func, Origin, OriginKind, SourceFn, VarId, VarKind, Waveform,
+    EquationSystem, ExprId, Func, Name, Origin, OriginKind, SourceFn, VarId, VarKind, Waveform,
 };
 
 /// Thermal voltage kT/q at ngspice's default 27 °C.
@@ -60,12 +60,22 @@ pub struct Built {
 
 /// Build the equations of `circuit`.
 pub fn build(circuit: &Circuit, opts: Options) -> Built {
+    let n = circuit.elements.len() + circuit.nodes.len();
     let mut b = Builder {
         c: circuit,
         sys: EquationSystem {
             title: circuit.title.clone(),
+            exprs: crate::ir::ExprArena::with_capacity(8 * n),
+            vars: crate::ir::IdVec::with_capacity(3 * n),
+            params: crate::ir::IdVec::with_capacity(n),
+            eqs: crate::ir::IdVec::with_capacity(3 * n),
             ..EquationSystem::default()
         },
+        names: circuit
+            .elements
+            .values()
+            .map(|e| Name::from(e.name.as_str()))
+            .collect(),
     };
     let elem_vars = b.element_vars();
     let node_pot = match opts.kvl {
@@ -92,15 +102,18 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
 struct Builder<'c> {
     c: &'c Circuit,
     sys: EquationSystem,
+    /// Element names, shared by every origin that mentions them.
+    names: Vec<Name>,
 }
 
-fn elem_origin(c: &Circuit, id: ElemId) -> Origin {
-    let e = &c.elements[id];
-    Origin {
-        kind: OriginKind::Element {
-            name: e.name.clone(),
-        },
-        span: Some(e.span),
+impl Builder<'_> {
+    fn elem_origin(&self, id: ElemId) -> Origin {
+        Origin {
+            kind: OriginKind::Element {
+                name: self.names[id.0 as usize].clone(),
+            },
+            span: Some(self.c.elements[id].span),
+        }
     }
 }
 
@@ -112,7 +125,7 @@ impl Builder<'_> {
                 out.push(None);
                 continue;
             }
-            let origin = elem_origin(self.c, id);
+            let origin = self.elem_origin(id);
             let u = self.sys.add_var(
                 format!("u_{}", e.name),
                 VarKind::BranchVoltage,
@@ -147,7 +160,7 @@ impl Builder<'_> {
                 VarKind::Potential,
                 Origin {
                     kind: OriginKind::Node {
-                        name: n.name.clone(),
+                        name: Name::from(n.name.as_str()),
                     },
                     span: Some(n.span),
                 },
@@ -254,7 +267,7 @@ impl Builder<'_> {
                 }
                 ElementKind::Coupling { .. } => continue,
             };
-            self.sys.add_eq(lhs, rhs, elem_origin(self.c, id));
+            self.sys.add_eq(lhs, rhs, self.elem_origin(id));
         }
     }
 
@@ -282,7 +295,7 @@ impl Builder<'_> {
         let u = x.var(ev.u);
         let i = x.var(ev.i);
         let uj = if m.rs > 0.0 {
-            let origin = elem_origin(self.c, id);
+            let origin = self.elem_origin(id);
             let j = self
                 .sys
                 .add_var(format!("uj_{name}"), VarKind::BranchVoltage, origin.clone());
@@ -302,32 +315,47 @@ impl Builder<'_> {
         let one = x.constant(1.0);
         let em1 = x.sub(e, one);
         let rhs = x.mul(is, em1);
-        self.sys.add_eq(i, rhs, elem_origin(self.c, id));
+        self.sys.add_eq(i, rhs, self.elem_origin(id));
     }
 
     /// KCL at every node but ground: currents in = currents out.
     fn kcl(&mut self, vars: &[Option<ElemVars>]) {
         let n = self.c.nodes.len();
-        let mut ins: Vec<Vec<VarId>> = vec![Vec::new(); n];
-        let mut outs: Vec<Vec<VarId>> = vec![Vec::new(); n];
+        // Terminals by node in compressed form: (current, enters the node).
+        let mut start = vec![0u32; n + 1];
+        for (id, e) in self.c.elements.iter() {
+            if vars[id.0 as usize].is_some() {
+                start[e.nodes[0].0 as usize + 1] += 1;
+                start[e.nodes[1].0 as usize + 1] += 1;
+            }
+        }
+        for k in 0..n {
+            start[k + 1] += start[k];
+        }
+        let mut fill = start.clone();
+        let mut terms = vec![(VarId(0), false); start[n] as usize];
         for (id, e) in self.c.elements.iter() {
             let Some(ev) = vars[id.0 as usize] else {
                 continue;
             };
-            outs[e.nodes[0].0 as usize].push(ev.i);
-            ins[e.nodes[1].0 as usize].push(ev.i);
+            for (node, enters) in [(e.nodes[0], false), (e.nodes[1], true)] {
+                let slot = &mut fill[node.0 as usize];
+                terms[*slot as usize] = (ev.i, enters);
+                *slot += 1;
+            }
         }
         for (id, node) in self.c.nodes.iter() {
             if id == GROUND {
                 continue;
             }
             let k = id.0 as usize;
-            if ins[k].is_empty() && outs[k].is_empty() {
+            let here = &terms[start[k] as usize..start[k + 1] as usize];
+            if here.is_empty() {
                 continue;
             }
             let x = &mut self.sys.exprs;
-            let lhs_terms: Vec<ExprId> = ins[k].iter().map(|&v| x.var(v)).collect();
-            let rhs_terms: Vec<ExprId> = outs[k].iter().map(|&v| x.var(v)).collect();
+            let lhs_terms: Vec<ExprId> = here.iter().filter(|t| t.1).map(|t| x.var(t.0)).collect();
+            let rhs_terms: Vec<ExprId> = here.iter().filter(|t| !t.1).map(|t| x.var(t.0)).collect();
             let lhs = x.sum(lhs_terms);
             let rhs = x.sum(rhs_terms);
             self.sys.add_eq(
@@ -335,7 +363,7 @@ impl Builder<'_> {
                 rhs,
                 Origin {
                     kind: OriginKind::Kcl {
-                        node: node.name.clone(),
+                        node: Name::from(node.name.as_str()),
                     },
                     span: Some(node.span),
                 },
@@ -357,7 +385,7 @@ impl Builder<'_> {
                 rhs,
                 Origin {
                     kind: OriginKind::Branch {
-                        name: e.name.clone(),
+                        name: self.names[id.0 as usize].clone(),
                     },
                     span: Some(e.span),
                 },

@@ -4,7 +4,7 @@
 
 use super::ElemVars;
 use crate::elab::{Circuit, ElementKind, GROUND};
-use crate::ir::{EquationSystem, ExprId, Origin, OriginKind, VarKind};
+use crate::ir::{EquationSystem, ExprId, Name, Origin, OriginKind, VarKind};
 
 /// Tree preference of an element: lower goes into the tree first.
 fn rank(k: &ElementKind) -> u8 {
@@ -80,7 +80,7 @@ pub fn potentials_from_tree(
                 VarKind::Potential,
                 Origin {
                     kind: OriginKind::Node {
-                        name: node.name.clone(),
+                        name: Name::from(node.name.as_str()),
                     },
                     span: Some(node.span),
                 },
@@ -133,20 +133,20 @@ pub fn loop_equations(
         let rhs = sys
             .exprs
             .sub(pots[e.nodes[0].0 as usize], pots[e.nodes[1].0 as usize]);
-        let mut elements = vec![e.name.clone()];
+        let mut elements: Vec<Name> = vec![Name::from(e.name.as_str())];
         let mut seen = Vec::new();
         let mut stack = Vec::new();
         sys.exprs.vars_into(rhs, &mut seen, &mut stack);
         elements.extend(seen.iter().map(|&v| match &sys.vars[v].origin.kind {
             OriginKind::Element { name } => name.clone(),
-            other => format!("{other:?}"),
+            other => Name::from(format!("{other:?}").as_str()),
         }));
         sys.add_eq(
             u,
             rhs,
             Origin {
                 kind: OriginKind::Kvl {
-                    link: e.name.clone(),
+                    link: Name::from(e.name.as_str()),
                     elements,
                 },
                 span: Some(e.span),

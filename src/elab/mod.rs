@@ -10,6 +10,8 @@ pub mod topology;
 
 use std::collections::HashMap;
 
+use rustc_hash::FxHashMap;
+
 pub use circuit::*;
 pub use error::ElabError;
 
@@ -26,8 +28,8 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
             ..Circuit::default()
         },
         errors: Vec::new(),
-        node_map: HashMap::new(),
-        elem_map: HashMap::new(),
+        node_map: FxHashMap::default(),
+        elem_map: FxHashMap::default(),
         pending: Vec::new(),
         model_cache: HashMap::new(),
         tstep: 1.0,
@@ -99,8 +101,8 @@ struct Pending {
 struct Elab {
     circuit: Circuit,
     errors: Vec<ElabError>,
-    node_map: HashMap<String, NodeId>,
-    elem_map: HashMap<String, (ElemId, Span)>,
+    node_map: FxHashMap<String, NodeId>,
+    elem_map: FxHashMap<String, (ElemId, Span)>,
     pending: Vec<Pending>,
     model_cache: HashMap<(u32, u32, String), DiodeModel>,
     tstep: f64,

@@ -194,7 +194,7 @@ mod tests {
             &mut |v, x| if v == u { x.var(du) } else { x.constant(0.0) },
             &mut memo,
         );
-        assert_eq!(print::expr(&s, d), "exp(u/k)*du/k");
+        assert_eq!(print::expr(&s, d), "exp(u/k)*(du/k)");
         let x = &mut s.exprs;
         let sq = x.mul(ue, ue);
         let mut memo = HashMap::new();

@@ -6,6 +6,8 @@
 
 use std::collections::HashMap;
 
+use rustc_hash::FxHashMap;
+
 use super::system::{ParamId, SourceId, VarId};
 
 crate::entity_id!(
@@ -96,12 +98,25 @@ pub enum Expr {
 #[derive(Clone, Debug, Default)]
 pub struct ExprArena {
     nodes: Vec<Expr>,
-    dedup: HashMap<Expr, ExprId>,
+    dedup: FxHashMap<Expr, ExprId>,
+    /// The node of each variable and parameter, by index (`u32::MAX`: none).
+    var_nodes: Vec<u32>,
+    param_nodes: Vec<u32>,
 }
 
 impl ExprArena {
     pub fn new() -> ExprArena {
         ExprArena::default()
+    }
+
+    /// An arena with room for `n` expressions.
+    pub fn with_capacity(n: usize) -> ExprArena {
+        ExprArena {
+            nodes: Vec::with_capacity(n),
+            dedup: FxHashMap::with_capacity_and_hasher(n, Default::default()),
+            var_nodes: Vec::new(),
+            param_nodes: Vec::new(),
+        }
     }
 
     pub fn len(&self) -> usize {
@@ -123,13 +138,41 @@ impl ExprArena {
 
     /// Intern `e` as it is, without simplification.
     pub fn intern(&mut self, e: Expr) -> ExprId {
-        if let Some(&id) = self.dedup.get(&e) {
-            return id;
+        match e {
+            Expr::Var(v) => self.leaf(e, v.0 as usize, false),
+            Expr::Param(p) => self.leaf(e, p.0 as usize, true),
+            _ => {
+                if let Some(&id) = self.dedup.get(&e) {
+                    return id;
+                }
+                let id = ExprId(self.nodes.len() as u32);
+                self.nodes.push(e);
+                self.dedup.insert(e, id);
+                id
+            }
         }
-        let id = ExprId(self.nodes.len() as u32);
+    }
+
+    /// Variables and parameters are looked up by index, not hashed: they
+    /// are most of the lookups when building big systems.
+    fn leaf(&mut self, e: Expr, k: usize, param: bool) -> ExprId {
+        let table = if param {
+            &mut self.param_nodes
+        } else {
+            &mut self.var_nodes
+        };
+        if let Some(&id) = table.get(k)
+            && id != u32::MAX
+        {
+            return ExprId(id);
+        }
+        if table.len() <= k {
+            table.resize(k + 1, u32::MAX);
+        }
+        let id = self.nodes.len() as u32;
+        table[k] = id;
         self.nodes.push(e);
-        self.dedup.insert(e, id);
-        id
+        ExprId(id)
     }
 
     pub fn constant(&mut self, x: f64) -> ExprId {

@@ -15,7 +15,7 @@ mod verify;
 pub use entity::{EntityId, IdVec};
 pub use expr::{Expr, ExprArena, ExprId, Func, bits};
 pub use system::{
-    EqId, Equation, EquationSystem, Origin, OriginKind, Param, ParamId, SourceFn, SourceId, Var,
-    VarId, VarKind, VarRole, Waveform,
+    EqId, Equation, EquationSystem, Name, Origin, OriginKind, Param, ParamId, SourceFn, SourceId,
+    Var, VarId, VarKind, VarRole, Waveform,
 };
 pub use verify::{VerifyError, verify};

@@ -85,27 +85,30 @@ pub struct Origin {
     pub span: Option<Span>,
 }
 
+/// A shared, immutable name (element or node): cloned by reference count.
+pub type Name = std::sync::Arc<str>;
+
 #[derive(Clone, Debug, PartialEq)]
 pub enum OriginKind {
     /// The constitutive equation of an element (`u = R*i`).
-    Element { name: String },
+    Element { name: Name },
     /// The branch equation `u = v(a) - v(b)` of an element.
-    Branch { name: String },
+    Branch { name: Name },
     /// Kirchhoff's current law at a node.
-    Kcl { node: String },
+    Kcl { node: Name },
     /// Kirchhoff's voltage law on the fundamental loop closed by `link`.
-    Kvl { link: String, elements: Vec<String> },
+    Kvl { link: Name, elements: Vec<Name> },
     /// The time derivative of another equation (index reduction).
     Derivative { of: EqId },
     /// A node potential.
-    Node { name: String },
+    Node { name: Name },
 }
 
 impl Origin {
     /// The circuit entity this names, for messages: an element or node name.
     pub fn describe(&self) -> String {
         match &self.kind {
-            OriginKind::Element { name } => name.clone(),
+            OriginKind::Element { name } => name.to_string(),
             OriginKind::Branch { name } => format!("branch of {name}"),
             OriginKind::Kcl { node } => format!("KCL at node {node}"),
             OriginKind::Kvl { link, .. } => format!("KVL on the loop of {link}"),
@@ -117,8 +120,8 @@ impl Origin {
     /// The element names this origin involves.
     pub fn elements(&self) -> Vec<&str> {
         match &self.kind {
-            OriginKind::Element { name } | OriginKind::Branch { name } => vec![name.as_str()],
-            OriginKind::Kvl { elements, .. } => elements.iter().map(String::as_str).collect(),
+            OriginKind::Element { name } | OriginKind::Branch { name } => vec![&**name],
+            OriginKind::Kvl { elements, .. } => elements.iter().map(|e| &**e).collect(),
             _ => Vec::new(),
         }
     }
