@@ -28,3 +28,4 @@ pub mod generate;
 pub mod io;
 pub mod ir;
 pub mod pipeline;
+pub mod sim;

@@ -11,6 +11,7 @@ use kausal::build::{self, Kvl};
 use kausal::diag::{self, Diagnostic, RenderOptions, SourceMap, ToDiagnostic};
 use kausal::io::FsLoader;
 use kausal::pipeline::{self, Failed};
+use kausal::sim::{self, Method};
 
 #[derive(Parser)]
 #[command(
@@ -103,6 +104,37 @@ enum Command {
         #[arg(long, short)]
         out: Option<PathBuf>,
     },
+    /// Simulate the netlist's `.tran` and write the waveforms (CSV).
+    Sim {
+        /// The netlist file.
+        netlist: PathBuf,
+        #[command(flatten)]
+        build: BuildArgs,
+        /// Write the CSV here instead of standard output.
+        #[arg(long, short)]
+        out: Option<PathBuf>,
+        /// Also write an ngspice ASCII raw file.
+        #[arg(long)]
+        raw: Option<PathBuf>,
+        /// An output vector, e.g. `v(out)`, `v(a,b)`, `i(v1)` (repeatable).
+        #[arg(long = "probe", value_name = "VECTOR")]
+        probes: Vec<String>,
+        /// Integration method (default: bdf).
+        #[arg(long, value_enum)]
+        method: Option<Method>,
+        /// Relative tolerance (default 1e-6).
+        #[arg(long)]
+        rtol: Option<f64>,
+        /// Absolute tolerance for voltages (currents: 1e-3 of it).
+        #[arg(long)]
+        atol: Option<f64>,
+        /// Also output every accepted step.
+        #[arg(long)]
+        all_steps: bool,
+        /// Keep this capacitor's or inductor's state under index reduction.
+        #[arg(long, value_name = "ELEMENT")]
+        prefer_state: Vec<String>,
+    },
 }
 
 fn main() -> ExitCode {
@@ -114,6 +146,21 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+static PROGRESS: std::sync::OnceLock<indicatif::ProgressBar> = std::sync::OnceLock::new();
+
+/// Progress of a long simulation, on standard error (terminals only).
+fn progress(fraction: f64) {
+    let bar = PROGRESS.get_or_init(|| {
+        let b = indicatif::ProgressBar::new(1000);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {percent}% {elapsed} (eta {eta})")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
+    });
+    bar.set_position((fraction.clamp(0.0, 1.0) * 1000.0) as u64);
 }
 
 fn render_opts() -> RenderOptions {
@@ -197,6 +244,75 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                 }
             };
             emit(out.as_ref(), &text)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Sim {
+            netlist,
+            build,
+            out,
+            raw,
+            probes,
+            method,
+            rtol,
+            atol,
+            all_steps,
+            prefer_state,
+        } => {
+            let opts = pipeline::SortOptions {
+                build: build.options(),
+                prefer_state,
+                ..Default::default()
+            };
+            let sorted = match pipeline::sort(&netlist, &FsLoader, &opts) {
+                Ok(x) => x,
+                Err(f) => return Ok(report_failure(&f)),
+            };
+            print_diags(&sorted.elaborated.sources, &sorted.elaborated.warnings);
+            let sim_opts = sim::Options {
+                method,
+                rtol,
+                atol,
+                all_steps,
+                probes,
+                progress: std::io::stderr()
+                    .is_terminal()
+                    .then_some(progress as fn(f64)),
+            };
+            let result = sim::simulate(&sorted, &sim_opts);
+            if let Some(bar) = PROGRESS.get() {
+                bar.finish_and_clear();
+            }
+            let w = match result {
+                Ok(w) => w,
+                Err(e) => {
+                    print_diags(&sorted.elaborated.sources, &[e.to_diagnostic()]);
+                    return Ok(ExitCode::FAILURE);
+                }
+            };
+            let s = &w.stats;
+            eprintln!(
+                "{} states, {:?}: {} steps ({} rejected), {} f-evaluations, {} J·v, {} Jacobians, {} LU factorizations, {} restarts; {:.3} s",
+                s.states,
+                s.method.unwrap_or(Method::Bdf),
+                s.steps,
+                s.rejected,
+                s.rhs_evals,
+                s.jac_mul_evals,
+                s.jacobians,
+                s.lu_factorizations,
+                s.restarts,
+                s.wall.as_secs_f64()
+            );
+            eprintln!(
+                "assignments: {} in f, {} at output points only, {} pruned",
+                s.in_f, s.at_outputs, s.unused
+            );
+            if let Some(path) = &raw {
+                let text = sim::output::raw_ascii(&w, &sorted.elaborated.circuit.title);
+                kausal::io::write_atomic(path, text.as_bytes())
+                    .map_err(|e| format!("cannot write `{}`: {e}", path.display()))?;
+            }
+            emit(out.as_ref(), &sim::output::csv(&w))?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Sort {

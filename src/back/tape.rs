@@ -1,0 +1,1175 @@
+//! The in-process evaluator: a schedule compiled into a flat register
+//! program over an `f64` slice. No tree walking and no hashing when it runs:
+//! one `match` per instruction. Assignments alias registers (`x := y` costs
+//! nothing), common subexpressions share one register (the expression arena
+//! is hash-consed), and algebraic blocks are solved by damped Newton on their
+//! tearing variables with an analytic Jacobian from forward-mode tangents.
+//!
+//! Only what the scene needs is computed during integration: the state
+//! derivatives, with the blocks they need. Requested outputs are computed by
+//! a second program, at output points only.
+
+use std::collections::HashMap;
+
+use crate::analysis::{Assignment, Schedule, Solved, Step};
+use crate::ir::{EquationSystem, Expr, ExprId, Func, VarId, Waveform};
+
+/// One instruction: `dst = op(a, b)`; operands are registers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Instr {
+    Neg {
+        d: u32,
+        a: u32,
+    },
+    Add {
+        d: u32,
+        a: u32,
+        b: u32,
+    },
+    Sub {
+        d: u32,
+        a: u32,
+        b: u32,
+    },
+    Mul {
+        d: u32,
+        a: u32,
+        b: u32,
+    },
+    Div {
+        d: u32,
+        a: u32,
+        b: u32,
+    },
+    Pow {
+        d: u32,
+        a: u32,
+        b: u32,
+    },
+    Call {
+        d: u32,
+        f: Func,
+        a: u32,
+    },
+    /// The `order`-th time derivative of source `s`.
+    Src {
+        d: u32,
+        s: u32,
+        order: u8,
+    },
+    Time {
+        d: u32,
+    },
+    /// Solve block `k` (see [`TapeBlock`]).
+    Block {
+        k: u32,
+    },
+}
+
+/// An algebraic loop: guess the tearing registers, run `body`, drive the
+/// residual registers to zero.
+#[derive(Clone, Debug)]
+pub struct TapeBlock {
+    /// 1-based index in the schedule (for messages).
+    pub index: usize,
+    pub tears: Vec<u32>,
+    pub residuals: Vec<u32>,
+    pub body: Vec<Instr>,
+    pub linear: bool,
+    /// The circuit elements of the block, for messages.
+    pub elements: Vec<String>,
+    /// Tears that enter an `exp(x/vt)` (junction voltages), with the register
+    /// of `vt`: their Newton steps are limited as ngspice limits junctions.
+    pub junctions: Vec<(usize, u32)>,
+}
+
+/// Why an evaluation failed.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum EvalError {
+    #[error("Newton did not converge in algebraic loop {block} through {} (residual {residual:.3e} at t = {t:e})", elements.join(", "))]
+    NoConvergence {
+        block: usize,
+        elements: Vec<String>,
+        residual: f64,
+        t: f64,
+    },
+    #[error("singular Jacobian in algebraic loop {block} through {} at t = {t:e}", elements.join(", "))]
+    Singular {
+        block: usize,
+        elements: Vec<String>,
+        t: f64,
+    },
+}
+
+/// A compiled schedule.
+#[derive(Clone, Debug)]
+pub struct Tape {
+    pub n_regs: usize,
+    /// Register of each state, in state order (the ODE's `y`).
+    pub state_regs: Vec<u32>,
+    /// The state variables, in the same order.
+    pub states: Vec<VarId>,
+    /// Register of each state's derivative (the ODE's `f`).
+    pub deriv_regs: Vec<u32>,
+    /// Initial register contents (parameters and constants).
+    pub init: Vec<f64>,
+    pub code: Vec<Instr>,
+    pub blocks: Vec<TapeBlock>,
+    /// Computes the outputs from the registers `code` left.
+    pub out_code: Vec<Instr>,
+    pub out_regs: Vec<u32>,
+    pub sources: Vec<Waveform>,
+    /// Assignments evaluated by `code` / only by `out_code` / never.
+    pub n_in_f: usize,
+    pub n_at_outputs: usize,
+    pub n_unused: usize,
+    /// For each register, the assignment (variable) whose value it holds,
+    /// when it holds one: to name the source of a NaN.
+    pub reg_var: Vec<Option<VarId>>,
+}
+
+struct Compiler<'a> {
+    sys: &'a EquationSystem,
+    sched: &'a Schedule,
+    n_regs: u32,
+    init: Vec<f64>,
+    memo: HashMap<ExprId, u32>,
+    var_reg: Vec<u32>,
+    param_reg: Vec<u32>,
+    reg_var: Vec<Option<VarId>>,
+    blocks: Vec<TapeBlock>,
+}
+
+const NONE: u32 = u32::MAX;
+
+impl Compiler<'_> {
+    fn reg(&mut self, value: f64) -> u32 {
+        let r = self.n_regs;
+        self.n_regs += 1;
+        self.init.push(value);
+        self.reg_var.push(None);
+        r
+    }
+
+    /// Emit `e` into `out` (post-order, memoized); returns its register.
+    fn emit(&mut self, e: ExprId, out: &mut Vec<Instr>) -> u32 {
+        if let Some(&r) = self.memo.get(&e) {
+            return r;
+        }
+        let x = &self.sched.exprs;
+        let r = match x.get(e) {
+            Expr::Const(b) => {
+                let r = self.reg(f64::from_bits(b));
+                self.memo.insert(e, r);
+                return r;
+            }
+            Expr::Param(p) => {
+                let k = p.0 as usize;
+                if self.param_reg[k] == NONE {
+                    self.param_reg[k] = self.reg(self.sys.params[p].value);
+                }
+                return self.param_reg[k];
+            }
+            Expr::Var(v) => {
+                let r = self.var_reg[v.0 as usize];
+                if r != NONE {
+                    return r;
+                }
+                // An eliminated alias: its expression.
+                let alias = self.sys.vars[v]
+                    .alias
+                    .expect("variables are computed before use");
+                let r = self.emit(alias, out);
+                self.var_reg[v.0 as usize] = r;
+                return r;
+            }
+            Expr::Time => {
+                let d = self.reg(0.0);
+                out.push(Instr::Time { d });
+                d
+            }
+            Expr::Source(s, order) => {
+                let d = self.reg(0.0);
+                out.push(Instr::Src { d, s: s.0, order });
+                d
+            }
+            Expr::Neg(a) => {
+                let a = self.emit(a, out);
+                let d = self.reg(0.0);
+                out.push(Instr::Neg { d, a });
+                d
+            }
+            Expr::Call(f, a) => {
+                let a = self.emit(a, out);
+                let d = self.reg(0.0);
+                out.push(Instr::Call { d, f, a });
+                d
+            }
+            Expr::Add(a, b)
+            | Expr::Sub(a, b)
+            | Expr::Mul(a, b)
+            | Expr::Div(a, b)
+            | Expr::Pow(a, b) => {
+                let (ra, rb) = (self.emit(a, out), self.emit(b, out));
+                let d = self.reg(0.0);
+                out.push(match x.get(e) {
+                    Expr::Add(..) => Instr::Add { d, a: ra, b: rb },
+                    Expr::Sub(..) => Instr::Sub { d, a: ra, b: rb },
+                    Expr::Mul(..) => Instr::Mul { d, a: ra, b: rb },
+                    Expr::Div(..) => Instr::Div { d, a: ra, b: rb },
+                    _ => Instr::Pow { d, a: ra, b: rb },
+                });
+                d
+            }
+        };
+        self.memo.insert(e, r);
+        r
+    }
+
+    /// The register of variable `v` (an alias is emitted on first use).
+    fn var(&mut self, v: VarId, out: &mut Vec<Instr>) -> u32 {
+        let r = self.var_reg[v.0 as usize];
+        if r != NONE {
+            return r;
+        }
+        match self.sys.vars[v].alias {
+            Some(a) => {
+                let r = self.emit(a, out);
+                self.var_reg[v.0 as usize] = r;
+                r
+            }
+            // Not needed by anything that ran: a constant zero.
+            None => self.reg(0.0),
+        }
+    }
+
+    fn assign(&mut self, a: &Assignment, out: &mut Vec<Instr>) {
+        match a.solved {
+            Solved::Explicit(e) => {
+                let r = self.emit(e, out);
+                self.var_reg[a.var.0 as usize] = r;
+                if self.reg_var[r as usize].is_none() {
+                    self.reg_var[r as usize] = Some(a.var);
+                }
+            }
+            Solved::Implicit(f) => {
+                // A one-equation block: guess the unknown, zero the residual.
+                let t = self.reg(0.0);
+                self.var_reg[a.var.0 as usize] = t;
+                self.reg_var[t as usize] = Some(a.var);
+                let mut body = Vec::new();
+                let r = self.emit(f, &mut body);
+                let k = self.blocks.len() as u32;
+                self.blocks.push(TapeBlock {
+                    index: 0,
+                    tears: vec![t],
+                    residuals: vec![r],
+                    body,
+                    linear: false,
+                    elements: self.sys.eqs[a.eq]
+                        .origin
+                        .elements()
+                        .into_iter()
+                        .map(String::from)
+                        .collect(),
+                    junctions: Vec::new(),
+                });
+                let kk = k as usize;
+                self.blocks[kk].junctions = junctions(&self.blocks[kk]);
+                out.push(Instr::Block { k });
+            }
+        }
+    }
+
+    fn step(&mut self, step: &Step, out: &mut Vec<Instr>) {
+        match step {
+            Step::Assign(a) => self.assign(a, out),
+            Step::Block(b) => {
+                let tears: Vec<u32> = b
+                    .tears
+                    .iter()
+                    .map(|&v| {
+                        let r = self.reg(0.0);
+                        self.var_reg[v.0 as usize] = r;
+                        self.reg_var[r as usize] = Some(v);
+                        r
+                    })
+                    .collect();
+                let mut body = Vec::new();
+                for a in &b.inner {
+                    self.assign(a, &mut body);
+                }
+                let mut residuals = Vec::new();
+                for a in &b.residuals {
+                    let eq = &self.sys.eqs[a.eq];
+                    let l = self.emit(eq.lhs, &mut body);
+                    let r = self.emit(eq.rhs, &mut body);
+                    let d = self.reg(0.0);
+                    body.push(Instr::Sub { d, a: l, b: r });
+                    residuals.push(d);
+                }
+                let k = self.blocks.len() as u32;
+                self.blocks.push(TapeBlock {
+                    index: b.index,
+                    tears,
+                    residuals,
+                    body,
+                    linear: b.linear,
+                    elements: b.elements.clone(),
+                    junctions: Vec::new(),
+                });
+                let kk = k as usize;
+                self.blocks[kk].junctions = junctions(&self.blocks[kk]);
+                out.push(Instr::Block { k });
+            }
+        }
+    }
+}
+
+/// The variables a step computes and the ones it reads.
+fn step_vars(
+    sys: &EquationSystem,
+    c: &crate::analysis::StructureGraph,
+    step: &Step,
+) -> (Vec<VarId>, Vec<VarId>) {
+    let assigns: Vec<&Assignment> = match step {
+        Step::Assign(a) => vec![a],
+        Step::Block(b) => b.inner.iter().chain(&b.residuals).collect(),
+    };
+    let writes: Vec<VarId> = assigns.iter().map(|a| a.var).collect();
+    let mut reads = Vec::new();
+    let (mut vars, mut stack) = (Vec::new(), Vec::new());
+    for a in &assigns {
+        sys.eq_vars(a.eq, &mut vars, &mut stack);
+        reads.extend(vars.iter().copied().filter(|v| !writes.contains(v)));
+    }
+    let _ = c;
+    (writes, reads)
+}
+
+/// What an output computes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum OutputRef {
+    /// An expression of the system's arena (a node potential).
+    Expr(ExprId),
+    /// The difference of two expressions (`v(a,b)`).
+    Diff(ExprId, ExprId),
+    /// A variable (a branch current).
+    Var(VarId),
+}
+
+/// Compile `sched` of `sys`. `outputs` are evaluated at output points only.
+pub fn compile(
+    sys: &EquationSystem,
+    graph: &crate::analysis::StructureGraph,
+    sched: &Schedule,
+    outputs: &[OutputRef],
+) -> Tape {
+    let states: Vec<VarId> = sys.states().collect();
+    let mut c = Compiler {
+        sys,
+        sched,
+        n_regs: 0,
+        init: Vec::new(),
+        memo: HashMap::new(),
+        var_reg: vec![NONE; sys.vars.len()],
+        param_reg: vec![NONE; sys.params.len()],
+        reg_var: Vec::new(),
+        blocks: Vec::new(),
+    };
+    let state_regs: Vec<u32> = states
+        .iter()
+        .map(|&s| {
+            let r = c.reg(0.0);
+            c.var_reg[s.0 as usize] = r;
+            c.reg_var[r as usize] = Some(s);
+            r
+        })
+        .collect();
+    // Which steps the derivatives need: walk the schedule backwards.
+    let ders: Vec<VarId> = states
+        .iter()
+        .map(|&s| match sys.vars[s].role {
+            crate::ir::VarRole::State { der } => der,
+            _ => unreachable!("states have derivatives"),
+        })
+        .collect();
+    let mut needed = vec![false; sys.vars.len()];
+    for &d in &ders {
+        needed[d.0 as usize] = true;
+    }
+    let info: Vec<(Vec<VarId>, Vec<VarId>)> = sched
+        .steps
+        .iter()
+        .map(|s| step_vars(sys, graph, s))
+        .collect();
+    let mut in_f = vec![false; sched.steps.len()];
+    for (k, (writes, reads)) in info.iter().enumerate().rev() {
+        if writes.iter().any(|w| needed[w.0 as usize]) {
+            in_f[k] = true;
+            for r in reads {
+                needed[r.0 as usize] = true;
+            }
+        }
+    }
+    // Which of the rest the outputs need.
+    let mut out_needed = vec![false; sys.vars.len()];
+    let (mut vars, mut stack) = (Vec::new(), Vec::new());
+    for &o in outputs {
+        vars.clear();
+        match o {
+            OutputRef::Expr(e) => sys.exprs.vars_into(e, &mut vars, &mut stack),
+            OutputRef::Diff(a, b) => {
+                sys.exprs.vars_into(a, &mut vars, &mut stack);
+                sys.exprs.vars_into(b, &mut vars, &mut stack);
+            }
+            OutputRef::Var(v) => vars.push(v),
+        }
+        for v in &vars {
+            out_needed[v.0 as usize] = true;
+            // Aliases read other variables.
+            if let Some(a) = sys.vars[*v].alias {
+                let mut inner = Vec::new();
+                sys.exprs.vars_into(a, &mut inner, &mut stack);
+                for w in inner {
+                    out_needed[w.0 as usize] = true;
+                }
+            }
+        }
+    }
+    let mut at_out = vec![false; sched.steps.len()];
+    for (k, (writes, reads)) in info.iter().enumerate().rev() {
+        if !in_f[k] && writes.iter().any(|w| out_needed[w.0 as usize]) {
+            at_out[k] = true;
+            for r in reads {
+                out_needed[r.0 as usize] = true;
+            }
+        }
+    }
+    let mut code = Vec::new();
+    for (k, step) in sched.steps.iter().enumerate() {
+        if in_f[k] {
+            c.step(step, &mut code);
+        }
+    }
+    let deriv_regs: Vec<u32> = ders.iter().map(|d| c.var_reg[d.0 as usize]).collect();
+    let mut out_code = Vec::new();
+    for (k, step) in sched.steps.iter().enumerate() {
+        if at_out[k] {
+            c.step(step, &mut out_code);
+        }
+    }
+    let out_regs: Vec<u32> = outputs
+        .iter()
+        .map(|&o| match o {
+            OutputRef::Expr(e) => c.emit(e, &mut out_code),
+            OutputRef::Diff(a, b) => {
+                let (ra, rb) = (c.emit(a, &mut out_code), c.emit(b, &mut out_code));
+                let d = c.reg(0.0);
+                out_code.push(Instr::Sub { d, a: ra, b: rb });
+                d
+            }
+            OutputRef::Var(v) => c.var(v, &mut out_code),
+        })
+        .collect();
+    let count = |flags: &[bool]| -> usize {
+        sched
+            .steps
+            .iter()
+            .zip(flags)
+            .filter(|(_, f)| **f)
+            .map(|(s, _)| match s {
+                Step::Assign(_) => 1,
+                Step::Block(b) => b.n_eqs(),
+            })
+            .sum()
+    };
+    let n_in_f = count(&in_f);
+    let n_at_outputs = count(&at_out);
+    Tape {
+        n_regs: c.n_regs as usize,
+        state_regs,
+        states,
+        deriv_regs,
+        init: c.init,
+        code,
+        blocks: c.blocks,
+        out_code,
+        out_regs,
+        sources: sys.sources.values().map(|s| s.wave.clone()).collect(),
+        n_in_f,
+        n_at_outputs,
+        n_unused: sys.eqs.len() - n_in_f - n_at_outputs,
+        reg_var: c.reg_var,
+    }
+}
+
+#[inline]
+fn call(f: Func, x: f64) -> f64 {
+    f.apply(x)
+}
+
+/// d/dx f(x).
+#[inline]
+fn call_deriv(f: Func, x: f64, fx: f64) -> f64 {
+    match f {
+        Func::Exp => fx,
+        Func::Ln => 1.0 / x,
+        Func::Sqrt => 0.5 / fx,
+        Func::Sin => x.cos(),
+        Func::Cos => -x.sin(),
+        Func::Tan => 1.0 / (x.cos() * x.cos()),
+        Func::Atan => 1.0 / (1.0 + x * x),
+        Func::Sinh => x.cosh(),
+        Func::Cosh => x.sinh(),
+        Func::Tanh => 1.0 - fx * fx,
+        Func::Abs => x.signum(),
+    }
+}
+
+impl Tape {
+    /// Fresh registers (parameters and constants set).
+    pub fn registers(&self) -> Vec<f64> {
+        self.init.clone()
+    }
+
+    fn run(&self, code: &[Instr], r: &mut [f64], t: f64) -> Result<(), EvalError> {
+        for ins in code {
+            match *ins {
+                Instr::Neg { d, a } => r[d as usize] = -r[a as usize],
+                Instr::Add { d, a, b } => r[d as usize] = r[a as usize] + r[b as usize],
+                Instr::Sub { d, a, b } => r[d as usize] = r[a as usize] - r[b as usize],
+                Instr::Mul { d, a, b } => r[d as usize] = r[a as usize] * r[b as usize],
+                Instr::Div { d, a, b } => r[d as usize] = r[a as usize] / r[b as usize],
+                Instr::Pow { d, a, b } => r[d as usize] = r[a as usize].powf(r[b as usize]),
+                Instr::Call { d, f, a } => r[d as usize] = call(f, r[a as usize]),
+                Instr::Src { d, s, order } => {
+                    r[d as usize] = self.sources[s as usize].eval(t, order)
+                }
+                Instr::Time { d } => r[d as usize] = t,
+                Instr::Block { k } => self.solve_block(k as usize, r, t)?,
+            }
+        }
+        Ok(())
+    }
+
+    /// Tangents of `code` given tangents of its inputs in `dr` (registers not
+    /// written by `code` keep their tangent).
+    fn run_tangent(
+        &self,
+        code: &[Instr],
+        r: &mut [f64],
+        dr: &mut [f64],
+        t: f64,
+    ) -> Result<(), EvalError> {
+        for ins in code {
+            match *ins {
+                Instr::Neg { d, a } => {
+                    r[d as usize] = -r[a as usize];
+                    dr[d as usize] = -dr[a as usize];
+                }
+                Instr::Add { d, a, b } => {
+                    r[d as usize] = r[a as usize] + r[b as usize];
+                    dr[d as usize] = dr[a as usize] + dr[b as usize];
+                }
+                Instr::Sub { d, a, b } => {
+                    r[d as usize] = r[a as usize] - r[b as usize];
+                    dr[d as usize] = dr[a as usize] - dr[b as usize];
+                }
+                Instr::Mul { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    r[d as usize] = x * y;
+                    dr[d as usize] = dr[a as usize] * y + x * dr[b as usize];
+                }
+                Instr::Div { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let q = x / y;
+                    r[d as usize] = q;
+                    dr[d as usize] = (dr[a as usize] - q * dr[b as usize]) / y;
+                }
+                Instr::Pow { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let p = x.powf(y);
+                    r[d as usize] = p;
+                    let (dx, dy) = (dr[a as usize], dr[b as usize]);
+                    let mut dp = y * x.powf(y - 1.0) * dx;
+                    if dy != 0.0 {
+                        dp += p * x.ln() * dy;
+                    }
+                    dr[d as usize] = dp;
+                }
+                Instr::Call { d, f, a } => {
+                    let x = r[a as usize];
+                    let fx = call(f, x);
+                    r[d as usize] = fx;
+                    dr[d as usize] = call_deriv(f, x, fx) * dr[a as usize];
+                }
+                Instr::Src { d, s, order } => {
+                    r[d as usize] = self.sources[s as usize].eval(t, order);
+                    dr[d as usize] = 0.0;
+                }
+                Instr::Time { d } => {
+                    r[d as usize] = t;
+                    dr[d as usize] = 0.0;
+                }
+                Instr::Block { k } => {
+                    // Value first (Newton), then the tangent of the solution by
+                    // the implicit function theorem: J dt = -(dR/dx) dx.
+                    let b = &self.blocks[k as usize];
+                    let reads: Vec<u32> = b
+                        .body
+                        .iter()
+                        .flat_map(|i| sources_of(i, &self.blocks))
+                        .collect();
+                    let saved: Vec<f64> = reads.iter().map(|&x| dr[x as usize]).collect();
+                    self.solve_block(k as usize, r, t)?;
+                    let n = b.tears.len();
+                    let jac = self.block_jacobian(b, r, dr, t)?;
+                    for (&x, &v) in reads.iter().zip(&saved) {
+                        dr[x as usize] = v;
+                    }
+                    for &x in &b.tears {
+                        dr[x as usize] = 0.0;
+                    }
+                    self.run_tangent(&b.body, r, dr, t)?;
+                    let mut rhs: Vec<f64> = b.residuals.iter().map(|&x| -dr[x as usize]).collect();
+                    let mut a = jac;
+                    if !solve_dense(n, &mut a, &mut rhs) {
+                        return Err(EvalError::Singular {
+                            block: b.index,
+                            elements: b.elements.clone(),
+                            t,
+                        });
+                    }
+                    for (j, &x) in b.tears.iter().enumerate() {
+                        dr[x as usize] = rhs[j];
+                    }
+                    self.run_tangent(&b.body, r, dr, t)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// ∂residuals/∂tears at the current point (row-major n×n); leaves `dr`
+    /// of the body registers dirty.
+    fn block_jacobian(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        dr: &mut [f64],
+        t: f64,
+    ) -> Result<Vec<f64>, EvalError> {
+        let n = b.tears.len();
+        let mut jac = vec![0.0; n * n];
+        // Registers read by the body but not written are constants here.
+        let mut body_writes = Vec::with_capacity(b.body.len());
+        for ins in &b.body {
+            body_writes.push(dest(ins));
+        }
+        for j in 0..n {
+            for ins in &b.body {
+                for s in sources_of(ins, &self.blocks) {
+                    dr[s as usize] = 0.0;
+                }
+            }
+            for &w in &body_writes {
+                if w != NONE {
+                    dr[w as usize] = 0.0;
+                }
+            }
+            for (i, &x) in b.tears.iter().enumerate() {
+                dr[x as usize] = if i == j { 1.0 } else { 0.0 };
+            }
+            self.run_tangent(&b.body, r, dr, t)?;
+            for (i, &res) in b.residuals.iter().enumerate() {
+                jac[i * n + j] = dr[res as usize];
+            }
+        }
+        Ok(jac)
+    }
+
+    /// Damped Newton on a block's tearing variables, warm-started from their
+    /// current values.
+    fn solve_block(&self, k: usize, r: &mut [f64], t: f64) -> Result<(), EvalError> {
+        let b = &self.blocks[k];
+        let norm = |r: &[f64]| -> f64 {
+            b.residuals
+                .iter()
+                .map(|&x| r[x as usize].abs())
+                .fold(0.0, f64::max)
+        };
+        let mut dr = take_scratch(r.len());
+        let result = self.newton(b, r, &mut dr, t, &norm);
+        give_scratch(dr);
+        result
+    }
+
+    fn newton(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        dr: &mut [f64],
+        t: f64,
+        norm: &dyn Fn(&[f64]) -> f64,
+    ) -> Result<(), EvalError> {
+        let n = b.tears.len();
+        let start: Vec<f64> = b.tears.iter().map(|&x| r[x as usize]).collect();
+        let result = self.newton_iterate(b, r, dr, t, norm, n);
+        if result.is_err() {
+            // Leave the warm start usable for the solver's retry.
+            for (j, &x) in b.tears.iter().enumerate() {
+                r[x as usize] = start[j];
+            }
+        }
+        result
+    }
+
+    /// Damped Newton with the natural monotonicity test (Deuflhard): a step
+    /// is accepted when the simplified Newton correction at the new point,
+    /// `J⁻¹ r(x_new)` with the old `J`, is shorter than the full correction.
+    /// Affine invariant, so badly scaled residuals (amperes beside volts)
+    /// do not mislead the damping.
+    fn newton_iterate(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        dr: &mut [f64],
+        t: f64,
+        norm: &dyn Fn(&[f64]) -> f64,
+        n: usize,
+    ) -> Result<(), EvalError> {
+        let singular = || EvalError::Singular {
+            block: b.index,
+            elements: b.elements.clone(),
+            t,
+        };
+        let scaled = |d: &[f64], x: &[f64]| -> f64 {
+            d.iter()
+                .zip(x)
+                .map(|(d, x)| d.abs() / (1.0 + x.abs()))
+                .fold(0.0, f64::max)
+        };
+        self.run(&b.body, r, t)?;
+        for _ in 0..200 {
+            let jac = self.block_jacobian(b, r, dr, t)?;
+            let lu = Lu::new(n, jac).ok_or_else(singular)?;
+            let res: Vec<f64> = b.residuals.iter().map(|&x| r[x as usize]).collect();
+            if res.iter().all(|v| *v == 0.0) {
+                return Ok(());
+            }
+            let mut step = res.clone();
+            lu.solve(&mut step);
+            let x0: Vec<f64> = b.tears.iter().map(|&x| r[x as usize]).collect();
+            let full = scaled(&step, &x0);
+            if !full.is_finite() {
+                return Err(singular());
+            }
+            if full <= 1e-13 {
+                // Converged to rounding: take the last correction and stop.
+                for (j, &x) in b.tears.iter().enumerate() {
+                    r[x as usize] = x0[j] - step[j];
+                }
+                return self.run(&b.body, r, t);
+            }
+            // Junction limiting (ngspice's pnjlim) on tears inside an exp().
+            // A limited step is taken as it is, as SPICE does.
+            let mut limited = false;
+            for &(j, vt) in &b.junctions {
+                let vt = r[vt as usize].abs();
+                if vt > 0.0 {
+                    let new = pnjlim(x0[j] - step[j], x0[j], vt);
+                    if new != x0[j] - step[j] {
+                        limited = true;
+                    }
+                    step[j] = x0[j] - new;
+                }
+            }
+            if limited {
+                for (j, &x) in b.tears.iter().enumerate() {
+                    r[x as usize] = x0[j] - step[j];
+                }
+                self.run(&b.body, r, t)?;
+                continue;
+            }
+            let mut lambda = 1.0;
+            loop {
+                for (j, &x) in b.tears.iter().enumerate() {
+                    r[x as usize] = x0[j] - lambda * step[j];
+                }
+                self.run(&b.body, r, t)?;
+                let mut bar: Vec<f64> = b.residuals.iter().map(|&x| r[x as usize]).collect();
+                lu.solve(&mut bar);
+                let xn: Vec<f64> = b.tears.iter().map(|&x| r[x as usize]).collect();
+                let simplified = scaled(&bar, &xn);
+                if (simplified.is_finite() && simplified <= (1.0 - lambda / 4.0) * full)
+                    || simplified == 0.0
+                {
+                    break;
+                }
+                lambda *= 0.5;
+                if lambda < 1e-10 {
+                    if full <= 1e-9 {
+                        // Stalled at rounding level: converged as far as f64 allows.
+                        return Ok(());
+                    }
+                    return Err(EvalError::NoConvergence {
+                        block: b.index,
+                        elements: b.elements.clone(),
+                        residual: norm(r),
+                        t,
+                    });
+                }
+            }
+            if b.linear && lambda == 1.0 && b.junctions.is_empty() {
+                return Ok(());
+            }
+            if lambda * full <= 1e-12 {
+                return Ok(());
+            }
+        }
+        Err(EvalError::NoConvergence {
+            block: b.index,
+            elements: b.elements.clone(),
+            residual: norm(r),
+            t,
+        })
+    }
+
+    /// `f(t, y)`: load the states, run the program, read the derivatives.
+    pub fn rhs(
+        &self,
+        regs: &mut [f64],
+        t: f64,
+        y: &[f64],
+        dy: &mut [f64],
+    ) -> Result<(), EvalError> {
+        for (k, &s) in self.state_regs.iter().enumerate() {
+            regs[s as usize] = y[k];
+        }
+        self.run(&self.code, regs, t)?;
+        for (k, &d) in self.deriv_regs.iter().enumerate() {
+            dy[k] = regs[d as usize];
+        }
+        Ok(())
+    }
+
+    /// `J(t, y) v`, by forward-mode tangents. `dregs` is scratch.
+    pub fn jac_mul(
+        &self,
+        regs: &mut [f64],
+        dregs: &mut [f64],
+        t: f64,
+        y: &[f64],
+        v: &[f64],
+        jv: &mut [f64],
+    ) -> Result<(), EvalError> {
+        dregs.iter_mut().for_each(|x| *x = 0.0);
+        for (k, &s) in self.state_regs.iter().enumerate() {
+            regs[s as usize] = y[k];
+            dregs[s as usize] = v[k];
+        }
+        self.run_tangent(&self.code, regs, dregs, t)?;
+        for (k, &d) in self.deriv_regs.iter().enumerate() {
+            jv[k] = dregs[d as usize];
+        }
+        Ok(())
+    }
+
+    /// The outputs, after `rhs` has run at the same point.
+    pub fn outputs(&self, regs: &mut [f64], t: f64, out: &mut [f64]) -> Result<(), EvalError> {
+        self.run(&self.out_code, regs, t)?;
+        for (k, &o) in self.out_regs.iter().enumerate() {
+            out[k] = regs[o as usize];
+        }
+        Ok(())
+    }
+
+    /// The first register of `code` that became NaN or infinite from finite
+    /// operands, and the variable it holds (if any).
+    pub fn first_non_finite(&self, regs: &[f64]) -> Option<(usize, Option<VarId>)> {
+        for ins in self
+            .code
+            .iter()
+            .chain(self.blocks.iter().flat_map(|b| b.body.iter()))
+        {
+            let d = dest(ins);
+            if d == NONE || regs[d as usize].is_finite() {
+                continue;
+            }
+            let inputs_finite = sources_of(ins, &self.blocks)
+                .iter()
+                .all(|&s| regs[s as usize].is_finite());
+            if inputs_finite {
+                return Some((d as usize, self.reg_var[d as usize]));
+            }
+        }
+        None
+    }
+
+    /// The sparsity of `∂f/∂y`: for each derivative, the states it depends on.
+    pub fn jacobian_pattern(&self) -> Vec<(usize, usize)> {
+        // Dependencies propagate through the program as sorted state lists.
+        let mut deps: Vec<Vec<u32>> = vec![Vec::new(); self.n_regs];
+        for (k, &s) in self.state_regs.iter().enumerate() {
+            deps[s as usize] = vec![k as u32];
+        }
+        fn merge(into: &mut Vec<u32>, from: &[u32]) {
+            if from.is_empty() {
+                return;
+            }
+            let mut m = Vec::with_capacity(into.len() + from.len());
+            let (mut i, mut j) = (0, 0);
+            while i < into.len() || j < from.len() {
+                let next = match (into.get(i), from.get(j)) {
+                    (Some(&a), Some(&b)) if a == b => {
+                        i += 1;
+                        j += 1;
+                        a
+                    }
+                    (Some(&a), Some(&b)) if a < b => {
+                        i += 1;
+                        a
+                    }
+                    (Some(_), Some(&b)) | (None, Some(&b)) => {
+                        j += 1;
+                        b
+                    }
+                    (Some(&a), None) => {
+                        i += 1;
+                        a
+                    }
+                    (None, None) => unreachable!(),
+                };
+                m.push(next);
+            }
+            *into = m;
+        }
+        fn walk(tape: &Tape, code: &[Instr], deps: &mut Vec<Vec<u32>>) {
+            for ins in code {
+                if let Instr::Block { k } = ins {
+                    let b = &tape.blocks[*k as usize];
+                    // Everything in a block depends on everything it reads.
+                    let mut all = Vec::new();
+                    for i in &b.body {
+                        for s in sources_of(i, &tape.blocks) {
+                            let from = std::mem::take(&mut deps[s as usize]);
+                            merge(&mut all, &from);
+                            deps[s as usize] = from;
+                        }
+                    }
+                    for i in &b.body {
+                        let d = dest(i);
+                        if d != NONE {
+                            deps[d as usize] = all.clone();
+                        }
+                    }
+                    for &x in &b.tears {
+                        deps[x as usize] = all.clone();
+                    }
+                    // Second pass: body values depend on the tears' dependencies.
+                    walk(tape, &b.body, deps);
+                    for i in &b.body {
+                        let d = dest(i);
+                        if d != NONE {
+                            let mut v = std::mem::take(&mut deps[d as usize]);
+                            merge(&mut v, &all);
+                            deps[d as usize] = v;
+                        }
+                    }
+                    continue;
+                }
+                let d = dest(ins);
+                let mut acc = Vec::new();
+                for s in sources_of(ins, &tape.blocks) {
+                    merge(&mut acc, &deps[s as usize]);
+                }
+                deps[d as usize] = acc;
+            }
+        }
+        walk(self, &self.code, &mut deps);
+        let mut out = Vec::new();
+        for (i, &d) in self.deriv_regs.iter().enumerate() {
+            for &j in &deps[d as usize] {
+                out.push((i, j as usize));
+            }
+        }
+        out
+    }
+}
+
+/// Tears `x` of a block whose body computes `exp(x / vt)`.
+fn junctions(b: &TapeBlock) -> Vec<(usize, u32)> {
+    let mut out = Vec::new();
+    for ins in &b.body {
+        let Instr::Call {
+            f: Func::Exp, a, ..
+        } = *ins
+        else {
+            continue;
+        };
+        let Some(Instr::Div { a: num, b: den, .. }) = b.body.iter().find(|i| dest(i) == a).copied()
+        else {
+            continue;
+        };
+        if let Some(j) = b.tears.iter().position(|&x| x == num)
+            && !out.iter().any(|&(k, _)| k == j)
+        {
+            out.push((j, den));
+        }
+    }
+    out
+}
+
+/// ngspice's junction voltage limiting: a forward-biased junction moves by
+/// at most a few thermal voltages (logarithmically) per Newton iteration.
+fn pnjlim(new: f64, old: f64, vt: f64) -> f64 {
+    let vcrit = 12.0 * vt;
+    if new > vcrit && (new - old).abs() > 2.0 * vt {
+        if old > 0.0 {
+            let arg = 1.0 + (new - old) / vt;
+            if arg > 0.0 {
+                old + vt * arg.ln()
+            } else {
+                vcrit
+            }
+        } else {
+            vt * (new / vt).ln()
+        }
+    } else {
+        new
+    }
+}
+
+fn dest(ins: &Instr) -> u32 {
+    match *ins {
+        Instr::Neg { d, .. }
+        | Instr::Add { d, .. }
+        | Instr::Sub { d, .. }
+        | Instr::Mul { d, .. }
+        | Instr::Div { d, .. }
+        | Instr::Pow { d, .. }
+        | Instr::Call { d, .. }
+        | Instr::Src { d, .. }
+        | Instr::Time { d } => d,
+        Instr::Block { .. } => NONE,
+    }
+}
+
+fn sources_of(ins: &Instr, _blocks: &[TapeBlock]) -> Vec<u32> {
+    match *ins {
+        Instr::Neg { a, .. } | Instr::Call { a, .. } => vec![a],
+        Instr::Add { a, b, .. }
+        | Instr::Sub { a, b, .. }
+        | Instr::Mul { a, b, .. }
+        | Instr::Div { a, b, .. }
+        | Instr::Pow { a, b, .. } => {
+            vec![a, b]
+        }
+        _ => Vec::new(),
+    }
+}
+
+thread_local! {
+    /// Register-sized scratch buffers for Newton's tangents, reused across
+    /// calls (blocks can nest, so it is a pool, not one buffer).
+    static SCRATCH: std::cell::RefCell<Vec<Vec<f64>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+fn take_scratch(n: usize) -> Vec<f64> {
+    let mut v = SCRATCH.with(|p| p.borrow_mut().pop()).unwrap_or_default();
+    v.resize(n, 0.0);
+    v
+}
+
+fn give_scratch(v: Vec<f64>) {
+    SCRATCH.with(|p| p.borrow_mut().push(v));
+}
+
+/// An LU factorization (partial pivoting) of a small dense matrix.
+struct Lu {
+    n: usize,
+    a: Vec<f64>,
+    perm: Vec<usize>,
+}
+
+impl Lu {
+    fn new(n: usize, mut a: Vec<f64>) -> Option<Lu> {
+        let mut perm: Vec<usize> = (0..n).collect();
+        for k in 0..n {
+            let p = (k..n).max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs()))?;
+            if a[p * n + k] == 0.0 || !a[p * n + k].is_finite() {
+                return None;
+            }
+            if p != k {
+                for j in 0..n {
+                    a.swap(k * n + j, p * n + j);
+                }
+                perm.swap(k, p);
+            }
+            for i in k + 1..n {
+                let f = a[i * n + k] / a[k * n + k];
+                a[i * n + k] = f;
+                if f != 0.0 {
+                    for j in k + 1..n {
+                        a[i * n + j] -= f * a[k * n + j];
+                    }
+                }
+            }
+        }
+        Some(Lu { n, a, perm })
+    }
+
+    fn solve(&self, b: &mut [f64]) {
+        let n = self.n;
+        let mut x: Vec<f64> = self.perm.iter().map(|&p| b[p]).collect();
+        for i in 0..n {
+            for j in 0..i {
+                x[i] -= self.a[i * n + j] * x[j];
+            }
+        }
+        for i in (0..n).rev() {
+            for j in i + 1..n {
+                x[i] -= self.a[i * n + j] * x[j];
+            }
+            x[i] /= self.a[i * n + i];
+        }
+        b.copy_from_slice(&x);
+    }
+}
+
+/// Solve a small dense system `a x = b` in place (partial pivoting).
+pub fn solve_dense(n: usize, a: &mut [f64], b: &mut [f64]) -> bool {
+    for k in 0..n {
+        let p = (k..n)
+            .max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs()))
+            .unwrap_or(k);
+        if a[p * n + k] == 0.0 || !a[p * n + k].is_finite() {
+            return false;
+        }
+        if p != k {
+            for j in 0..n {
+                a.swap(k * n + j, p * n + j);
+            }
+            b.swap(k, p);
+        }
+        for i in k + 1..n {
+            let f = a[i * n + k] / a[k * n + k];
+            if f == 0.0 {
+                continue;
+            }
+            for j in k..n {
+                a[i * n + j] -= f * a[k * n + j];
+            }
+            b[i] -= f * b[k];
+        }
+    }
+    for k in (0..n).rev() {
+        let mut s = b[k];
+        for j in k + 1..n {
+            s -= a[k * n + j] * b[j];
+        }
+        b[k] = s / a[k * n + k];
+    }
+    true
+}

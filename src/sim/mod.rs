@@ -1,0 +1,914 @@
+//! Simulation: the sorted system compiled to a tape and integrated by
+//! diffsol (BDF by default), from a consistent DC start or `uic` initial
+//! conditions, hitting source breakpoints exactly, with output on the
+//! `.tran` grid.
+//!
+//! It knows the circuit (for names, initial conditions and outputs), the
+//! schedule and diffsol; it does no IO.
+
+pub mod ode;
+pub mod output;
+
+use std::rc::Rc;
+use std::time::{Duration, Instant};
+
+use diffsol::{
+    FaerSparseLU, FaerSparseMat, LinearSolver, Matrix, NalgebraLU, NalgebraMat, OdeBuilder,
+    OdeSolverMethod, OdeSolverProblem, OdeSolverState, OdeSolverStopReason,
+};
+
+use crate::back::tape::{self, EvalError, OutputRef, Tape};
+use crate::elab::{Circuit, ElementKind, GROUND, Output};
+use crate::ir::{EquationSystem, VarId, Waveform};
+use crate::pipeline::Sorted;
+use ode::{CircuitOde, EvalCounts, HostVec};
+
+/// The integration method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// Variable-order BDF (stiff; the default).
+    Bdf,
+    /// TR-BDF2, an L-stable SDIRK (stiff).
+    TrBdf2,
+    /// ESDIRK34 (stiff, 4th order).
+    Esdirk34,
+    /// Tsitouras 5(4), explicit (non-stiff circuits only).
+    Tsit5,
+}
+
+/// Default relative tolerance: accurate by default (see README).
+pub const DEFAULT_RTOL: f64 = 1e-6;
+/// Default absolute tolerance on voltage-like states (V).
+pub const DEFAULT_ATOL_V: f64 = 1e-9;
+/// Default absolute tolerance on current-like states (A).
+pub const DEFAULT_ATOL_I: f64 = 1e-12;
+
+/// Options of [`simulate`].
+#[derive(Clone, Debug, Default)]
+pub struct Options {
+    pub method: Option<Method>,
+    pub rtol: Option<f64>,
+    pub atol: Option<f64>,
+    /// Output every accepted step too, not only the `.tran` grid.
+    pub all_steps: bool,
+    /// Output vectors (`v(out)`, `i(v1)`); empty: `.print`/`.save`, else all.
+    pub probes: Vec<String>,
+    /// Called with the fraction done, now and then.
+    pub progress: Option<fn(f64)>,
+}
+
+/// Solver statistics of a run.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct Stats {
+    pub method: Option<Method>,
+    pub states: usize,
+    pub steps: usize,
+    pub rejected: usize,
+    pub rhs_evals: usize,
+    pub jac_mul_evals: usize,
+    pub jacobians: usize,
+    pub lu_factorizations: usize,
+    pub restarts: usize,
+    pub wall: Duration,
+    /// Assignments computed in `f` / at output points only / never.
+    pub in_f: usize,
+    pub at_outputs: usize,
+    pub unused: usize,
+}
+
+/// The result: signals on a common time axis.
+#[derive(Clone, Debug, Default)]
+pub struct Waveforms {
+    /// ngspice vector names (`v(out)`, `i(v1)`).
+    pub names: Vec<String>,
+    pub time: Vec<f64>,
+    /// One column per name.
+    pub data: Vec<Vec<f64>>,
+    pub stats: Stats,
+}
+
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum SimError {
+    #[error("the netlist has no `.tran` line")]
+    NoTran,
+    #[error("unknown output vector `{0}`: write v(node), v(node1,node2) or i(element)")]
+    UnknownProbe(String),
+    #[error("{error}")]
+    Eval { error: EvalError },
+    #[error("`{name}` became {value} at t = {t:e} (computed by: {what})")]
+    NonFinite {
+        name: String,
+        value: f64,
+        t: f64,
+        what: String,
+    },
+    #[error("step size underflow at t = {t:e}; the fastest-changing state is {state}")]
+    StepUnderflow { t: f64, state: String },
+    #[error("the solver failed at t = {t:e}: {message}")]
+    Solver { t: f64, message: String },
+    #[error("no DC operating point: {message}")]
+    DcFailed { message: String },
+}
+
+impl crate::diag::ToDiagnostic for SimError {
+    fn to_diagnostic(&self) -> crate::diag::Diagnostic {
+        let (code, help) = match self {
+            SimError::NoTran => ("K0400", "add `.tran TSTEP TSTOP`"),
+            SimError::UnknownProbe(_) => (
+                "K0401",
+                "see `kausal equations` for the circuit's nodes and elements",
+            ),
+            SimError::Eval { .. } => (
+                "K0402",
+                "check the elements of the loop for values that allow no solution",
+            ),
+            SimError::NonFinite { .. } => (
+                "K0403",
+                "an expression left its domain (division by zero, log of a negative number)",
+            ),
+            SimError::StepUnderflow { .. } => (
+                "K0404",
+                "the circuit may be ill-posed there; try --method bdf or looser --rtol",
+            ),
+            SimError::Solver { .. } => ("K0405", "try another --method"),
+            SimError::DcFailed { .. } => {
+                ("K0406", "give initial conditions and use `.tran ... uic`")
+            }
+        };
+        crate::diag::Diagnostic::error(code, self.to_string()).with_help(help)
+    }
+}
+
+/// An output: its name and what computes it.
+fn resolve_probe(
+    c: &Circuit,
+    sorted: &Sorted,
+    probe: &str,
+) -> Result<(String, OutputRef), SimError> {
+    let p = probe.trim().to_ascii_lowercase();
+    let bad = || SimError::UnknownProbe(probe.to_string());
+    let inner = |prefix: &str| -> Option<&str> { p.strip_prefix(prefix)?.strip_suffix(')') };
+    if let Some(args) = inner("v(") {
+        let nodes: Vec<&str> = args.split(',').map(str::trim).collect();
+        let ids: Vec<_> = nodes
+            .iter()
+            .map(|n| c.find_node(n))
+            .collect::<Option<_>>()
+            .ok_or_else(bad)?;
+        let out = match ids.as_slice() {
+            [a] => Output::Voltage {
+                pos: *a,
+                neg: GROUND,
+            },
+            [a, b] => Output::Voltage { pos: *a, neg: *b },
+            _ => return Err(bad()),
+        };
+        return Ok((c.output_name(&out), output_ref(sorted, &out)));
+    }
+    if let Some(name) = inner("i(") {
+        let e = c.find_element(name.trim()).ok_or_else(bad)?;
+        if matches!(c.elements[e].kind, ElementKind::Coupling { .. }) {
+            return Err(bad());
+        }
+        let out = Output::Current { elem: e };
+        return Ok((c.output_name(&out), output_ref(sorted, &out)));
+    }
+    Err(bad())
+}
+
+fn output_ref(sorted: &Sorted, out: &Output) -> OutputRef {
+    let b = &sorted.built;
+    match *out {
+        Output::Voltage { pos, neg } if neg == GROUND => {
+            OutputRef::Expr(b.node_pot[pos.0 as usize])
+        }
+        Output::Voltage { pos, neg } => {
+            OutputRef::Diff(b.node_pot[pos.0 as usize], b.node_pot[neg.0 as usize])
+        }
+        Output::Current { elem } => OutputRef::Var(
+            b.elem_vars[elem.0 as usize]
+                .expect("two-terminal element")
+                .i,
+        ),
+    }
+}
+
+/// The outputs of a run: `--probe`s, else `.print`/`.save`, else every node
+/// voltage and every voltage source's current (ngspice's default vectors).
+pub fn outputs(sorted: &Sorted, probes: &[String]) -> Result<Vec<(String, OutputRef)>, SimError> {
+    let c = &sorted.elaborated.circuit;
+    if !probes.is_empty() {
+        return probes.iter().map(|p| resolve_probe(c, sorted, p)).collect();
+    }
+    let list: Vec<Output> = if !c.outputs.is_empty() {
+        c.outputs.clone()
+    } else {
+        let mut v: Vec<Output> = c
+            .nodes
+            .ids()
+            .filter(|&n| n != GROUND)
+            .map(|n| Output::Voltage {
+                pos: n,
+                neg: GROUND,
+            })
+            .collect();
+        v.extend(
+            c.elements
+                .iter()
+                .filter(|(_, e)| matches!(e.kind, ElementKind::VSource { .. }))
+                .map(|(id, _)| Output::Current { elem: id }),
+        );
+        v
+    };
+    Ok(list
+        .iter()
+        .map(|o| (c.output_name(o), output_ref(sorted, o)))
+        .collect())
+}
+
+/// Per-state absolute tolerances: voltages and currents differ by orders of
+/// magnitude, so each state gets the tolerance of its kind.
+fn atols(sys: &EquationSystem, states: &[VarId], opts: &Options, c: &Circuit) -> Vec<f64> {
+    let (atol_v, atol_i) = match opts.atol {
+        Some(a) => (a, a * 1e-3),
+        None => (
+            c.options
+                .vntol
+                .map_or(DEFAULT_ATOL_V, |v| v.min(DEFAULT_ATOL_V * 1e3)),
+            c.options
+                .abstol
+                .map_or(DEFAULT_ATOL_I, |v| v.min(DEFAULT_ATOL_I * 1e3)),
+        ),
+    };
+    states
+        .iter()
+        .map(|&s| match sys.vars[s].kind {
+            crate::ir::VarKind::BranchCurrent => atol_i,
+            _ => atol_v,
+        })
+        .collect()
+}
+
+/// Hard breakpoints (where a source's slope jumps) and soft ones (a cap on
+/// the step: ngspice's TMAX, and eight points a period on sine sources so
+/// that no diode conduction window is stepped over).
+fn breakpoints(sys: &EquationSystem, t0: f64, t1: f64, tmax: Option<f64>) -> (Vec<f64>, Vec<f64>) {
+    let mut hard = Vec::new();
+    let mut soft = Vec::new();
+    for s in sys.sources.values() {
+        hard.extend(s.wave.breakpoints(t1));
+        if let Waveform::Sin { freq, td, .. } = s.wave
+            && freq > 0.0
+        {
+            let dt = 1.0 / freq / 8.0;
+            let mut t = td;
+            while t < t1 && soft.len() < 10_000_000 {
+                if t > t0 {
+                    soft.push(t);
+                }
+                t += dt;
+            }
+        }
+    }
+    let cap = tmax.unwrap_or((t1 - t0) / 50.0);
+    if cap > 0.0 {
+        let n = ((t1 - t0) / cap).ceil() as usize;
+        soft.extend((1..n).map(|k| t0 + k as f64 * cap));
+    }
+    let clean = |v: &mut Vec<f64>| {
+        v.retain(|&t| t > t0 && t < t1);
+        v.sort_by(f64::total_cmp);
+        v.dedup_by(|a, b| (*a - *b).abs() <= 1e-12 * t1.abs().max(1e-30));
+    };
+    clean(&mut hard);
+    clean(&mut soft);
+    (hard, soft)
+}
+
+/// The initial states: `uic` (element `ic=` and `.ic` values) or the DC
+/// operating point (capacitors open, inductors shorted: `f(0, y) = 0`).
+fn initial_state<M: Matrix<T = f64>>(
+    sorted: &Sorted,
+    ode: &CircuitOde<M>,
+    t0: f64,
+) -> Result<Vec<f64>, SimError>
+where
+    M::V: HostVec,
+{
+    let c = &sorted.elaborated.circuit;
+    let tape = &ode.tape;
+    let n = tape.states.len();
+    let uic = c.tran.as_ref().is_some_and(|t| t.uic);
+    // Element initial conditions, and `.ic` node voltages for capacitors.
+    let ic_node = |node: crate::elab::NodeId| -> Option<f64> {
+        if node == GROUND {
+            return Some(0.0);
+        }
+        c.ics.iter().find(|i| i.node == node).map(|i| i.value)
+    };
+    let mut y = vec![0.0; n];
+    let mut from_ic = vec![false; n];
+    for (k, &s) in tape.states.iter().enumerate() {
+        let Some(e) = sorted
+            .built
+            .elem_vars
+            .iter()
+            .position(|ev| ev.is_some_and(|ev| ev.u == s || ev.i == s))
+        else {
+            continue;
+        };
+        let el = &c.elements.as_slice()[e];
+        match el.kind {
+            ElementKind::Capacitor { ic: Some(v), .. }
+            | ElementKind::Inductor { ic: Some(v), .. } => {
+                y[k] = v;
+                from_ic[k] = true;
+            }
+            ElementKind::Capacitor { ic: None, .. } => {
+                let (a, b) = (ic_node(el.nodes[0]), ic_node(el.nodes[1]));
+                if a.is_some() || b.is_some() {
+                    y[k] = a.unwrap_or(0.0) - b.unwrap_or(0.0);
+                    from_ic[k] = true;
+                }
+            }
+            _ => {}
+        }
+    }
+    if uic {
+        return Ok(y);
+    }
+    // DC operating point by damped Newton on f(t0, y) = 0, with the states
+    // that `.ic` fixes held.
+    let mut f = vec![0.0; n];
+    let fix: Vec<bool> = from_ic.iter().map(|&b| b && !c.ics.is_empty()).collect();
+    let resid = |y: &[f64], f: &mut Vec<f64>| -> Result<f64, SimError> {
+        ode.eval(t0, y, f)
+            .map_err(|error| SimError::Eval { error })?;
+        for k in 0..n {
+            if fix[k] {
+                f[k] = 0.0;
+            }
+        }
+        Ok(f.iter().map(|x| x.abs()).fold(0.0, f64::max))
+    };
+    let mut norm = resid(&y, &mut f)?;
+    if norm == 0.0 {
+        return Ok(y);
+    }
+    if n > 4000 {
+        return Err(SimError::DcFailed {
+            message: format!(
+                "the DC solve of {n} states is dense; use `.tran ... uic` with initial conditions"
+            ),
+        });
+    }
+    let mut jac = vec![0.0; n * n];
+    let mut col = vec![0.0; n];
+    let mut e = vec![0.0; n];
+    for _ in 0..200 {
+        for j in 0..n {
+            e[j] = 1.0;
+            ode.jv(t0, &y, &e, &mut col)
+                .map_err(|error| SimError::Eval { error })?;
+            e[j] = 0.0;
+            for i in 0..n {
+                jac[i * n + j] = if fix[i] {
+                    if i == j { 1.0 } else { 0.0 }
+                } else {
+                    col[i]
+                };
+            }
+        }
+        let mut step = f.clone();
+        let mut a = jac.clone();
+        if !tape::solve_dense(n, &mut a, &mut step) {
+            return Err(SimError::DcFailed {
+                message: "the DC Jacobian is singular: a node or loop has no DC path (a capacitor-only node, an inductor loop); use `.tran ... uic`".into(),
+            });
+        }
+        let y0 = y.clone();
+        let mut lambda = 1.0;
+        loop {
+            for k in 0..n {
+                y[k] = y0[k] - lambda * step[k];
+            }
+            let nn = resid(&y, &mut f)?;
+            if (nn.is_finite() && nn < norm) || lambda < 1e-10 {
+                norm = nn;
+                break;
+            }
+            lambda *= 0.5;
+        }
+        let small = step
+            .iter()
+            .zip(&y0)
+            .all(|(s, x)| (lambda * s).abs() <= 1e-12 * (1.0 + x.abs()));
+        if small || norm <= 1e-15 {
+            return Ok(y);
+        }
+    }
+    if norm.is_finite() && norm < 1e-9 {
+        return Ok(y);
+    }
+    Err(SimError::DcFailed {
+        message: format!("Newton did not converge (residual {norm:.3e})"),
+    })
+}
+
+/// Prepare and run a simulation of a sorted circuit.
+pub fn simulate(sorted: &Sorted, opts: &Options) -> Result<Waveforms, SimError> {
+    let start = Instant::now();
+    let c = &sorted.elaborated.circuit;
+    let tran = c.tran.clone().ok_or(SimError::NoTran)?;
+    let sys = sorted.system();
+    let outs = outputs(sorted, &opts.probes)?;
+    let refs: Vec<OutputRef> = outs.iter().map(|o| o.1).collect();
+    let tape = Rc::new(tape::compile(
+        sys,
+        &sorted.causal.graph,
+        &sorted.schedule,
+        &refs,
+    ));
+    let n = tape.states.len();
+    let method = opts.method.unwrap_or(Method::Bdf);
+    let mut w = if n == 0 {
+        algebraic(sys, tape.clone(), &tran, opts)?
+    } else if n <= 64 {
+        run::<NalgebraMat<f64>, NalgebraLU<f64>>(
+            sorted,
+            sys,
+            tape.clone(),
+            &tran,
+            opts,
+            method,
+            false,
+        )?
+    } else {
+        run::<FaerSparseMat<f64>, FaerSparseLU<f64>>(
+            sorted,
+            sys,
+            tape.clone(),
+            &tran,
+            opts,
+            method,
+            true,
+        )?
+    };
+    w.names = outs.into_iter().map(|o| o.0).collect();
+    w.stats.method = Some(method);
+    w.stats.states = n;
+    w.stats.in_f = tape.n_in_f;
+    w.stats.at_outputs = tape.n_at_outputs;
+    w.stats.unused = tape.n_unused;
+    w.stats.wall = start.elapsed();
+    Ok(w)
+}
+
+/// A circuit without states: every output is a function of time alone, so
+/// it is evaluated on the grid (and at the source corners with `--all-steps`).
+fn algebraic(
+    sys: &EquationSystem,
+    tape: Rc<Tape>,
+    tran: &crate::elab::Tran,
+    opts: &Options,
+) -> Result<Waveforms, SimError> {
+    let mut times = grid(tran);
+    if opts.all_steps {
+        let (hard, _) = breakpoints(sys, 0.0, tran.tstop, tran.tmax);
+        times.extend(hard.into_iter().filter(|&t| t >= tran.tstart));
+        times.sort_by(f64::total_cmp);
+        times.dedup();
+    }
+    let mut regs = tape.registers();
+    let mut out = vec![0.0; tape.out_regs.len()];
+    let mut data = vec![Vec::with_capacity(times.len()); out.len()];
+    let mut stats = Stats::default();
+    for &t in &times {
+        tape.rhs(&mut regs, t, &[], &mut [])
+            .and_then(|_| tape.outputs(&mut regs, t, &mut out))
+            .map_err(|error| SimError::Eval { error })?;
+        stats.rhs_evals += 1;
+        for (col, &v) in data.iter_mut().zip(&out) {
+            col.push(v);
+        }
+    }
+    Ok(Waveforms {
+        names: Vec::new(),
+        time: times,
+        data,
+        stats,
+    })
+}
+
+/// Output times of `.tran tstep tstop tstart`.
+fn grid(tran: &crate::elab::Tran) -> Vec<f64> {
+    let n = ((tran.tstop - tran.tstart) / tran.tstep + 1e-9).floor() as usize;
+    let mut g: Vec<f64> = (0..=n)
+        .map(|k| tran.tstart + k as f64 * tran.tstep)
+        .collect();
+    if g.last()
+        .is_some_and(|&t| tran.tstop - t > 1e-9 * tran.tstep)
+    {
+        g.push(tran.tstop);
+    }
+    g
+}
+
+struct Recorder<'a, M: Matrix<T = f64>>
+where
+    M::V: HostVec,
+{
+    ode: &'a CircuitOde<M>,
+    grid: Vec<f64>,
+    next: usize,
+    time: Vec<f64>,
+    data: Vec<Vec<f64>>,
+    out: Vec<f64>,
+}
+
+impl<M: Matrix<T = f64>> Recorder<'_, M>
+where
+    M::V: HostVec,
+{
+    fn record(&mut self, t: f64, y: &[f64]) -> Result<(), SimError> {
+        self.ode
+            .outputs(t, y, &mut self.out)
+            .map_err(|error| SimError::Eval { error })?;
+        self.time.push(t);
+        for (col, &v) in self.data.iter_mut().zip(&self.out) {
+            col.push(v);
+        }
+        Ok(())
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run<M, LS>(
+    sorted: &Sorted,
+    sys: &EquationSystem,
+    tape: Rc<Tape>,
+    tran: &crate::elab::Tran,
+    opts: &Options,
+    method: Method,
+    sparse: bool,
+) -> Result<Waveforms, SimError>
+where
+    M: Matrix<T = f64> + diffsol::DefaultSolver,
+    M::V: HostVec + diffsol::DefaultDenseMatrix<T = f64, C = M::C>,
+    LS: LinearSolver<M>,
+    for<'b> &'b M::V: diffsol::VectorRef<M::V>,
+    for<'b> &'b M: diffsol::matrix::MatrixRef<M>,
+{
+    let t0 = 0.0;
+    let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; tape.states.len()], sparse);
+    let y0 = initial_state(sorted, &ode, t0)?;
+    *ode.y0.borrow_mut() = y0;
+    let c = &sorted.elaborated.circuit;
+    let rtol = opts.rtol.unwrap_or_else(|| {
+        c.options
+            .reltol
+            .map_or(DEFAULT_RTOL, |r| r.min(DEFAULT_RTOL * 1e3))
+    });
+    let atol = atols(sys, &tape.states, opts, c);
+    let problem = OdeBuilder::<M>::new()
+        .rtol(rtol)
+        .atol(atol)
+        .t0(t0)
+        .h0((tran.tstep / 100.0).min(tran.tstop * 1e-6).max(1e-15))
+        .build_from_eqn(ode)
+        .map_err(|e| SimError::Solver {
+            t: t0,
+            message: e.to_string(),
+        })?;
+    // diffsol's default minimum step (1e-13 s) is longer than a nanosecond
+    // circuit's steps: scale it to the run.
+    let mut problem = problem;
+    problem.ode_options.min_timestep = tran.tstop * 1e-14;
+    let rec = Recorder {
+        ode: &problem.eqn,
+        grid: grid(tran),
+        next: 0,
+        time: Vec::new(),
+        data: vec![Vec::new(); tape.out_regs.len()],
+        out: vec![0.0; tape.out_regs.len()],
+    };
+    // Soft stops (a step cap) are not used: diffsol's stop handling can
+    // leave a sub-ulp step after them; error control keeps the accuracy.
+    let (hard, _soft) = breakpoints(sys, t0, tran.tstop, tran.tmax);
+    let soft: Vec<f64> = Vec::new();
+    let mut stats = Stats::default();
+    let rec = match method {
+        Method::Bdf => {
+            let s = problem.bdf::<LS>().map_err(|e| solver_err(t0, e))?;
+            drive(
+                &problem,
+                s,
+                |p, st| p.bdf_solver::<LS>(st),
+                rec,
+                &hard,
+                &soft,
+                opts,
+                &mut stats,
+                1,
+            )?
+        }
+        Method::TrBdf2 => {
+            let s = problem.tr_bdf2::<LS>().map_err(|e| solver_err(t0, e))?;
+            drive(
+                &problem,
+                s,
+                |p, st| p.tr_bdf2_solver::<LS>(st),
+                rec,
+                &hard,
+                &soft,
+                opts,
+                &mut stats,
+                2,
+            )?
+        }
+        Method::Esdirk34 => {
+            let s = problem.esdirk34::<LS>().map_err(|e| solver_err(t0, e))?;
+            drive(
+                &problem,
+                s,
+                |p, st| p.esdirk34_solver::<LS>(st),
+                rec,
+                &hard,
+                &soft,
+                opts,
+                &mut stats,
+                3,
+            )?
+        }
+        Method::Tsit5 => {
+            let s = problem.tsit45().map_err(|e| solver_err(t0, e))?;
+            drive(
+                &problem,
+                s,
+                |p, st| p.tsit45_solver(st),
+                rec,
+                &hard,
+                &soft,
+                opts,
+                &mut stats,
+                4,
+            )?
+        }
+    };
+    let counts: EvalCounts = problem.eqn.counts();
+    stats.rhs_evals = counts.rhs;
+    stats.jac_mul_evals = counts.jac_mul;
+    stats.jacobians = counts.jacobians;
+    Ok(Waveforms {
+        names: Vec::new(),
+        time: rec.time,
+        data: rec.data,
+        stats,
+    })
+}
+
+fn solver_err(t: f64, e: diffsol::DiffsolError) -> SimError {
+    SimError::Solver {
+        t,
+        message: e.to_string(),
+    }
+}
+
+/// Step `solver` to the end, stopping on every breakpoint (restarting after
+/// the hard ones) and recording the grid points (and every step with
+/// `--all-steps`).
+#[allow(clippy::too_many_arguments)]
+fn drive<'p, M, S>(
+    problem: &'p OdeSolverProblem<CircuitOde<M>>,
+    mut solver: S,
+    make: impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, S::State) -> Result<S, diffsol::DiffsolError>,
+    mut rec: Recorder<'p, M>,
+    hard: &[f64],
+    soft: &[f64],
+    opts: &Options,
+    stats: &mut Stats,
+    order: usize,
+) -> Result<Recorder<'p, M>, SimError>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    let t_end = *rec.grid.last().unwrap_or(&0.0);
+    let tstart = rec.grid.first().copied().unwrap_or(0.0);
+    // Stop points in order, marking the hard ones.
+    let mut stops: Vec<(f64, bool)> = hard
+        .iter()
+        .map(|&t| (t, true))
+        .chain(soft.iter().map(|&t| (t, false)))
+        .collect();
+    stops.sort_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
+    stops.dedup_by(|a, b| {
+        if (a.0 - b.0).abs() <= 1e-12 * t_end.abs().max(1e-30) {
+            b.1 |= a.1;
+            true
+        } else {
+            false
+        }
+    });
+    stops.push((t_end, true));
+    let mut k = 0;
+    // The initial point.
+    {
+        let st = solver.state();
+        let (t, y) = (st.t, st.y.slice().to_vec());
+        if rec.grid.first() == Some(&t) {
+            rec.record(t, &y)?;
+            rec.next = 1;
+        }
+    }
+    let mut last_report = Instant::now();
+    let mut prev_stats = (0usize, 0usize, 0usize);
+    loop {
+        let (stop, is_hard) = stops[k];
+        solver
+            .set_stop_time(stop)
+            .map_err(|e| solver_err(stop, e))?;
+        let reason = loop {
+            let r = solver.step();
+            // An evaluation that failed inside a step made diffsol retry
+            // with a smaller step; it is reported only if the solver gives up.
+            if r.is_ok() {
+                problem.eqn.error.borrow_mut().take();
+            }
+            match r {
+                Ok(OdeSolverStopReason::InternalTimestep) => {
+                    let t = solver.state().t;
+                    // A remainder far below the step would be a sub-ulp
+                    // step: take the stop as reached (restarted from here).
+                    let h = solver.state().h.abs();
+                    if is_hard && stop - t <= 1e-6 * h && stop > t {
+                        emit_grid(&solver, &mut rec, t, false)?;
+                        break stop;
+                    }
+                    emit_grid(&solver, &mut rec, t, false)?;
+                    if opts.all_steps && t >= tstart {
+                        let y = solver.state().y.slice().to_vec();
+                        insert_step(&mut rec, t, &y)?;
+                    }
+                    if let Some(p) = opts.progress
+                        && last_report.elapsed() > Duration::from_millis(100)
+                    {
+                        p(t / t_end.max(1e-300));
+                        last_report = Instant::now();
+                    }
+                }
+                Ok(OdeSolverStopReason::TstopReached) => break stop,
+                Ok(OdeSolverStopReason::RootFound(t, _)) => break t,
+                Err(e) => {
+                    if let Some(error) = problem.eqn.error.borrow_mut().take() {
+                        return Err(SimError::Eval { error });
+                    }
+                    return Err(diagnose(problem, &solver, e));
+                }
+            }
+        };
+        // BDF stops within a few ulps of the stop time: the grid point there
+        // takes the state (interpolation would be asked to extrapolate).
+        emit_grid(&solver, &mut rec, reason, true)?;
+        if opts.all_steps && reason >= tstart && rec.time.last() != Some(&reason) {
+            let y = solver.state().y.slice().to_vec();
+            insert_step(&mut rec, reason, &y)?;
+        }
+        let s = solver.get_statistics();
+        let _ = prev_stats;
+        prev_stats = (
+            s.number_of_steps,
+            s.number_of_error_test_failures,
+            s.number_of_linear_solver_setups,
+        );
+        if reason >= t_end || k + 1 >= stops.len() {
+            stats.steps += prev_stats.0;
+            stats.rejected += prev_stats.1;
+            stats.lu_factorizations += prev_stats.2;
+            break;
+        }
+        if is_hard {
+            // Restart after a corner: fresh history, recomputed slope and step.
+            stats.steps += prev_stats.0;
+            stats.rejected += prev_stats.1;
+            stats.lu_factorizations += prev_stats.2;
+            stats.restarts += 1;
+            let mut common = solver.into_state().into_common();
+            common.t = reason;
+            let y = common.y.slice().to_vec();
+            let mut dy = vec![0.0; y.len()];
+            problem
+                .eqn
+                .eval(reason, &y, &mut dy)
+                .map_err(|error| SimError::Eval { error })?;
+            common.dy.slice_mut().copy_from_slice(&dy);
+            let mut state = S::State::new_from_common(common);
+            state.as_mut().set_step_size(
+                problem.h0,
+                &problem.atol,
+                problem.rtol,
+                &problem.eqn,
+                order,
+            );
+            solver = make(problem, state).map_err(|e| solver_err(reason, e))?;
+        }
+        k += 1;
+    }
+    Ok(rec)
+}
+
+/// Record the grid points up to `t` (inclusive when `at_stop`).
+fn emit_grid<'p, M, S>(
+    solver: &S,
+    rec: &mut Recorder<'p, M>,
+    t: f64,
+    at_stop: bool,
+) -> Result<(), SimError>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    let scale = 1e-9 * rec.grid.get(1).map_or(1.0, |g1| (g1 - rec.grid[0]).abs());
+    while rec.next < rec.grid.len() {
+        let tg = rec.grid[rec.next];
+        let inside = if at_stop { tg <= t + scale } else { tg < t };
+        if !inside {
+            break;
+        }
+        let y = if (tg - t).abs() <= scale {
+            solver.state().y.slice().to_vec()
+        } else {
+            solver
+                .interpolate(tg)
+                .map_err(|e| solver_err(tg, e))?
+                .slice()
+                .to_vec()
+        };
+        rec.record(tg, &y)?;
+        rec.next += 1;
+    }
+    Ok(())
+}
+
+/// Insert an accepted step into the recorded (sorted) series.
+fn insert_step<M>(rec: &mut Recorder<'_, M>, t: f64, y: &[f64]) -> Result<(), SimError>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+{
+    if rec.time.last().is_some_and(|&l| l >= t) {
+        return Ok(());
+    }
+    rec.record(t, y)
+}
+
+/// Turn a solver failure into a message that names what went wrong.
+fn diagnose<'p, M, S>(
+    problem: &'p OdeSolverProblem<CircuitOde<M>>,
+    solver: &S,
+    e: diffsol::DiffsolError,
+) -> SimError
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    let st = solver.state();
+    let t = st.t;
+    let y = st.y.slice().to_vec();
+    let eqn = &problem.eqn;
+    let tape = &eqn.tape;
+    let mut dy = vec![0.0; y.len()];
+    let _ = eqn.eval(t, &y, &mut dy);
+    if dy.iter().any(|v| !v.is_finite()) {
+        let regs = eqn.registers();
+        if let Some((reg, var)) = tape.first_non_finite(&regs) {
+            let sys_name = var.map_or_else(|| format!("register {reg}"), |v| format!("{v}"));
+            return SimError::NonFinite {
+                name: sys_name.clone(),
+                value: regs[reg],
+                t,
+                what: sys_name,
+            };
+        }
+    }
+    let msg = e.to_string();
+    if msg.to_ascii_lowercase().contains("step size") || msg.contains("StepSizeTooSmall") {
+        let atol = problem.atol.slice();
+        let k = (0..y.len())
+            .max_by(|&a, &b| {
+                let sa = dy[a].abs() / (atol[a] + problem.rtol * y[a].abs());
+                let sb = dy[b].abs() / (atol[b] + problem.rtol * y[b].abs());
+                sa.total_cmp(&sb)
+            })
+            .unwrap_or(0);
+        return SimError::StepUnderflow {
+            t,
+            state: format!("{}", tape.states.get(k).map_or(0, |v| v.0)),
+        };
+    }
+    SimError::Solver { t, message: msg }
+}

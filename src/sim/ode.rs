@@ -1,0 +1,311 @@
+//! The diffsol adapter: the compiled [`Tape`] as an ODE `dy/dt = f(t, y)`
+//! with its Jacobian (forward-mode `J v`, assembled by column colouring on
+//! the sparsity pattern the tape knows), for dense (nalgebra) and sparse
+//! (faer) matrices.
+
+use std::cell::{Cell, RefCell};
+use std::rc::Rc;
+
+use diffsol::{
+    ConstantOp, FaerVec, JacobianColoring, Matrix, NalgebraVec, NonLinearOp, NonLinearOpJacobian,
+    OdeEquations, OdeEquationsRef, Op, ParameterisedOp, UnitCallable, Vector, VectorCommon,
+};
+
+use diffsol_la::matrix::sparsity::MatrixSparsity;
+
+use crate::back::tape::{EvalError, Tape};
+
+/// Vectors whose storage is one host slice.
+pub trait HostVec: Vector<T = f64> {
+    fn slice(&self) -> &[f64];
+    fn slice_mut(&mut self) -> &mut [f64];
+}
+
+impl HostVec for NalgebraVec<f64> {
+    fn slice(&self) -> &[f64] {
+        self.inner().as_slice()
+    }
+    fn slice_mut(&mut self) -> &mut [f64] {
+        self.inner_mut().as_mut_slice()
+    }
+}
+
+impl HostVec for FaerVec<f64> {
+    fn slice(&self) -> &[f64] {
+        self.inner().col_as_slice(0)
+    }
+    fn slice_mut(&mut self) -> &mut [f64] {
+        self.inner_mut().col_as_slice_mut(0)
+    }
+}
+
+/// Counters of the evaluations the solver asked for.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct EvalCounts {
+    pub rhs: usize,
+    pub jac_mul: usize,
+    pub jacobians: usize,
+}
+
+/// The circuit's ODE for diffsol.
+pub struct CircuitOde<M: Matrix<T = f64>>
+where
+    M::V: HostVec,
+{
+    pub tape: Rc<Tape>,
+    regs: RefCell<Vec<f64>>,
+    dregs: RefCell<Vec<f64>>,
+    /// The initial state, set before each (re)start.
+    pub y0: RefCell<Vec<f64>>,
+    sparsity: Option<M::Sparsity>,
+    coloring: Option<JacobianColoring<M>>,
+    ctx: M::C,
+    p: M::V,
+    /// The first evaluation error, kept for the report (diffsol only sees NaN).
+    pub error: RefCell<Option<EvalError>>,
+    counts: Cell<EvalCounts>,
+}
+
+impl<M: Matrix<T = f64>> CircuitOde<M>
+where
+    M::V: HostVec,
+{
+    pub fn new(tape: Rc<Tape>, y0: Vec<f64>, sparse: bool) -> CircuitOde<M> {
+        let ctx = M::C::default();
+        let n = tape.states.len();
+        let (sparsity, coloring) = if sparse {
+            let mut nz = tape.jacobian_pattern();
+            nz.extend((0..n).map(|i| (i, i)));
+            nz.sort_unstable();
+            nz.dedup();
+            let sp = <M::Sparsity as MatrixSparsity<M>>::try_from_indices(n, n, nz.clone())
+                .expect("the tape's pattern is in range");
+            let col = JacobianColoring::new(&sp, &nz, ctx.clone());
+            (Some(sp), Some(col))
+        } else {
+            (None, None)
+        };
+        CircuitOde {
+            regs: RefCell::new(tape.registers()),
+            dregs: RefCell::new(vec![0.0; tape.n_regs]),
+            tape,
+            y0: RefCell::new(y0),
+            sparsity,
+            coloring,
+            p: M::V::zeros(0, ctx.clone()),
+            ctx,
+            error: RefCell::new(None),
+            counts: Cell::new(EvalCounts::default()),
+        }
+    }
+
+    pub fn counts(&self) -> EvalCounts {
+        self.counts.get()
+    }
+
+    fn bump(&self, f: impl FnOnce(&mut EvalCounts)) {
+        let mut c = self.counts.get();
+        f(&mut c);
+        self.counts.set(c);
+    }
+
+    fn fail(&self, e: EvalError) {
+        let mut slot = self.error.borrow_mut();
+        if slot.is_none() {
+            *slot = Some(e);
+        }
+    }
+
+    /// `f(t, y)` into `dy` outside the solver (initial conditions, checks).
+    pub fn eval(&self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<(), EvalError> {
+        self.tape.rhs(&mut self.regs.borrow_mut(), t, y, dy)
+    }
+
+    /// The outputs at `(t, y)`.
+    pub fn outputs(&self, t: f64, y: &[f64], out: &mut [f64]) -> Result<(), EvalError> {
+        let mut regs = self.regs.borrow_mut();
+        let mut dy = vec![0.0; y.len()];
+        self.tape.rhs(&mut regs, t, y, &mut dy)?;
+        self.tape.outputs(&mut regs, t, out)
+    }
+
+    /// `J v` outside the solver.
+    pub fn jv(&self, t: f64, y: &[f64], v: &[f64], out: &mut [f64]) -> Result<(), EvalError> {
+        self.tape.jac_mul(
+            &mut self.regs.borrow_mut(),
+            &mut self.dregs.borrow_mut(),
+            t,
+            y,
+            v,
+            out,
+        )
+    }
+
+    /// The registers after the last evaluation (to find where a NaN came from).
+    pub fn registers(&self) -> Vec<f64> {
+        self.regs.borrow().clone()
+    }
+}
+
+pub struct Rhs<'a, M: Matrix<T = f64>>
+where
+    M::V: HostVec,
+{
+    eqn: &'a CircuitOde<M>,
+}
+
+pub struct Init<'a, M: Matrix<T = f64>>
+where
+    M::V: HostVec,
+{
+    eqn: &'a CircuitOde<M>,
+}
+
+macro_rules! impl_op {
+    ($name:ident) => {
+        impl<M: Matrix<T = f64>> Op for $name<'_, M>
+        where
+            M::V: HostVec,
+        {
+            type M = M;
+            type V = M::V;
+            type T = f64;
+            type C = M::C;
+            fn nstates(&self) -> usize {
+                self.eqn.tape.states.len()
+            }
+            fn nout(&self) -> usize {
+                self.eqn.tape.states.len()
+            }
+            fn nparams(&self) -> usize {
+                0
+            }
+            fn context(&self) -> &Self::C {
+                &self.eqn.ctx
+            }
+        }
+    };
+}
+
+impl_op!(Rhs);
+impl_op!(Init);
+
+impl<M: Matrix<T = f64>> NonLinearOp for Rhs<'_, M>
+where
+    M::V: HostVec,
+{
+    fn call_inplace(&self, x: &M::V, t: f64, y: &mut M::V) {
+        self.eqn.bump(|c| c.rhs += 1);
+        let r = self
+            .eqn
+            .tape
+            .rhs(&mut self.eqn.regs.borrow_mut(), t, x.slice(), y.slice_mut());
+        if let Err(e) = r {
+            self.eqn.fail(e);
+            y.slice_mut().iter_mut().for_each(|v| *v = f64::NAN);
+        }
+    }
+}
+
+impl<M: Matrix<T = f64>> NonLinearOpJacobian for Rhs<'_, M>
+where
+    M::V: HostVec,
+{
+    fn jac_mul_inplace(&self, x: &M::V, t: f64, v: &M::V, y: &mut M::V) {
+        self.eqn.bump(|c| c.jac_mul += 1);
+        let r = self.eqn.tape.jac_mul(
+            &mut self.eqn.regs.borrow_mut(),
+            &mut self.eqn.dregs.borrow_mut(),
+            t,
+            x.slice(),
+            v.slice(),
+            y.slice_mut(),
+        );
+        if let Err(e) = r {
+            self.eqn.fail(e);
+            y.slice_mut().iter_mut().for_each(|v| *v = f64::NAN);
+        }
+    }
+
+    fn jacobian_inplace(&self, x: &M::V, t: f64, y: &mut M) {
+        self.eqn.bump(|c| c.jacobians += 1);
+        match self.eqn.coloring.as_ref() {
+            Some(col) => col.jacobian_inplace(self, x, t, y),
+            None => self._default_jacobian_inplace(x, t, y),
+        }
+    }
+
+    fn jacobian_sparsity(&self) -> Option<M::Sparsity> {
+        self.eqn.sparsity.clone()
+    }
+}
+
+impl<M: Matrix<T = f64>> ConstantOp for Init<'_, M>
+where
+    M::V: HostVec,
+{
+    fn call_inplace(&self, _t: f64, y: &mut M::V) {
+        y.slice_mut().copy_from_slice(&self.eqn.y0.borrow());
+    }
+}
+
+impl<M: Matrix<T = f64>> Op for CircuitOde<M>
+where
+    M::V: HostVec,
+{
+    type M = M;
+    type V = M::V;
+    type T = f64;
+    type C = M::C;
+    fn nstates(&self) -> usize {
+        self.tape.states.len()
+    }
+    fn nout(&self) -> usize {
+        self.tape.states.len()
+    }
+    fn nparams(&self) -> usize {
+        0
+    }
+    fn context(&self) -> &Self::C {
+        &self.ctx
+    }
+}
+
+impl<'a, M: Matrix<T = f64>> OdeEquationsRef<'a> for CircuitOde<M>
+where
+    M::V: HostVec,
+{
+    type Rhs = Rhs<'a, M>;
+    type Init = Init<'a, M>;
+    type Mass = ParameterisedOp<'a, UnitCallable<M>>;
+    type Root = ParameterisedOp<'a, UnitCallable<M>>;
+    type Out = ParameterisedOp<'a, UnitCallable<M>>;
+    type Reset = ParameterisedOp<'a, UnitCallable<M>>;
+}
+
+impl<M: Matrix<T = f64>> OdeEquations for CircuitOde<M>
+where
+    M::V: HostVec,
+{
+    fn rhs(&self) -> Rhs<'_, M> {
+        Rhs { eqn: self }
+    }
+    fn init(&self) -> Init<'_, M> {
+        Init { eqn: self }
+    }
+    fn mass(&self) -> Option<<Self as OdeEquationsRef<'_>>::Mass> {
+        None
+    }
+    fn out(&self) -> Option<<Self as OdeEquationsRef<'_>>::Out> {
+        None
+    }
+    fn root(&self) -> Option<<Self as OdeEquationsRef<'_>>::Root> {
+        None
+    }
+    fn set_params(&mut self, p: &Self::V) {
+        self.p.copy_from(p);
+    }
+    fn get_params(&self, p: &mut Self::V) {
+        p.copy_from(&self.p);
+    }
+}

@@ -1,0 +1,56 @@
+//! Waveform files: CSV (`time,v(out),...`) and ngspice's ASCII raw format,
+//! rendered to text; the caller writes them (atomically).
+
+use std::fmt::Write;
+
+use super::Waveforms;
+
+/// CSV with a `time,<vector>...` header, one row per time point, numbers in
+/// Rust's shortest round-trip form.
+pub fn csv(w: &Waveforms) -> String {
+    let mut out = String::with_capacity(w.time.len() * (w.names.len() + 1) * 12);
+    out.push_str("time");
+    for n in &w.names {
+        out.push(',');
+        out.push_str(n);
+    }
+    out.push('\n');
+    for (k, t) in w.time.iter().enumerate() {
+        let _ = write!(out, "{t:e}");
+        for col in &w.data {
+            // `+ 0.0` prints -0 as 0.
+            let _ = write!(out, ",{:e}", col[k] + 0.0);
+        }
+        out.push('\n');
+    }
+    out
+}
+
+/// ngspice's ASCII raw file (`Plotname: Transient Analysis`).
+pub fn raw_ascii(w: &Waveforms, title: &str) -> String {
+    let mut out = String::new();
+    let _ = writeln!(out, "Title: {title}");
+    let _ = writeln!(out, "Date: kausal");
+    let _ = writeln!(out, "Plotname: Transient Analysis");
+    let _ = writeln!(out, "Flags: real");
+    let _ = writeln!(out, "No. Variables: {}", w.names.len() + 1);
+    let _ = writeln!(out, "No. Points: {}", w.time.len());
+    let _ = writeln!(out, "Variables:");
+    let _ = writeln!(out, "\t0\ttime\ttime");
+    for (k, n) in w.names.iter().enumerate() {
+        let kind = if n.starts_with("i(") {
+            "current"
+        } else {
+            "voltage"
+        };
+        let _ = writeln!(out, "\t{}\t{n}\t{kind}", k + 1);
+    }
+    let _ = writeln!(out, "Values:");
+    for (k, t) in w.time.iter().enumerate() {
+        let _ = writeln!(out, " {k}\t{t:.15e}");
+        for col in &w.data {
+            let _ = writeln!(out, "\t{:.15e}", col[k]);
+        }
+    }
+    out
+}
