@@ -29,3 +29,4 @@ pub mod io;
 pub mod ir;
 pub mod pipeline;
 pub mod sim;
+pub mod validate;

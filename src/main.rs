@@ -12,6 +12,7 @@ use kausal::diag::{self, Diagnostic, RenderOptions, SourceMap, ToDiagnostic};
 use kausal::io::FsLoader;
 use kausal::pipeline::{self, Failed};
 use kausal::sim::{self, Method};
+use kausal::validate;
 
 #[derive(Parser)]
 #[command(
@@ -76,6 +77,32 @@ enum Command {
         /// Write to this file instead of standard output.
         #[arg(long, short)]
         out: Option<PathBuf>,
+    },
+    /// Simulate with kausal and with ngspice, compare signal by signal.
+    Validate {
+        /// The netlist file.
+        netlist: PathBuf,
+        /// Largest normalized error (over the reference's range) that passes.
+        #[arg(long, default_value_t = 1e-3)]
+        tol: f64,
+        /// ngspice's reltol for the reference run.
+        #[arg(long, default_value_t = 1e-6)]
+        ref_tol: f64,
+        /// Write an SVG per signal (both waveforms and the error) here.
+        #[arg(long)]
+        plot: Option<PathBuf>,
+        /// Output format.
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
+        /// Compare only these vectors (default: as `kausal sim`).
+        #[arg(long = "probe", value_name = "VECTOR")]
+        probes: Vec<String>,
+        /// kausal's integration method.
+        #[arg(long, value_enum)]
+        method: Option<Method>,
+        /// kausal's relative tolerance.
+        #[arg(long)]
+        rtol: Option<f64>,
     },
     /// Sort the equations into causal assignments (colour-edge algorithm),
     /// tear algebraic loops, and print the sorted listing.
@@ -246,6 +273,76 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             emit(out.as_ref(), &text)?;
             Ok(ExitCode::SUCCESS)
         }
+        Command::Validate {
+            netlist,
+            tol,
+            ref_tol,
+            plot,
+            format,
+            probes,
+            method,
+            rtol,
+        } => {
+            let sorted =
+                match pipeline::sort(&netlist, &FsLoader, &pipeline::SortOptions::default()) {
+                    Ok(x) => x,
+                    Err(f) => return Ok(report_failure(&f)),
+                };
+            print_diags(&sorted.elaborated.sources, &sorted.elaborated.warnings);
+            let opts = validate::Options {
+                tol,
+                ref_reltol: ref_tol,
+                sim: sim::Options {
+                    method,
+                    rtol,
+                    probes,
+                    ..Default::default()
+                },
+                ngspice_default: true,
+            };
+            let report = match validate::validate(&netlist, &sorted, &opts) {
+                Ok(r) => r,
+                Err(e) => {
+                    print_diags(&sorted.elaborated.sources, &[e.to_diagnostic()]);
+                    return Ok(ExitCode::FAILURE);
+                }
+            };
+            if let Some(dir) = &plot {
+                std::fs::create_dir_all(dir)
+                    .map_err(|e| format!("cannot create `{}`: {e}", dir.display()))?;
+                for (k, s) in report.signals.iter().enumerate() {
+                    let col = report
+                        .reference
+                        .names
+                        .iter()
+                        .position(|n| *n == s.name)
+                        .unwrap_or(0);
+                    let svg = validate::plot::svg(
+                        &s.name,
+                        &report.reference.time,
+                        &report.reference.data[col],
+                        &report.kausal.data[k],
+                    )?;
+                    let path = validate::plot_path(dir, &netlist, &s.name);
+                    kausal::io::write_atomic(&path, svg.as_bytes())
+                        .map_err(|e| format!("cannot write `{}`: {e}", path.display()))?;
+                }
+            }
+            let text = match format {
+                Format::Text => validate::table(&report),
+                Format::Json => {
+                    let mut s = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
+                    s.push('\n');
+                    s
+                }
+            };
+            emit(None, &text)?;
+            Ok(if report.pass {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::FAILURE
+            })
+        }
         Command::Sim {
             netlist,
             build,
@@ -277,6 +374,7 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                 progress: std::io::stderr()
                     .is_terminal()
                     .then_some(progress as fn(f64)),
+                times: None,
             };
             let result = sim::simulate(&sorted, &sim_opts);
             if let Some(bar) = PROGRESS.get() {

@@ -56,6 +56,8 @@ pub struct Options {
     pub probes: Vec<String>,
     /// Called with the fraction done, now and then.
     pub progress: Option<fn(f64)>,
+    /// Output at these times instead of the `.tran` grid.
+    pub times: Option<Vec<f64>>,
 }
 
 /// Solver statistics of a run.
@@ -473,7 +475,7 @@ fn algebraic(
     tran: &crate::elab::Tran,
     opts: &Options,
 ) -> Result<Waveforms, SimError> {
-    let mut times = grid(tran);
+    let mut times = opts.times.clone().unwrap_or_else(|| grid(tran));
     if opts.all_steps {
         let (hard, _) = breakpoints(sys, 0.0, tran.tstop, tran.tmax);
         times.extend(hard.into_iter().filter(|&t| t >= tran.tstart));
@@ -585,9 +587,17 @@ where
     // circuit's steps: scale it to the run.
     let mut problem = problem;
     problem.ode_options.min_timestep = tran.tstop * 1e-14;
+    let times = match &opts.times {
+        Some(t) => t
+            .iter()
+            .copied()
+            .filter(|&x| x >= 0.0 && x <= tran.tstop)
+            .collect(),
+        None => grid(tran),
+    };
     let rec = Recorder {
         ode: &problem.eqn,
-        grid: grid(tran),
+        grid: times,
         next: 0,
         time: Vec::new(),
         data: vec![Vec::new(); tape.out_regs.len()],

@@ -1,0 +1,455 @@
+//! Cross-validation against real ngspice: run `ngspice -b` on the same
+//! netlist in a temporary directory (a tight-tolerance reference and its
+//! default run), read the raw file, and compare signal by signal.
+//!
+//! kausal is evaluated at ngspice's own time points (with its solver's
+//! interpolant), so no linear interpolation error enters the comparison.
+//! This module and `main.rs` are the only ones that touch the file system
+//! and run programs.
+
+pub mod plot;
+pub mod raw;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use crate::diag::{Diagnostic, ToDiagnostic};
+use crate::pipeline::Sorted;
+use crate::sim::{self, SimError, Waveforms};
+pub use raw::RawData;
+
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ValidateError {
+    #[error(
+        "ngspice was not found (looked for `{program}`): install it with `apt-get install ngspice`"
+    )]
+    Missing { program: String },
+    #[error("ngspice failed ({status}):\n{output}")]
+    Failed { status: String, output: String },
+    #[error("ngspice wrote no data: {reason}\n{output}")]
+    NoData { reason: String, output: String },
+    #[error("ngspice's raw file is malformed: {0}")]
+    Malformed(String),
+    #[error("cannot prepare the ngspice run: {0}")]
+    Io(String),
+    #[error("kausal's simulation failed: {0}")]
+    Sim(#[from] SimError),
+    #[error("ngspice has no vector `{0}`")]
+    NoVector(String),
+}
+
+impl ToDiagnostic for ValidateError {
+    fn to_diagnostic(&self) -> Diagnostic {
+        let help = match self {
+            ValidateError::Missing { .. } => {
+                "Debian/Ubuntu: apt-get update && apt-get install -y ngspice; or set KAUSAL_NGSPICE to its path"
+            }
+            ValidateError::Failed { .. } => "ngspice's own message is shown above",
+            ValidateError::NoData { .. } | ValidateError::Malformed(_) => {
+                "check that the netlist has a .tran line ngspice accepts"
+            }
+            ValidateError::Io(_) => "check the temporary directory",
+            ValidateError::Sim(_) => "see `kausal sim` for the same run",
+            ValidateError::NoVector(_) => {
+                "probe a vector both simulators know: v(node) or i(vsource)"
+            }
+        };
+        Diagnostic::error("K0500", self.to_string()).with_help(help)
+    }
+}
+
+/// The ngspice program: `$KAUSAL_NGSPICE`, else `ngspice` on the PATH.
+pub fn ngspice_program() -> String {
+    std::env::var("KAUSAL_NGSPICE").unwrap_or_else(|_| "ngspice".into())
+}
+
+/// Tolerances of an ngspice run: `None` for ngspice's defaults.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RefTol {
+    pub reltol: f64,
+}
+
+/// The netlist text for ngspice: `.include`s made absolute (it runs in a
+/// temporary directory), tolerances appended for a reference run.
+fn prepare_netlist(path: &Path, text: &str, tol: Option<RefTol>) -> String {
+    let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let mut out = String::with_capacity(text.len() + 200);
+    let mut end_seen = false;
+    for (k, line) in text.lines().enumerate() {
+        let trimmed = line.trim_start();
+        let lower = trimmed.to_ascii_lowercase();
+        if k > 0 && (lower.starts_with(".include") || lower.starts_with(".inc ")) {
+            let mut parts = trimmed.splitn(2, char::is_whitespace);
+            let _ = parts.next();
+            let p = parts.next().unwrap_or("").trim().trim_matches('"');
+            let abs = crate::front::resolve_include(&dir.join("x"), p);
+            let abs = std::fs::canonicalize(&abs).unwrap_or(abs);
+            out.push_str(&format!(".include \"{}\"\n", abs.display()));
+            continue;
+        }
+        if k > 0 && lower.split_whitespace().next() == Some(".end") {
+            end_seen = true;
+            if let Some(t) = tol {
+                out.push_str(&tight_options(t));
+            }
+        }
+        out.push_str(line);
+        out.push('\n');
+    }
+    if !end_seen {
+        if let Some(t) = tol {
+            out.push_str(&tight_options(t));
+        }
+        out.push_str(".end\n");
+    }
+    out
+}
+
+fn tight_options(t: RefTol) -> String {
+    // A reference run: tight local error, tight absolute tolerances, and the
+    // truncation-error tolerance at 1 (ngspice's default of 7 is loose).
+    format!(
+        ".options reltol={:e} abstol=1e-15 vntol=1e-12 chgtol=1e-18 trtol=1\n",
+        t.reltol
+    )
+}
+
+/// Run ngspice on `path` and read its raw file.
+pub fn run_ngspice(path: &Path, tol: Option<RefTol>) -> Result<RawData, ValidateError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| ValidateError::Io(format!("{}: {e}", path.display())))?;
+    let dir = tempfile::tempdir().map_err(|e| ValidateError::Io(e.to_string()))?;
+    let net = dir.path().join("netlist.cir");
+    let rawp = dir.path().join("out.raw");
+    std::fs::write(&net, prepare_netlist(path, &text, tol))
+        .map_err(|e| ValidateError::Io(e.to_string()))?;
+    let program = ngspice_program();
+    let output = Command::new(&program)
+        .arg("-b")
+        .arg("-r")
+        .arg(&rawp)
+        .arg(&net)
+        .current_dir(dir.path())
+        .env("SPICE_ASCIIRAWFILE", "0")
+        .output()
+        .map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => ValidateError::Missing {
+                program: program.clone(),
+            },
+            _ => ValidateError::Io(format!("{program}: {e}")),
+        })?;
+    let log = {
+        let mut s = String::from_utf8_lossy(&output.stdout).into_owned();
+        s.push_str(&String::from_utf8_lossy(&output.stderr));
+        let lines: Vec<&str> = s.lines().filter(|l| !l.trim().is_empty()).collect();
+        let start = lines.len().saturating_sub(20);
+        lines[start..].join("\n")
+    };
+    if !output.status.success() {
+        return Err(ValidateError::Failed {
+            status: output.status.to_string(),
+            output: log,
+        });
+    }
+    let bytes = std::fs::read(&rawp).map_err(|_| ValidateError::NoData {
+        reason: "no raw file".into(),
+        output: log.clone(),
+    })?;
+    if bytes.is_empty() {
+        return Err(ValidateError::NoData {
+            reason: "the raw file is empty".into(),
+            output: log,
+        });
+    }
+    let raw = raw::parse(&bytes).map_err(ValidateError::Malformed)?;
+    if raw.time.is_empty() {
+        return Err(ValidateError::NoData {
+            reason: "no time points".into(),
+            output: log,
+        });
+    }
+    Ok(raw)
+}
+
+/// How one signal compares.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct SignalReport {
+    pub name: String,
+    pub max_abs: f64,
+    /// Max error over the reference's peak-to-peak range.
+    pub max_norm: f64,
+    pub rms: f64,
+    pub worst_time: f64,
+    /// The normalization used (range, or a floor for constant signals).
+    pub scale: f64,
+    /// The same for ngspice's default run against the reference.
+    pub ngspice_default_norm: Option<f64>,
+    pub pass: bool,
+}
+
+/// Compare `test` with `reference` at the reference's points (both on the
+/// same time axis).
+pub fn compare(
+    name: &str,
+    reference: &[f64],
+    test: &[f64],
+    time: &[f64],
+    tol: f64,
+) -> SignalReport {
+    let (lo, hi) = reference
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    let peak = reference.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let range = hi - lo;
+    // A constant signal is compared relative to its level (or an absolute
+    // floor for a zero one: 1 nV / 1 pA).
+    let scale = if range > 1e-9 * peak && range > 0.0 {
+        range
+    } else {
+        peak.max(1e-9)
+    };
+    let mut max_abs = 0.0f64;
+    let mut worst = 0;
+    let mut sq = 0.0;
+    for (k, (r, t)) in reference.iter().zip(test).enumerate() {
+        let e = (r - t).abs();
+        let e = if e.is_nan() { f64::INFINITY } else { e };
+        if e > max_abs {
+            max_abs = e;
+            worst = k;
+        }
+        sq += e * e;
+    }
+    let n = reference.len().max(1) as f64;
+    let max_norm = max_abs / scale;
+    SignalReport {
+        name: name.to_string(),
+        max_abs,
+        max_norm,
+        rms: (sq / n).sqrt(),
+        worst_time: time.get(worst).copied().unwrap_or(0.0),
+        scale,
+        ngspice_default_norm: None,
+        pass: max_norm <= tol,
+    }
+}
+
+/// Linear interpolation of `(t, y)` at `x` inside the range (no extrapolation).
+fn interp(t: &[f64], y: &[f64], x: f64) -> Option<f64> {
+    if t.is_empty() || x < t[0] || x > t[t.len() - 1] {
+        return None;
+    }
+    let k = t.partition_point(|&v| v < x);
+    if k < t.len() && t[k] == x {
+        return Some(y[k]);
+    }
+    let (t0, t1, y0, y1) = (t[k - 1], t[k], y[k - 1], y[k]);
+    Some(y0 + (y1 - y0) * (x - t0) / (t1 - t0))
+}
+
+/// A full validation of one netlist.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Report {
+    pub netlist: String,
+    pub tol: f64,
+    pub ref_reltol: f64,
+    pub signals: Vec<SignalReport>,
+    /// Hard breakpoints the reference did not step on.
+    pub missed_breakpoints: Vec<f64>,
+    pub pass: bool,
+    #[serde(skip)]
+    pub reference: RawData,
+    #[serde(skip)]
+    pub kausal: Waveforms,
+}
+
+/// Options of [`validate`].
+#[derive(Clone, Debug)]
+pub struct Options {
+    pub tol: f64,
+    pub ref_reltol: f64,
+    pub sim: sim::Options,
+    /// Also run ngspice at its defaults and report its error.
+    pub ngspice_default: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            tol: 1e-3,
+            ref_reltol: 1e-6,
+            sim: sim::Options::default(),
+            ngspice_default: true,
+        }
+    }
+}
+
+/// Validate a sorted netlist read from `path` against ngspice.
+pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, ValidateError> {
+    let reference = run_ngspice(
+        path,
+        Some(RefTol {
+            reltol: opts.ref_reltol,
+        }),
+    )?;
+    let names: Vec<String> = sim::outputs(sorted, &opts.sim.probes)?
+        .into_iter()
+        .map(|o| o.0)
+        .collect();
+    // kausal at ngspice's own time points.
+    let mut so = opts.sim.clone();
+    so.probes = names.clone();
+    so.times = Some(reference.time.clone());
+    let w = sim::simulate(sorted, &so)?;
+    let default_run = if opts.ngspice_default {
+        run_ngspice(path, None).ok()
+    } else {
+        None
+    };
+    let mut signals = Vec::new();
+    for (k, name) in names.iter().enumerate() {
+        let col = reference
+            .names
+            .iter()
+            .position(|n| n == name)
+            .ok_or_else(|| ValidateError::NoVector(name.clone()))?;
+        let r = &reference.data[col];
+        // Both on the reference's points (kausal evaluated there).
+        let test: Vec<f64> = reference
+            .time
+            .iter()
+            .map(|&t| interp(&w.time, &w.data[k], t).unwrap_or(f64::NAN))
+            .collect();
+        let mut rep = compare(name, r, &test, &reference.time, opts.tol);
+        if let Some(d) = &default_run
+            && let Some(dc) = d.names.iter().position(|n| n == name)
+        {
+            // ngspice's default run, linearly interpolated onto the reference.
+            let vals: Vec<(f64, f64)> = reference
+                .time
+                .iter()
+                .zip(r)
+                .filter_map(|(&t, &rv)| interp(&d.time, &d.data[dc], t).map(|v| (rv, v)))
+                .collect();
+            let (rr, dd): (Vec<f64>, Vec<f64>) = vals.into_iter().unzip();
+            let c = compare(name, &rr, &dd, &reference.time, opts.tol);
+            rep.ngspice_default_norm = Some(c.max_abs / rep.scale);
+        }
+        signals.push(rep);
+    }
+    // Did the reference step on every source corner?
+    let sys = sorted.system();
+    let tran = sorted
+        .elaborated
+        .circuit
+        .tran
+        .clone()
+        .ok_or(SimError::NoTran)?;
+    let mut missed = Vec::new();
+    for s in sys.sources.values() {
+        for b in s.wave.breakpoints(tran.tstop) {
+            let k = reference.time.partition_point(|&t| t < b);
+            let near = |i: usize| {
+                reference
+                    .time
+                    .get(i)
+                    .is_some_and(|&t| (t - b).abs() <= 1e-9 * tran.tstop)
+            };
+            if !(near(k) || (k > 0 && near(k - 1))) {
+                missed.push(b);
+            }
+        }
+    }
+    let pass = signals.iter().all(|s| s.pass);
+    Ok(Report {
+        netlist: path.display().to_string(),
+        tol: opts.tol,
+        ref_reltol: opts.ref_reltol,
+        signals,
+        missed_breakpoints: missed,
+        pass,
+        reference,
+        kausal: w,
+    })
+}
+
+fn sci(x: f64) -> String {
+    if x == 0.0 {
+        "0".into()
+    } else {
+        format!("{x:.2e}")
+    }
+}
+
+/// The report as a table, with a verdict.
+pub fn table(r: &Report) -> String {
+    let mut out = String::new();
+    out.push_str(&format!(
+        "{}: kausal (default settings) against ngspice at reltol={:e}\n",
+        r.netlist, r.ref_reltol
+    ));
+    let w = r
+        .signals
+        .iter()
+        .map(|s| s.name.len())
+        .max()
+        .unwrap_or(6)
+        .max(6);
+    out.push_str(&format!(
+        "  {:<w$}  {:>10}  {:>10}  {:>10}  {:>12}  {:>14}  {}\n",
+        "signal", "max |err|", "max norm", "rms", "worst at (s)", "ngspice dflt", "verdict"
+    ));
+    for s in &r.signals {
+        let dflt = match s.ngspice_default_norm {
+            Some(d) if d > s.max_norm => format!("{} (kausal better)", sci(d)),
+            Some(d) => sci(d),
+            None => "-".into(),
+        };
+        out.push_str(&format!(
+            "  {:<w$}  {:>10}  {:>10}  {:>10}  {:>12}  {:>14}  {}\n",
+            s.name,
+            sci(s.max_abs),
+            sci(s.max_norm),
+            sci(s.rms),
+            sci(s.worst_time),
+            dflt,
+            if s.pass { "ok" } else { "FAIL" }
+        ));
+    }
+    if !r.missed_breakpoints.is_empty() {
+        let list: Vec<String> = r.missed_breakpoints.iter().map(|t| sci(*t)).collect();
+        out.push_str(&format!(
+            "  note: ngspice did not step on the source corners at {}\n",
+            list.join(", ")
+        ));
+    }
+    let worst = r.signals.iter().map(|s| s.max_norm).fold(0.0, f64::max);
+    out.push_str(&format!(
+        "verdict: {} (worst normalized error {} against tolerance {})\n",
+        if r.pass { "pass" } else { "FAIL" },
+        sci(worst),
+        sci(r.tol)
+    ));
+    out
+}
+
+/// Where the SVG plot of one signal goes.
+pub fn plot_path(dir: &Path, netlist: &Path, signal: &str) -> PathBuf {
+    let stem = netlist
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let clean: String = signal
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '.' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    dir.join(format!("{stem}_{clean}.svg"))
+}

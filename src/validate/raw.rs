@@ -1,0 +1,147 @@
+//! ngspice raw files (ASCII and binary, real data): names and columns.
+
+/// Waveforms read from a raw file.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RawData {
+    pub title: String,
+    /// Vector names as ngspice writes them (`v(out)`, `i(v1)`), lower-case.
+    pub names: Vec<String>,
+    pub time: Vec<f64>,
+    /// One column per name.
+    pub data: Vec<Vec<f64>>,
+}
+
+/// Parse a raw file; the error says what is wrong with it.
+pub fn parse(bytes: &[u8]) -> Result<RawData, String> {
+    let mut pos = 0;
+    let mut header = Vec::new();
+    let mut binary = None;
+    // Header lines up to `Values:` or `Binary:`.
+    while pos < bytes.len() {
+        let end = bytes[pos..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(bytes.len(), |i| pos + i);
+        let line = String::from_utf8_lossy(&bytes[pos..end])
+            .trim_end_matches('\r')
+            .to_string();
+        pos = (end + 1).min(bytes.len());
+        if line.starts_with("Values:") {
+            binary = Some(false);
+            break;
+        }
+        if line.starts_with("Binary:") {
+            binary = Some(true);
+            break;
+        }
+        header.push(line);
+    }
+    let binary = binary.ok_or("no `Values:` or `Binary:` section")?;
+    let field = |key: &str| -> Option<String> {
+        header
+            .iter()
+            .find_map(|l| l.strip_prefix(key).map(|v| v.trim().to_string()))
+    };
+    let title = field("Title:").unwrap_or_default();
+    if let Some(flags) = field("Flags:")
+        && flags.contains("complex")
+    {
+        return Err("complex data (not a transient analysis)".into());
+    }
+    let n_vars: usize = field("No. Variables:")
+        .ok_or("missing `No. Variables:`")?
+        .parse()
+        .map_err(|_| "bad `No. Variables:`")?;
+    let n_points: usize = field("No. Points:")
+        .ok_or("missing `No. Points:`")?
+        .parse()
+        .map_err(|_| "bad `No. Points:`")?;
+    let vstart = header
+        .iter()
+        .position(|l| l.starts_with("Variables:"))
+        .ok_or("missing `Variables:`")?;
+    let mut names = Vec::with_capacity(n_vars);
+    for l in header.iter().skip(vstart + 1).take(n_vars) {
+        let mut parts = l.split_whitespace();
+        let _idx = parts.next();
+        let name = parts.next().ok_or("bad variable line")?;
+        names.push(name.to_ascii_lowercase());
+    }
+    if names.len() != n_vars || n_vars == 0 {
+        return Err(format!(
+            "expected {n_vars} variables, found {}",
+            names.len()
+        ));
+    }
+    let mut cols = vec![Vec::with_capacity(n_points); n_vars];
+    if binary {
+        let need = n_points * n_vars * 8;
+        if bytes.len() - pos < need {
+            return Err(format!(
+                "binary data is truncated: {} of {need} bytes",
+                bytes.len() - pos
+            ));
+        }
+        for p in 0..n_points {
+            for (v, col) in cols.iter_mut().enumerate() {
+                let at = pos + (p * n_vars + v) * 8;
+                let mut b = [0u8; 8];
+                b.copy_from_slice(&bytes[at..at + 8]);
+                col.push(f64::from_le_bytes(b));
+            }
+        }
+    } else {
+        let text = String::from_utf8_lossy(&bytes[pos..]);
+        let mut nums = text.split_whitespace();
+        for p in 0..n_points {
+            let idx = nums.next().ok_or(format!("point {p} is missing"))?;
+            if idx.parse::<usize>().ok() != Some(p) {
+                return Err(format!("point {p}: expected its index, found `{idx}`"));
+            }
+            for col in cols.iter_mut() {
+                let v = nums.next().ok_or(format!("point {p} is short"))?;
+                col.push(
+                    v.parse()
+                        .map_err(|_| format!("point {p}: `{v}` is not a number"))?,
+                );
+            }
+        }
+    }
+    let time = cols.remove(0);
+    names.remove(0);
+    if time.windows(2).any(|w| w[1] < w[0]) {
+        return Err("time is not increasing".into());
+    }
+    Ok(RawData {
+        title,
+        names,
+        time,
+        data: cols,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ascii_and_binary_agree() {
+        let ascii = "Title: t\nPlotname: Transient Analysis\nFlags: real\nNo. Variables: 2\nNo. Points: 2\nVariables:\n\t0\ttime\ttime\n\t1\tv(a)\tvoltage\nValues:\n 0\t0.0\n\t1.5\n 1\t1e-3\n\t2.5\n";
+        let a = parse(ascii.as_bytes()).unwrap();
+        assert_eq!(a.names, ["v(a)"]);
+        assert_eq!(a.time, [0.0, 1e-3]);
+        assert_eq!(a.data[0], [1.5, 2.5]);
+        let mut bin = ascii.split("Values:").next().unwrap().as_bytes().to_vec();
+        bin.extend_from_slice(b"Binary:\n");
+        for v in [0.0f64, 1.5, 1e-3, 2.5] {
+            bin.extend_from_slice(&v.to_le_bytes());
+        }
+        assert_eq!(parse(&bin).unwrap(), a);
+        assert!(parse(b"Title: x\n").is_err());
+        assert!(
+            parse(&bin[..bin.len() - 3])
+                .unwrap_err()
+                .contains("truncated")
+        );
+    }
+}
