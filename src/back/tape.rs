@@ -126,6 +126,9 @@ pub struct Tape {
     /// For each register, the assignment (variable) whose value it holds,
     /// when it holds one: to name the source of a NaN.
     pub reg_var: Vec<Option<VarId>>,
+    /// DC mode: sources' time derivatives read as zero (the operating point,
+    /// where capacitors are open and inductors shorted whatever the sources do).
+    pub dc: std::cell::Cell<bool>,
 }
 
 struct Compiler<'a> {
@@ -501,6 +504,7 @@ pub fn compile(
         n_at_outputs,
         n_unused: sys.eqs.len() - n_in_f - n_at_outputs,
         reg_var: c.reg_var,
+        dc: std::cell::Cell::new(false),
     }
 }
 
@@ -528,6 +532,15 @@ fn call_deriv(f: Func, x: f64, fx: f64) -> f64 {
 }
 
 impl Tape {
+    #[inline]
+    fn source(&self, s: u32, t: f64, order: u8) -> f64 {
+        if order > 0 && self.dc.get() {
+            0.0
+        } else {
+            self.sources[s as usize].eval(t, order)
+        }
+    }
+
     /// Fresh registers (parameters and constants set).
     pub fn registers(&self) -> Vec<f64> {
         self.init.clone()
@@ -544,7 +557,7 @@ impl Tape {
                 Instr::Pow { d, a, b } => r[d as usize] = r[a as usize].powf(r[b as usize]),
                 Instr::Call { d, f, a } => r[d as usize] = call(f, r[a as usize]),
                 Instr::Src { d, s, order } => {
-                    r[d as usize] = self.sources[s as usize].eval(t, order)
+                    r[d as usize] = self.source(s, t, order)
                 }
                 Instr::Time { d } => r[d as usize] = t,
                 Instr::Block { k } => self.solve_block(k as usize, r, t)?,
@@ -605,7 +618,7 @@ impl Tape {
                     dr[d as usize] = call_deriv(f, x, fx) * dr[a as usize];
                 }
                 Instr::Src { d, s, order } => {
-                    r[d as usize] = self.sources[s as usize].eval(t, order);
+                    r[d as usize] = self.source(s, t, order);
                     dr[d as usize] = 0.0;
                 }
                 Instr::Time { d } => {

@@ -340,8 +340,25 @@ where
     if uic {
         return Ok(y);
     }
-    // DC operating point by damped Newton on f(t0, y) = 0, with the states
-    // that `.ic` fixes held.
+    tape.dc.set(true);
+    let r = dc_point(c, ode, t0, y, &from_ic);
+    tape.dc.set(false);
+    r
+}
+
+/// DC operating point by damped Newton on f(t0, y) = 0 in DC mode, with the
+/// states that `.ic` fixes held.
+fn dc_point<M: Matrix<T = f64>>(
+    c: &Circuit,
+    ode: &CircuitOde<M>,
+    t0: f64,
+    mut y: Vec<f64>,
+    from_ic: &[bool],
+) -> Result<Vec<f64>, SimError>
+where
+    M::V: HostVec,
+{
+    let n = y.len();
     let mut f = vec![0.0; n];
     let fix: Vec<bool> = from_ic.iter().map(|&b| b && !c.ics.is_empty()).collect();
     let resid = |y: &[f64], f: &mut Vec<f64>| -> Result<f64, SimError> {
@@ -486,10 +503,14 @@ fn algebraic(
     let mut out = vec![0.0; tape.out_regs.len()];
     let mut data = vec![Vec::with_capacity(times.len()); out.len()];
     let mut stats = Stats::default();
-    for &t in &times {
-        tape.rhs(&mut regs, t, &[], &mut [])
-            .and_then(|_| tape.outputs(&mut regs, t, &mut out))
-            .map_err(|error| SimError::Eval { error })?;
+    for (k, &t) in times.iter().enumerate() {
+        // The first point is the DC operating point unless `uic`.
+        tape.dc.set(k == 0 && t == 0.0 && !tran.uic);
+        let r = tape
+            .rhs(&mut regs, t, &[], &mut [])
+            .and_then(|_| tape.outputs(&mut regs, t, &mut out));
+        tape.dc.set(false);
+        r.map_err(|error| SimError::Eval { error })?;
         stats.rhs_evals += 1;
         for (col, &v) in data.iter_mut().zip(&out) {
             col.push(v);
@@ -527,6 +548,9 @@ where
     time: Vec<f64>,
     data: Vec<Vec<f64>>,
     out: Vec<f64>,
+    /// The first point is the DC operating point (no `uic`): it is output in
+    /// DC mode, as ngspice reports its operating point at t = 0.
+    dc_start: bool,
 }
 
 impl<M: Matrix<T = f64>> Recorder<'_, M>
@@ -602,6 +626,7 @@ where
         time: Vec::new(),
         data: vec![Vec::new(); tape.out_regs.len()],
         out: vec![0.0; tape.out_regs.len()],
+        dc_start: !tran.uic,
     };
     // Soft stops (a step cap) are not used: diffsol's stop handling can
     // leave a sub-ulp step after them; error control keeps the accuracy.
@@ -729,7 +754,11 @@ where
         let st = solver.state();
         let (t, y) = (st.t, st.y.slice().to_vec());
         if rec.grid.first() == Some(&t) {
-            rec.record(t, &y)?;
+            let tape = &problem.eqn.tape;
+            tape.dc.set(rec.dc_start);
+            let r = rec.record(t, &y);
+            tape.dc.set(false);
+            r?;
             rec.next = 1;
         }
     }

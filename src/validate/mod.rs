@@ -298,10 +298,27 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
         .into_iter()
         .map(|o| o.0)
         .collect();
-    // kausal at ngspice's own time points.
+    // kausal at ngspice's own time points, and just before each source
+    // corner the reference steps on: a signal that jumps there (an inductor
+    // voltage under a current ramp) is compared with either one-sided value.
+    let sys = sorted.system();
+    let tran = sorted.elaborated.circuit.tran.clone().ok_or(SimError::NoTran)?;
+    let delta = 1e-9 * tran.tstop;
+    let mut corners: Vec<f64> = sys
+        .sources
+        .values()
+        .flat_map(|s| s.wave.breakpoints(tran.tstop))
+        .filter(|&b| reference.time.binary_search_by(|t| t.total_cmp(&b)).is_ok())
+        .collect();
+    corners.sort_by(f64::total_cmp);
+    corners.dedup();
+    let mut times = reference.time.clone();
+    times.extend(corners.iter().map(|&b| b - delta).filter(|&t| t > 0.0));
+    times.sort_by(f64::total_cmp);
+    times.dedup();
     let mut so = opts.sim.clone();
     so.probes = names.clone();
-    so.times = Some(reference.time.clone());
+    so.times = Some(times);
     let w = sim::simulate(sorted, &so)?;
     let default_run = if opts.ngspice_default {
         run_ngspice(path, None).ok()
@@ -316,11 +333,22 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
             .position(|n| n == name)
             .ok_or_else(|| ValidateError::NoVector(name.clone()))?;
         let r = &reference.data[col];
-        // Both on the reference's points (kausal evaluated there).
+        // Both on the reference's points (kausal evaluated there); at a
+        // corner, the closer of kausal's two one-sided values.
         let test: Vec<f64> = reference
             .time
             .iter()
-            .map(|&t| interp(&w.time, &w.data[k], t).unwrap_or(f64::NAN))
+            .zip(r)
+            .map(|(&t, &rv)| {
+                let at = interp(&w.time, &w.data[k], t).unwrap_or(f64::NAN);
+                if corners.binary_search_by(|b| b.total_cmp(&t)).is_ok()
+                    && let Some(before) = interp(&w.time, &w.data[k], t - delta)
+                    && (before - rv).abs() < (at - rv).abs()
+                {
+                    return before;
+                }
+                at
+            })
             .collect();
         let mut rep = compare(name, r, &test, &reference.time, opts.tol);
         if let Some(d) = &default_run
