@@ -85,8 +85,9 @@ enum Command {
         /// Largest normalized error (over the reference's range) that passes.
         #[arg(long, default_value_t = 1e-3)]
         tol: f64,
-        /// ngspice's reltol for the reference run.
-        #[arg(long, default_value_t = 1e-6)]
+        /// ngspice's reltol for the reference run (a netlist may ask for a
+        /// tighter one: `* kausal-validate: ref-tol=3e-9`).
+        #[arg(long, default_value_t = 1e-8)]
         ref_tol: f64,
         /// Write an SVG per signal (both waveforms and the error) here.
         #[arg(long)]

@@ -47,7 +47,7 @@ fn dependence<'n>(
         let d = match x.get(n) {
             Expr::Var(v) => is_var(v),
             Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => false,
-            Expr::Neg(a) | Expr::Call(_, a) => dep[&a],
+            Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => dep[&a],
             Expr::Add(a, b)
             | Expr::Sub(a, b)
             | Expr::Mul(a, b)
@@ -67,7 +67,7 @@ pub fn is_linear_in(x: &ExprArena, root: ExprId, is_var: &dyn Fn(VarId) -> bool)
         Expr::Mul(a, b) => !(dep[&a] && dep[&b]),
         Expr::Div(_, b) => !dep[&b],
         Expr::Pow(a, b) => !(dep[&a] || dep[&b]),
-        Expr::Call(_, a) => !dep[&a],
+        Expr::Call(_, a) | Expr::Device(_, a) => !dep[&a],
         _ => true,
     })
 }

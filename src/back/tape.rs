@@ -12,13 +12,19 @@
 use std::collections::HashMap;
 
 use crate::analysis::{Assignment, Schedule, Solved, Step};
-use crate::ir::{EquationSystem, Expr, ExprId, Func, VarId, Waveform};
+use crate::ir::{DeviceFn, DiodeParams, EquationSystem, Expr, ExprId, Func, VarId, Waveform};
 
 /// One instruction: `dst = op(a, b)`; operands are registers.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Instr {
     Neg {
         d: u32,
+        a: u32,
+    },
+    /// A device function (diode current or charge, or a derivative).
+    Device {
+        d: u32,
+        f: DeviceFn,
         a: u32,
     },
     Add {
@@ -119,6 +125,7 @@ pub struct Tape {
     pub out_code: Vec<Instr>,
     pub out_regs: Vec<u32>,
     pub sources: Vec<Waveform>,
+    pub diodes: Vec<DiodeParams>,
     /// Assignments evaluated by `code` / only by `out_code` / never.
     pub n_in_f: usize,
     pub n_at_outputs: usize,
@@ -208,6 +215,12 @@ impl Compiler<'_> {
                 out.push(Instr::Call { d, f, a });
                 d
             }
+            Expr::Device(f, a) => {
+                let a = self.emit(a, out);
+                let d = self.reg(0.0);
+                out.push(Instr::Device { d, f, a });
+                d
+            }
             Expr::Add(a, b)
             | Expr::Sub(a, b)
             | Expr::Mul(a, b)
@@ -227,6 +240,27 @@ impl Compiler<'_> {
         };
         self.memo.insert(e, r);
         r
+    }
+
+    /// Find a block's junction tears; diode thermal voltages get registers.
+    fn set_junctions(&mut self, k: usize) {
+        let diodes: Vec<u32> = self.blocks[k]
+            .body
+            .iter()
+            .filter_map(|i| match i {
+                Instr::Device { f, .. } => Some(f.diode),
+                _ => None,
+            })
+            .collect();
+        let mut regs = HashMap::new();
+        for d in diodes {
+            if let std::collections::hash_map::Entry::Vacant(e) = regs.entry(d) {
+                let vte = self.sys.diodes[d as usize].vte;
+                e.insert(self.reg(vte));
+            }
+        }
+        let j = junctions(&self.blocks[k], &|d| regs.get(&d).copied());
+        self.blocks[k].junctions = j;
     }
 
     /// The register of variable `v` (an alias is emitted on first use).
@@ -278,7 +312,7 @@ impl Compiler<'_> {
                     junctions: Vec::new(),
                 });
                 let kk = k as usize;
-                self.blocks[kk].junctions = junctions(&self.blocks[kk]);
+                self.set_junctions(kk);
                 out.push(Instr::Block { k });
             }
         }
@@ -322,7 +356,7 @@ impl Compiler<'_> {
                     junctions: Vec::new(),
                 });
                 let kk = k as usize;
-                self.blocks[kk].junctions = junctions(&self.blocks[kk]);
+                self.set_junctions(kk);
                 out.push(Instr::Block { k });
             }
         }
@@ -500,6 +534,7 @@ pub fn compile(
         out_code,
         out_regs,
         sources: sys.sources.values().map(|s| s.wave.clone()).collect(),
+        diodes: sys.diodes.clone(),
         n_in_f,
         n_at_outputs,
         n_unused: sys.eqs.len() - n_in_f - n_at_outputs,
@@ -556,6 +591,9 @@ impl Tape {
                 Instr::Div { d, a, b } => r[d as usize] = r[a as usize] / r[b as usize],
                 Instr::Pow { d, a, b } => r[d as usize] = r[a as usize].powf(r[b as usize]),
                 Instr::Call { d, f, a } => r[d as usize] = call(f, r[a as usize]),
+                Instr::Device { d, f, a } => {
+                    r[d as usize] = self.diodes[f.diode as usize].eval(f.part, f.order, r[a as usize])
+                }
                 Instr::Src { d, s, order } => {
                     r[d as usize] = self.source(s, t, order)
                 }
@@ -616,6 +654,12 @@ impl Tape {
                     let fx = call(f, x);
                     r[d as usize] = fx;
                     dr[d as usize] = call_deriv(f, x, fx) * dr[a as usize];
+                }
+                Instr::Device { d, f, a } => {
+                    let x = r[a as usize];
+                    let p = &self.diodes[f.diode as usize];
+                    r[d as usize] = p.eval(f.part, f.order, x);
+                    dr[d as usize] = p.eval(f.part, f.order + 1, x) * dr[a as usize];
                 }
                 Instr::Src { d, s, order } => {
                     r[d as usize] = self.source(s, t, order);
@@ -837,9 +881,9 @@ impl Tape {
             if b.linear && lambda == 1.0 && b.junctions.is_empty() {
                 return Ok(());
             }
-            if lambda * full <= 1e-12 {
-                return Ok(());
-            }
+            // Otherwise go on: the next correction (at most 1e-13) is applied
+            // at the top, so the solution is as exact as f64 allows; the
+            // integrator's Newton needs f to be smooth to its own tolerance.
         }
         Err(EvalError::NoConvergence {
             block: b.index,
@@ -1012,9 +1056,16 @@ impl Tape {
 }
 
 /// Tears `x` of a block whose body computes `exp(x / vt)`.
-fn junctions(b: &TapeBlock) -> Vec<(usize, u32)> {
+fn junctions(b: &TapeBlock, vte_regs: &dyn Fn(u32) -> Option<u32>) -> Vec<(usize, u32)> {
     let mut out = Vec::new();
     for ins in &b.body {
+        if let Instr::Device { f, a, .. } = *ins
+            && let Some(j) = b.tears.iter().position(|&x| x == a)
+            && !out.iter().any(|&(k, _)| k == j)
+            && let Some(vt) = vte_regs(f.diode)
+        {
+            out.push((j, vt));
+        }
         let Instr::Call {
             f: Func::Exp, a, ..
         } = *ins
@@ -1063,6 +1114,7 @@ fn dest(ins: &Instr) -> u32 {
         | Instr::Div { d, .. }
         | Instr::Pow { d, .. }
         | Instr::Call { d, .. }
+        | Instr::Device { d, .. }
         | Instr::Src { d, .. }
         | Instr::Time { d } => d,
         Instr::Block { .. } => NONE,
@@ -1071,7 +1123,7 @@ fn dest(ins: &Instr) -> u32 {
 
 fn sources_of(ins: &Instr, _blocks: &[TapeBlock]) -> Vec<u32> {
     match *ins {
-        Instr::Neg { a, .. } | Instr::Call { a, .. } => vec![a],
+        Instr::Neg { a, .. } | Instr::Call { a, .. } | Instr::Device { a, .. } => vec![a],
         Instr::Add { a, b, .. }
         | Instr::Sub { a, b, .. }
         | Instr::Mul { a, b, .. }

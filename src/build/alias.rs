@@ -18,7 +18,7 @@ fn keep_rank(b: &Built, v: VarId, passive: bool) -> u8 {
         VarRole::State { .. } => 9,
         VarRole::Derivative { .. } => 8,
         VarRole::Unknown => match var.kind {
-            VarKind::Derivative => 8,
+            VarKind::Derivative | VarKind::Charge => 8,
             VarKind::Potential => 3,
             // Passive elements' variables read better than sources'.
             VarKind::BranchVoltage | VarKind::BranchCurrent if passive => 5,

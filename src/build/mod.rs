@@ -17,7 +17,7 @@ use std::collections::HashMap;
 
 use crate::elab::{Circuit, ElemId, ElementKind, GROUND, NodeId};
 use crate::ir::{
-    EquationSystem, ExprId, Func, Name, Origin, OriginKind, SourceFn, VarId, VarKind, Waveform,
+    EquationSystem, ExprId, Name, Origin, OriginKind, SourceFn, VarId, VarKind, Waveform,
 };
 
 /// Thermal voltage kT/q at ngspice's default 27 °C.
@@ -286,36 +286,66 @@ impl Builder<'_> {
         }
     }
 
-    /// `i = IS*(exp(uj/(N*vt)) - 1)`, with `u = uj + RS*i` when RS > 0.
+    /// ngspice's level-1 diode. Without stored charge: `i = id(uj)`. With it
+    /// (CJO or TT): the junction charge `q` is the state, as in SPICE's
+    /// charge-based formulation, `i = id(uj) + der(q)` and `q = q(uj)` (which
+    /// gives `uj` back by a Newton solve with junction limiting): in charge
+    /// the diode is nearly linear, where in voltage it is exponential. With
+    /// RS > 0, `u = uj + RS*i`; else `uj` is the branch voltage.
     fn diode(&mut self, id: ElemId, ev: ElemVars, m: &crate::elab::DiodeModel, area: f64) {
-        let name = &self.c.elements[id].name;
-        let is = self.value_param(&format!("{name}.is"), m.is * area);
-        let nvt = self.value_param(&format!("{name}.nvt"), m.n * VT_27C);
-        let x = &mut self.sys.exprs;
-        let u = x.var(ev.u);
-        let i = x.var(ev.i);
+        use crate::ir::{DeviceFn, DiodePart, Expr};
+        let name = self.c.elements[id].name.clone();
+        let vte = m.n * VT_27C;
+        let params = crate::ir::DiodeParams {
+            name: name.clone(),
+            is: m.is * area,
+            vte,
+            bv: m
+                .bv
+                .map(|bv| crate::ir::DiodeParams::match_breakdown(bv, m.ibv * area, m.is * area, vte)),
+            gmin: 1e-12,
+            cjo: m.cjo * area,
+            vj: m.vj,
+            m: m.m,
+            fc: m.fc,
+            tt: m.tt,
+        };
+        let charge = params.has_charge();
+        let k = self.sys.diodes.len() as u32;
+        self.sys.diodes.push(params);
+        let origin = self.elem_origin(id);
         let uj = if m.rs > 0.0 {
-            let origin = self.elem_origin(id);
             let j = self
                 .sys
                 .add_var(format!("uj_{name}"), VarKind::BranchVoltage, origin.clone());
             let rs = self.value_param(&format!("{name}.rs"), m.rs / area);
             let x = &mut self.sys.exprs;
-            let ju = x.var(j);
+            let (u, i, ju) = (x.var(ev.u), x.var(ev.i), x.var(j));
             let drop = x.mul(rs, i);
             let rhs = x.add(ju, drop);
-            self.sys.add_eq(u, rhs, origin);
-            self.sys.exprs.var(j)
+            self.sys.add_eq(u, rhs, origin.clone());
+            j
         } else {
-            u
+            ev.u
         };
-        let x = &mut self.sys.exprs;
-        let arg = x.div(uj, nvt);
-        let e = x.call(Func::Exp, arg);
-        let one = x.constant(1.0);
-        let em1 = x.sub(e, one);
-        let rhs = x.mul(is, em1);
-        self.sys.add_eq(i, rhs, self.elem_origin(id));
+        let f = |part, order| DeviceFn { diode: k, part, order };
+        let ujx = self.sys.exprs.var(uj);
+        let current = self.sys.exprs.intern(Expr::Device(f(DiodePart::Current, 0), ujx));
+        let i = self.sys.exprs.var(ev.i);
+        if charge {
+            let q = self
+                .sys
+                .add_var(format!("q_{name}"), VarKind::Charge, origin.clone());
+            let der = self.sys.add_state(q);
+            let x = &mut self.sys.exprs;
+            let (qx, dq) = (x.var(q), x.var(der));
+            let law = x.intern(Expr::Device(f(DiodePart::Charge, 0), ujx));
+            let rhs = x.add(current, dq);
+            self.sys.add_eq(i, rhs, origin.clone());
+            self.sys.add_eq(qx, law, origin);
+        } else {
+            self.sys.add_eq(i, current, origin);
+        }
     }
 
     /// KCL at every node but ground: currents in = currents out.

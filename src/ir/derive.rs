@@ -115,6 +115,12 @@ fn derive(
                     x.mul(p, s)
                 }
             }
+            Expr::Device(f, a) => {
+                let da = d(memo, a);
+                let next = crate::ir::DeviceFn { order: f.order + 1, ..f };
+                let inner = x.intern(Expr::Device(next, a));
+                x.mul(inner, da)
+            }
             Expr::Call(f, a) => {
                 let da = d(memo, a);
                 let inner = match f {

@@ -8,6 +8,7 @@ use std::collections::HashMap;
 
 use rustc_hash::FxHashMap;
 
+use super::device::DeviceFn;
 use super::system::{ParamId, SourceId, VarId};
 
 crate::entity_id!(
@@ -92,6 +93,8 @@ pub enum Expr {
     Div(ExprId, ExprId),
     Pow(ExprId, ExprId),
     Call(Func, ExprId),
+    /// A device function (diode current or charge) of one argument.
+    Device(DeviceFn, ExprId),
 }
 
 /// The deduplicating arena that owns every expression of a system.
@@ -363,7 +366,7 @@ impl ExprArena {
                     }
                 }
                 Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => {}
-                Expr::Neg(a) | Expr::Call(_, a) => stack.push(a),
+                Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => stack.push(a),
                 Expr::Add(a, b)
                 | Expr::Sub(a, b)
                 | Expr::Mul(a, b)
@@ -400,7 +403,7 @@ impl ExprArena {
             }
             out.push(e);
             match self.get(e) {
-                Expr::Neg(a) | Expr::Call(_, a) => stack.push(a),
+                Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => stack.push(a),
                 Expr::Add(a, b)
                 | Expr::Sub(a, b)
                 | Expr::Mul(a, b)
@@ -423,7 +426,7 @@ impl ExprArena {
         match self.get(root) {
             Expr::Var(x) => usize::from(x == v),
             Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => 0,
-            Expr::Neg(a) | Expr::Call(_, a) => self.occurrences(a, v),
+            Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => self.occurrences(a, v),
             Expr::Add(a, b)
             | Expr::Sub(a, b)
             | Expr::Mul(a, b)
@@ -452,6 +455,10 @@ impl ExprArena {
             Expr::Call(f, a) => {
                 let a = self.substitute(a, map, memo);
                 self.call(f, a)
+            }
+            Expr::Device(f, a) => {
+                let a = self.substitute(a, map, memo);
+                self.intern(Expr::Device(f, a))
             }
             Expr::Add(a, b) => {
                 let (a, b) = (self.substitute(a, map, memo), self.substitute(b, map, memo));

@@ -6,6 +6,7 @@
 //! each equation can say which netlist line it came from.
 
 pub mod derive;
+mod device;
 mod entity;
 mod expr;
 pub mod print;
@@ -13,6 +14,7 @@ mod system;
 mod verify;
 
 pub use entity::{EntityId, IdVec};
+pub use device::{DeviceFn, DiodeParams, DiodePart};
 pub use expr::{Expr, ExprArena, ExprId, Func, bits};
 pub use system::{
     EqId, Equation, EquationSystem, Name, Origin, OriginKind, Param, ParamId, SourceFn, SourceId,

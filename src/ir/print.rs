@@ -98,6 +98,16 @@ pub fn write_expr_in(sys: &EquationSystem, x: &ExprArena, id: ExprId, out: &mut 
             out.push('^');
             child(b, 5, out);
         }
+        Expr::Device(f, a) => {
+            let d = &sys.diodes[f.diode as usize];
+            let part = match f.part {
+                crate::ir::DiodePart::Current => "id",
+                crate::ir::DiodePart::Charge => "q",
+            };
+            let _ = write!(out, "{part}_{}{}(", d.name, "'".repeat(f.order as usize));
+            write_expr_in(sys, x, a, out);
+            out.push(')');
+        }
         Expr::Call(f, a) => {
             out.push_str(f.name());
             out.push('(');

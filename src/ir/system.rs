@@ -38,6 +38,8 @@ pub enum VarKind {
     BranchCurrent,
     /// Time derivative of a state.
     Derivative,
+    /// A stored charge (a junction's).
+    Charge,
 }
 
 /// How the causalizer treats a variable.
@@ -373,6 +375,8 @@ pub struct EquationSystem {
     pub eqs: IdVec<EqId, Equation>,
     /// Equations removed by alias elimination, as text for the listing.
     pub eliminated: Vec<String>,
+    /// Diode models used by device functions.
+    pub diodes: Vec<super::DiodeParams>,
 }
 
 impl EquationSystem {

@@ -26,7 +26,7 @@ pub fn verify(sys: &EquationSystem) -> Vec<VerifyError> {
     for (i, &e) in sys.exprs.nodes().iter().enumerate() {
         let user = ExprId::new(i);
         let ops: [Option<ExprId>; 2] = match e {
-            Expr::Neg(a) | Expr::Call(_, a) => [Some(a), None],
+            Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => [Some(a), None],
             Expr::Add(a, b)
             | Expr::Sub(a, b)
             | Expr::Mul(a, b)

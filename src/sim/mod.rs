@@ -247,6 +247,8 @@ fn atols(sys: &EquationSystem, states: &[VarId], opts: &Options, c: &Circuit) ->
         .iter()
         .map(|&s| match sys.vars[s].kind {
             crate::ir::VarKind::BranchCurrent => atol_i,
+            // Junction charges are picocoulombs: 1e-17 C is 1e-5 of 1 pF at 1 V.
+            crate::ir::VarKind::Charge => atol_i * 1e-5,
             _ => atol_v,
         })
         .collect()
@@ -611,6 +613,10 @@ where
     // circuit's steps: scale it to the run.
     let mut problem = problem;
     problem.ode_options.min_timestep = tran.tstop * 1e-14;
+    // diffsol counts Newton failures over the whole run, not per step: a
+    // long run of a switching circuit would hit any fixed limit. A step that
+    // cannot converge ends in step-size underflow instead.
+    problem.ode_options.max_nonlinear_solver_failures = usize::MAX / 2;
     let times = match &opts.times {
         Some(t) => t
             .iter()
