@@ -150,7 +150,7 @@ enum Command {
         /// Integration method (default: bdf).
         #[arg(long, value_enum)]
         method: Option<Method>,
-        /// Relative tolerance (default 1e-6).
+        /// Relative tolerance (default 1e-7).
         #[arg(long)]
         rtol: Option<f64>,
         /// Absolute tolerance for voltages (currents: 1e-3 of it).

@@ -30,7 +30,9 @@ pub fn eval(sys: &EquationSystem, x: &ExprArena, e: ExprId, vals: &[f64], t: f64
         Expr::Div(a, b) => eval(sys, x, a, vals, t) / eval(sys, x, b, vals, t),
         Expr::Pow(a, b) => eval(sys, x, a, vals, t).powf(eval(sys, x, b, vals, t)),
         Expr::Call(f, a) => f.apply(eval(sys, x, a, vals, t)),
-        Expr::Device(f, a) => sys.diodes[f.diode as usize].eval(f.part, f.order, eval(sys, x, a, vals, t)),
+        Expr::Device(f, a) => {
+            sys.diodes[f.diode as usize].eval(f.part, f.order, eval(sys, x, a, vals, t))
+        }
     }
 }
 

@@ -592,11 +592,10 @@ impl Tape {
                 Instr::Pow { d, a, b } => r[d as usize] = r[a as usize].powf(r[b as usize]),
                 Instr::Call { d, f, a } => r[d as usize] = call(f, r[a as usize]),
                 Instr::Device { d, f, a } => {
-                    r[d as usize] = self.diodes[f.diode as usize].eval(f.part, f.order, r[a as usize])
+                    r[d as usize] =
+                        self.diodes[f.diode as usize].eval(f.part, f.order, r[a as usize])
                 }
-                Instr::Src { d, s, order } => {
-                    r[d as usize] = self.source(s, t, order)
-                }
+                Instr::Src { d, s, order } => r[d as usize] = self.source(s, t, order),
                 Instr::Time { d } => r[d as usize] = t,
                 Instr::Block { k } => self.solve_block(k as usize, r, t)?,
             }

@@ -300,9 +300,9 @@ impl Builder<'_> {
             name: name.clone(),
             is: m.is * area,
             vte,
-            bv: m
-                .bv
-                .map(|bv| crate::ir::DiodeParams::match_breakdown(bv, m.ibv * area, m.is * area, vte)),
+            bv: m.bv.map(|bv| {
+                crate::ir::DiodeParams::match_breakdown(bv, m.ibv * area, m.is * area, vte)
+            }),
             gmin: 1e-12,
             cjo: m.cjo * area,
             vj: m.vj,
@@ -328,9 +328,16 @@ impl Builder<'_> {
         } else {
             ev.u
         };
-        let f = |part, order| DeviceFn { diode: k, part, order };
+        let f = |part, order| DeviceFn {
+            diode: k,
+            part,
+            order,
+        };
         let ujx = self.sys.exprs.var(uj);
-        let current = self.sys.exprs.intern(Expr::Device(f(DiodePart::Current, 0), ujx));
+        let current = self
+            .sys
+            .exprs
+            .intern(Expr::Device(f(DiodePart::Current, 0), ujx));
         let i = self.sys.exprs.var(ev.i);
         if charge {
             let q = self

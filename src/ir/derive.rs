@@ -117,7 +117,10 @@ fn derive(
             }
             Expr::Device(f, a) => {
                 let da = d(memo, a);
-                let next = crate::ir::DeviceFn { order: f.order + 1, ..f };
+                let next = crate::ir::DeviceFn {
+                    order: f.order + 1,
+                    ..f
+                };
                 let inner = x.intern(Expr::Device(next, a));
                 x.mul(inner, da)
             }

@@ -64,16 +64,28 @@ impl DiodeParams {
         let vlin = 50.0 * vte;
         if v > vlin {
             let e = (vlin / vte).exp();
-            return [is * (e * (1.0 + (v - vlin) / vte) - 1.0) + g * v, is * e / vte + g, 0.0];
+            return [
+                is * (e * (1.0 + (v - vlin) / vte) - 1.0) + g * v,
+                is * e / vte + g,
+                0.0,
+            ];
         }
         if v >= -3.0 * vte {
             let e = (v / vte).exp();
-            [is * (e - 1.0) + g * v, is * e / vte + g, is * e / (vte * vte)]
+            [
+                is * (e - 1.0) + g * v,
+                is * e / vte + g,
+                is * e / (vte * vte),
+            ]
         } else if self.bv.is_none_or(|bv| v >= -bv) {
             // A smooth reverse region: -is (1 + (3 vte / (e v))^3).
             let a = 3.0 * vte / (v * std::f64::consts::E);
             let arg = a * a * a;
-            [-is * (1.0 + arg) + g * v, 3.0 * is * arg / v + g, -12.0 * is * arg / (v * v)]
+            [
+                -is * (1.0 + arg) + g * v,
+                3.0 * is * arg / v + g,
+                -12.0 * is * arg / (v * v),
+            ]
         } else {
             let bv = self.bv.unwrap_or(f64::INFINITY);
             let e = (-(bv + v) / vte).exp();
@@ -101,7 +113,8 @@ impl DiodeParams {
             let f2 = (1.0 - fc).powf(1.0 + m);
             let f3 = 1.0 - fc * (1.0 + m);
             let czof2 = cjo / f2;
-            q[0] += cjo * f1 + czof2 * (f3 * (v - vd_dep) + m / (2.0 * vj) * (v * v - vd_dep * vd_dep));
+            q[0] +=
+                cjo * f1 + czof2 * (f3 * (v - vd_dep) + m / (2.0 * vj) * (v * v - vd_dep * vd_dep));
             q[1] += czof2 * (f3 + m * v / vj);
             q[2] += czof2 * m / vj;
         }

@@ -13,8 +13,8 @@ pub mod print;
 mod system;
 mod verify;
 
-pub use entity::{EntityId, IdVec};
 pub use device::{DeviceFn, DiodeParams, DiodePart};
+pub use entity::{EntityId, IdVec};
 pub use expr::{Expr, ExprArena, ExprId, Func, bits};
 pub use system::{
     EqId, Equation, EquationSystem, Name, Origin, OriginKind, Param, ParamId, SourceFn, SourceId,

@@ -38,7 +38,7 @@ pub enum Method {
 }
 
 /// Default relative tolerance: accurate by default (see README).
-pub const DEFAULT_RTOL: f64 = 1e-6;
+pub const DEFAULT_RTOL: f64 = 1e-7;
 /// Default absolute tolerance on voltage-like states (V).
 pub const DEFAULT_ATOL_V: f64 = 1e-9;
 /// Default absolute tolerance on current-like states (A).

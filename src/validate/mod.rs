@@ -116,6 +116,15 @@ fn tight_options(t: RefTol) -> String {
 
 /// Run ngspice on `path` and read its raw file.
 pub fn run_ngspice(path: &Path, tol: Option<RefTol>) -> Result<RawData, ValidateError> {
+    run_program(&ngspice_program(), path, tol)
+}
+
+/// [`run_ngspice`] with a given program (tests use stand-ins).
+pub fn run_program(
+    program: &str,
+    path: &Path,
+    tol: Option<RefTol>,
+) -> Result<RawData, ValidateError> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| ValidateError::Io(format!("{}: {e}", path.display())))?;
     let dir = tempfile::tempdir().map_err(|e| ValidateError::Io(e.to_string()))?;
@@ -123,7 +132,7 @@ pub fn run_ngspice(path: &Path, tol: Option<RefTol>) -> Result<RawData, Validate
     let rawp = dir.path().join("out.raw");
     std::fs::write(&net, prepare_netlist(path, &text, tol))
         .map_err(|e| ValidateError::Io(e.to_string()))?;
-    let program = ngspice_program();
+    let program = program.to_string();
     let output = Command::new(&program)
         .arg("-b")
         .arg("-r")
@@ -334,7 +343,12 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
     // corner the reference steps on: a signal that jumps there (an inductor
     // voltage under a current ramp) is compared with either one-sided value.
     let sys = sorted.system();
-    let tran = sorted.elaborated.circuit.tran.clone().ok_or(SimError::NoTran)?;
+    let tran = sorted
+        .elaborated
+        .circuit
+        .tran
+        .clone()
+        .ok_or(SimError::NoTran)?;
     let delta = 1e-9 * tran.tstop;
     let mut corners: Vec<f64> = sys
         .sources

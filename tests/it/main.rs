@@ -4,8 +4,10 @@
 mod equations;
 pub mod errors;
 mod front;
+mod simulate;
 mod singular;
 mod sort;
+mod validate;
 
 use std::path::{Path, PathBuf};
 

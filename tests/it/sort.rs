@@ -247,7 +247,14 @@ fn check_equations(sys: &EquationSystem, s: &Schedule, seed: u64) -> Result<(), 
         x = x
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
-        vals[v.0 as usize] = ((x >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0;
+        let r = ((x >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0;
+        // Junction charges are picocoulombs, not coulombs.
+        let scale = if sys.vars[v].kind == kausal::ir::VarKind::Charge {
+            1e-11
+        } else {
+            1.0
+        };
+        vals[v.0 as usize] = r * scale;
     }
     // Aliases are computed from their expressions after the run.
     let t = 1.234e-4;

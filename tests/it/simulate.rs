@@ -1,0 +1,193 @@
+//! Simulation: analytic solutions, the seed examples, and clear errors for
+//! bad numerical situations (with no partial output file).
+
+use std::path::Path;
+
+use kausal::io::FsLoader;
+use kausal::pipeline::{self, SortOptions, Sorted};
+use kausal::sim::{self, Method, SimError};
+
+use crate::root;
+
+fn sort_text(text: &str) -> Sorted {
+    let path = Path::new("mem.cir");
+    let el = match pipeline::elaborate_text("mem.cir", path, text.to_string(), &FsLoader) {
+        Ok(el) => el,
+        Err(f) => panic!("{:?}", f.errors().map(|d| &d.message).collect::<Vec<_>>()),
+    };
+    let built = kausal::build::build(&el.circuit, Default::default());
+    pipeline::sort_built(el, built, &SortOptions::default())
+        .ok()
+        .expect("sorts")
+}
+
+fn run(text: &str, probe: &str, method: Option<Method>, rtol: f64) -> (Vec<f64>, Vec<f64>) {
+    let s = sort_text(text);
+    let opts = sim::Options {
+        method,
+        rtol: Some(rtol),
+        atol: Some(1e-14),
+        probes: vec![probe.to_string()],
+        ..Default::default()
+    };
+    let w = sim::simulate(&s, &opts).unwrap_or_else(|e| panic!("{e}"));
+    (w.time, w.data[0].clone())
+}
+
+/// Max error over the signal's range.
+fn norm_err(t: &[f64], y: &[f64], exact: impl Fn(f64) -> f64) -> f64 {
+    let ex: Vec<f64> = t.iter().map(|&t| exact(t)).collect();
+    let (lo, hi) = ex
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    let err = y
+        .iter()
+        .zip(&ex)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    err / (hi - lo)
+}
+
+#[test]
+fn rc_discharge_matches_the_analytic_solution() {
+    let text = "rc\nR1 a 0 1k\nC1 a 0 1u ic=1\n.tran 10u 5m uic\n.end\n";
+    for m in [Method::Bdf, Method::TrBdf2, Method::Esdirk34, Method::Tsit5] {
+        let (t, v) = run(text, "v(a)", Some(m), 1e-10);
+        let e = norm_err(&t, &v, |t| (-t / 1e-3).exp());
+        assert!(e <= 1e-6, "{m:?}: {e:e}");
+    }
+}
+
+#[test]
+fn rlc_and_lc_match_their_analytic_solutions() {
+    // Series RLC from v_C(0) = 1, i(0) = 0: underdamped.
+    let (r, l, c) = (10.0f64, 1e-3f64, 1e-6f64);
+    let text = format!("rlc\nR1 a b {r}\nL1 b 0 {l}\nC1 a 0 {c} ic=1\n.tran 1u 2m uic\n.end\n");
+    let a = r / (2.0 * l);
+    let w0 = 1.0 / (l * c).sqrt();
+    let wd = (w0 * w0 - a * a).sqrt();
+    let (t, v) = run(&text, "v(a)", None, 1e-10);
+    let e = norm_err(&t, &v, |t| {
+        (-a * t).exp() * ((wd * t).cos() + a / wd * (wd * t).sin())
+    });
+    assert!(e <= 1e-6, "RLC: {e:e}");
+    // Lossless LC: cos(w0 t) over 10 periods.
+    let text = "lc\nL1 a 0 1m\nC1 a 0 1u ic=1\n.tran 1u 2m uic\n.end\n";
+    let (t, v) = run(text, "v(a)", Some(Method::Esdirk34), 1e-11);
+    let e = norm_err(&t, &v, |t| (w0 * t).cos());
+    assert!(e <= 1e-6, "LC: {e:e}");
+}
+
+#[test]
+fn the_seed_examples_simulate() {
+    for file in [
+        "seed_a_rc_rl",
+        "seed_b_cellier12",
+        "seed_c_algebraic_loop",
+        "seed_d_singular",
+    ] {
+        let path = root().join(format!("netlists/{file}.cir"));
+        let s = pipeline::sort(&path, &FsLoader, &SortOptions::default())
+            .ok()
+            .unwrap();
+        let w =
+            sim::simulate(&s, &sim::Options::default()).unwrap_or_else(|e| panic!("{file}: {e}"));
+        assert!(w.time.len() > 100, "{file}");
+        assert!(w.data.iter().flatten().all(|v| v.is_finite()), "{file}");
+    }
+}
+
+#[test]
+fn seed_d_conserves_its_constraint() {
+    // I1 + iC + iL2 + I3 = 0 holds along the run (the constraint is one of
+    // the sorted equations after index reduction).
+    let path = root().join("netlists/seed_d_singular.cir");
+    let s = pipeline::sort(&path, &FsLoader, &SortOptions::default())
+        .ok()
+        .unwrap();
+    let opts = sim::Options {
+        probes: ["i(i1)", "i(c1)", "i(l2)", "i(i3)"]
+            .map(String::from)
+            .to_vec(),
+        ..Default::default()
+    };
+    let w = sim::simulate(&s, &opts).unwrap();
+    let mut worst = 0.0f64;
+    for k in 0..w.time.len() {
+        let terms: Vec<f64> = w.data.iter().map(|c| c[k]).collect();
+        let sum: f64 = terms.iter().sum();
+        let scale = terms.iter().map(|x| x.abs()).fold(1e-3, f64::max);
+        worst = worst.max(sum.abs() / scale);
+    }
+    assert!(worst <= 1e-9, "constraint drift {worst:e}");
+}
+
+#[test]
+fn an_exploding_circuit_ends_with_a_clear_error() {
+    // A negative resistor across a capacitor: v grows as exp(t / 1 us).
+    let s = sort_text("unstable\nR1 a 0 -1\nC1 a 0 1u ic=1\n.tran 1u 1 uic\n.end\n");
+    let e = sim::simulate(&s, &sim::Options::default()).unwrap_err();
+    match &e {
+        SimError::NonFinite { t, .. }
+        | SimError::StepUnderflow { t, .. }
+        | SimError::Solver { t, .. } => {
+            assert!(*t > 1e-4 && *t < 1e-2, "{e}")
+        }
+        other => panic!("{other}"),
+    }
+    let msg = e.to_string();
+    assert!(msg.contains("t = "), "{msg}");
+}
+
+#[test]
+fn newton_failure_names_the_loop_and_leaves_no_file() {
+    // A diode with a negative saturation current cannot carry the forward
+    // current the source forces through it: no solution exists.
+    let text = "impossible\nI1 0 a 1m\nD1 a 0 dn\n.model dn D(IS=-1e-14)\n.tran 1u 1m\n.end\n";
+    let s = sort_text(text);
+    let e = sim::simulate(&s, &sim::Options::default()).unwrap_err();
+    let msg = e.to_string();
+    assert!(msg.contains("D1"), "{msg}");
+    // The CLI writes nothing when the run fails.
+    let dir = tempfile::tempdir().unwrap();
+    let net = dir.path().join("impossible.cir");
+    std::fs::write(&net, text).unwrap();
+    let out = dir.path().join("out.csv");
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+        .args(["sim", net.to_str().unwrap(), "-o", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!status.status.success());
+    assert!(!out.exists(), "no partial output");
+    assert!(String::from_utf8_lossy(&status.stderr).contains("D1"));
+}
+
+#[test]
+fn csv_and_raw_output_follow_ngspice_names() {
+    let path = root().join("netlists/subckt_rc_filter.cir");
+    let s = pipeline::sort(&path, &FsLoader, &SortOptions::default())
+        .ok()
+        .unwrap();
+    let opts = sim::Options {
+        probes: vec![],
+        ..Default::default()
+    };
+    let w = sim::simulate(&s, &opts).unwrap();
+    let csv = sim::output::csv(&w);
+    assert!(
+        csv.starts_with("time,v(in),v(mid),v(out)\n"),
+        "{}",
+        &csv[..60]
+    );
+    let raw = sim::output::raw_ascii(&w, "t");
+    let parsed = kausal::validate::raw::parse(raw.as_bytes()).unwrap();
+    assert_eq!(parsed.names, ["v(in)", "v(mid)", "v(out)"]);
+    assert_eq!(parsed.time.len(), w.time.len());
+    // Every non-ground node and V-source current when nothing is requested.
+    let text = "t\nV1 a 0 1\nR1 a b 1k\nX1 b sub\n.subckt sub p\nR2 p n 1k\nVm n 0 0\n.ends\n.tran 1u 10u\n.end\n";
+    let s = sort_text(text);
+    let w = sim::simulate(&s, &sim::Options::default()).unwrap();
+    assert_eq!(w.names, ["v(a)", "v(b)", "v(x1.n)", "i(v1)", "i(v.x1.vm)"]);
+}

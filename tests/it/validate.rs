@@ -1,0 +1,155 @@
+//! Cross-validation against live ngspice: every suite circuit passes at
+//! normalized error 1e-3 with kausal's default settings; a perturbed model is
+//! caught; a missing, failing or garbled ngspice gives a clear error.
+
+use std::io::Write;
+use std::path::Path;
+
+use kausal::io::FsLoader;
+use kausal::pipeline::{self, SortOptions};
+use kausal::validate::{self, ValidateError};
+
+use crate::{goldens, netlists, root, stem};
+
+/// ngspice must be there: the suite fails, never skips, without it.
+fn require_ngspice() {
+    let ok = std::process::Command::new(validate::ngspice_program())
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    assert!(
+        ok,
+        "ngspice is not installed: the cross-validation tests need it (apt-get install -y ngspice)"
+    );
+}
+
+/// Circuits ngspice cannot simulate (it reports a singular matrix): seed D's
+/// inductor cutset is exactly the structure ngspice's MNA cannot start.
+const NGSPICE_CANNOT: &[&str] = &["seed_d_singular"];
+
+/// A normalized error as an even power of ten (stable across machines);
+/// rounding noise is all one bucket.
+fn bucket(x: f64) -> String {
+    if x < 1e-9 {
+        return "<1e-9".into();
+    }
+    let p = x.log10().ceil() as i32;
+    format!("<1e{}", p + p.rem_euclid(2))
+}
+
+#[test]
+fn the_suite_agrees_with_ngspice() {
+    require_ngspice();
+    let mut table = String::new();
+    let mut failures = Vec::new();
+    for path in netlists() {
+        let name = stem(&path);
+        if NGSPICE_CANNOT.contains(&name.as_str()) {
+            continue;
+        }
+        let rel = path.strip_prefix(root()).unwrap();
+        let sorted = pipeline::sort(rel, &FsLoader, &SortOptions::default())
+            .ok()
+            .unwrap_or_else(|| panic!("{name} sorts"));
+        let report = match validate::validate(rel, &sorted, &validate::Options::default()) {
+            Ok(r) => r,
+            Err(e) => panic!("{name}: {e}"),
+        };
+        for s in &report.signals {
+            table.push_str(&format!(
+                "{name:<28} {:<14} {:>7}  ngspice default {:>7}  {}\n",
+                s.name,
+                bucket(s.max_norm),
+                s.ngspice_default_norm.map_or("-".into(), bucket),
+                if s.pass { "ok" } else { "FAIL" }
+            ));
+            if !s.pass {
+                failures.push(format!("{name} {}: {:.3e}", s.name, s.max_norm));
+            }
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "signals off ngspice's reference: {failures:?}"
+    );
+    goldens("validate").bind(|| insta::assert_snapshot!("suite", table));
+}
+
+#[test]
+fn a_one_percent_resistor_error_is_caught() {
+    require_ngspice();
+    let path = root().join("netlists/rc_lowpass_step.cir");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let bad = text.replace("R1 in out 1k", "R1 in out 1.01k");
+    assert_ne!(bad, text, "the fixture has R1 in out 1k");
+    let el = pipeline::elaborate_text("bad.cir", &path, bad, &FsLoader)
+        .ok()
+        .unwrap();
+    let built = kausal::build::build(&el.circuit, Default::default());
+    let sorted = pipeline::sort_built(el, built, &SortOptions::default())
+        .ok()
+        .unwrap();
+    let report = validate::validate(&path, &sorted, &validate::Options::default()).unwrap();
+    assert!(!report.pass, "a 1 % error in R1 must fail validation");
+    let failed: Vec<&str> = report
+        .signals
+        .iter()
+        .filter(|s| !s.pass)
+        .map(|s| s.name.as_str())
+        .collect();
+    assert!(failed.contains(&"v(out)"), "{failed:?}");
+    assert!(validate::table(&report).contains("FAIL"));
+}
+
+/// A stand-in for ngspice: a shell script.
+fn fake(dir: &Path, name: &str, body: &str) -> String {
+    let p = dir.join(name);
+    let mut f = std::fs::File::create(&p).unwrap();
+    writeln!(f, "#!/bin/sh\n{body}").unwrap();
+    drop(f);
+    let mut perm = std::fs::metadata(&p).unwrap().permissions();
+    std::os::unix::fs::PermissionsExt::set_mode(&mut perm, 0o755);
+    std::fs::set_permissions(&p, perm).unwrap();
+    p.display().to_string()
+}
+
+#[test]
+fn missing_failing_and_garbled_ngspice_give_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let net = root().join("netlists/rc_lowpass_step.cir");
+    let missing = dir.path().join("no-such-ngspice").display().to_string();
+    match validate::run_program(&missing, &net, None) {
+        Err(ValidateError::Missing { .. }) => {}
+        other => panic!("{other:?}"),
+    }
+    let e = validate::run_program(&missing, &net, None).unwrap_err();
+    assert!(e.to_string().contains("apt-get install ngspice"), "{e}");
+    // ngspice fails: its own message is shown.
+    let failing = fake(
+        dir.path(),
+        "failing",
+        "echo 'Error: unknown subckt: x9' >&2; exit 1",
+    );
+    match validate::run_program(&failing, &net, None) {
+        Err(ValidateError::Failed { output, .. }) => {
+            assert!(output.contains("unknown subckt"), "{output}")
+        }
+        other => panic!("{other:?}"),
+    }
+    // ngspice succeeds but writes nothing.
+    let silent = fake(dir.path(), "silent", "exit 0");
+    assert!(matches!(
+        validate::run_program(&silent, &net, None),
+        Err(ValidateError::NoData { .. })
+    ));
+    // ngspice writes a garbled raw file ($3 is the raw path: -b -r PATH netlist).
+    let garbled = fake(
+        dir.path(),
+        "garbled",
+        "printf 'Title: x\\nNo. Variables: 2\\nNo. Points: 9\\nBinary:\\n' > \"$3\"",
+    );
+    match validate::run_program(&garbled, &net, None) {
+        Err(ValidateError::Malformed(m)) => assert!(!m.is_empty()),
+        other => panic!("{other:?}"),
+    }
+}
