@@ -105,6 +105,17 @@ enum Command {
         #[arg(long)]
         rtol: Option<f64>,
     },
+    /// Generate standalone source of f(t, y) (and J·w) from the sorted equations.
+    Codegen {
+        /// The netlist file.
+        netlist: PathBuf,
+        /// Target language.
+        #[arg(long, value_enum, default_value_t = kausal::back::codegen::Lang::Rust)]
+        lang: kausal::back::codegen::Lang,
+        /// Write to this file instead of standard output.
+        #[arg(long, short)]
+        out: Option<PathBuf>,
+    },
     /// Sort the equations into causal assignments (colour-edge algorithm),
     /// tear algebraic loops, and print the sorted listing.
     Sort {
@@ -271,6 +282,17 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                     s
                 }
             };
+            emit(out.as_ref(), &text)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Codegen { netlist, lang, out } => {
+            let sorted =
+                match pipeline::sort(&netlist, &FsLoader, &pipeline::SortOptions::default()) {
+                    Ok(x) => x,
+                    Err(f) => return Ok(report_failure(&f)),
+                };
+            print_diags(&sorted.elaborated.sources, &sorted.elaborated.warnings);
+            let text = kausal::back::codegen::emit(sorted.system(), &sorted.schedule, lang);
             emit(out.as_ref(), &text)?;
             Ok(ExitCode::SUCCESS)
         }

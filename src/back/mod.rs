@@ -2,6 +2,7 @@
 //! listings, the reference interpreter, generated code. Back ends follow the
 //! schedule and never reorder it.
 
+pub mod codegen;
 pub mod interp;
 pub mod listing;
 pub mod tape;
