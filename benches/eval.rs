@@ -14,7 +14,9 @@ fn eval(c: &mut Criterion) {
         .ok()
         .expect("ladder elaborates");
     let built = kausal::build::build(&el.circuit, Default::default());
-    let s = pipeline::sort_built(el, built, &SortOptions::default()).ok().expect("sorts");
+    let s = pipeline::sort_built(el, built, &SortOptions::default())
+        .ok()
+        .expect("sorts");
     let t = tape::compile(s.system(), &s.causal.graph, &s.schedule, &[]);
     assert_eq!(t.states.len(), n);
     let y: Vec<f64> = (0..n).map(|k| (k as f64 * 0.37).sin()).collect();
@@ -28,7 +30,11 @@ fn eval(c: &mut Criterion) {
     let hand = |y: &[f64], dy: &mut [f64]| {
         for k in 0..n {
             let left = if k == 0 { vin } else { y[k - 1] };
-            let out = if k + 1 < n { (y[k] - y[k + 1]) / r } else { 0.0 };
+            let out = if k + 1 < n {
+                (y[k] - y[k + 1]) / r
+            } else {
+                0.0
+            };
             dy[k] = ((left - y[k]) / r - out) / cap[k];
         }
     };
@@ -37,10 +43,17 @@ fn eval(c: &mut Criterion) {
     let mut dh = vec![0.0; n];
     hand(&y, &mut dh);
     for k in 0..n {
-        assert!((dy[k] - dh[k]).abs() <= 1e-9 * dh[k].abs().max(1.0), "{k}: {} vs {}", dy[k], dh[k]);
+        assert!(
+            (dy[k] - dh[k]).abs() <= 1e-9 * dh[k].abs().max(1.0),
+            "{k}: {} vs {}",
+            dy[k],
+            dh[k]
+        );
     }
     let mut g = c.benchmark_group("f(t, y) rc_ladder 1e5");
-    g.bench_function("kausal tape", |b| b.iter(|| t.rhs(&mut regs, time, &y, &mut dy).unwrap()));
+    g.bench_function("kausal tape", |b| {
+        b.iter(|| t.rhs(&mut regs, time, &y, &mut dy).unwrap())
+    });
     g.bench_function("hand-written loop", |b| b.iter(|| hand(&y, &mut dh)));
     g.finish();
 }

@@ -121,8 +121,10 @@ pub struct Tape {
     pub init: Vec<f64>,
     pub code: Vec<Instr>,
     pub blocks: Vec<TapeBlock>,
-    /// Computes the outputs from the registers `code` left.
+    /// Computes the outputs from the states, on its own registers.
     pub out_code: Vec<Instr>,
+    /// The states `out_code` reads: (index in `y`, register).
+    pub out_inputs: Vec<(usize, u32)>,
     pub out_regs: Vec<u32>,
     pub sources: Vec<Waveform>,
     pub diodes: Vec<DiodeParams>,
@@ -474,15 +476,18 @@ pub fn compile(
             }
         }
     }
-    let mut at_out = vec![false; sched.steps.len()];
+    // Every step the outputs need, in f or not: the output program is
+    // independent of `code`, so output points cost only what they read.
+    let mut for_out = vec![false; sched.steps.len()];
     for (k, (writes, reads)) in info.iter().enumerate().rev() {
-        if !in_f[k] && writes.iter().any(|w| out_needed[w.0 as usize]) {
-            at_out[k] = true;
+        if writes.iter().any(|w| out_needed[w.0 as usize]) {
+            for_out[k] = true;
             for r in reads {
                 out_needed[r.0 as usize] = true;
             }
         }
     }
+    let at_out: Vec<bool> = for_out.iter().zip(&in_f).map(|(o, f)| *o && !f).collect();
     let mut code = Vec::new();
     for (k, step) in sched.steps.iter().enumerate() {
         if in_f[k] {
@@ -490,9 +495,17 @@ pub fn compile(
         }
     }
     let deriv_regs: Vec<u32> = ders.iter().map(|d| c.var_reg[d.0 as usize]).collect();
+    // The output program gets its own registers for everything computed.
+    c.memo
+        .retain(|&e, _| matches!(sched.exprs.get(e), Expr::Const(_)));
+    for v in sys.vars.ids() {
+        if !sys.vars[v].is_state() {
+            c.var_reg[v.0 as usize] = NONE;
+        }
+    }
     let mut out_code = Vec::new();
     for (k, step) in sched.steps.iter().enumerate() {
-        if at_out[k] {
+        if for_out[k] {
             c.step(step, &mut out_code);
         }
     }
@@ -521,6 +534,24 @@ pub fn compile(
             })
             .sum()
     };
+    let read: std::collections::HashSet<u32> = out_code
+        .iter()
+        .flat_map(|i| match i {
+            Instr::Block { k } => c.blocks[*k as usize]
+                .body
+                .iter()
+                .flat_map(|b| sources_of(b, &[]))
+                .collect(),
+            other => sources_of(other, &[]),
+        })
+        .chain(out_regs.iter().copied())
+        .collect();
+    let out_inputs: Vec<(usize, u32)> = state_regs
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| read.contains(r))
+        .map(|(k, &r)| (k, r))
+        .collect();
     let n_in_f = count(&in_f);
     let n_at_outputs = count(&at_out);
     Tape {
@@ -532,6 +563,7 @@ pub fn compile(
         code,
         blocks: c.blocks,
         out_code,
+        out_inputs,
         out_regs,
         sources: sys.sources.values().map(|s| s.wave.clone()).collect(),
         diodes: sys.diodes.clone(),
@@ -933,7 +965,17 @@ impl Tape {
     }
 
     /// The outputs, after `rhs` has run at the same point.
-    pub fn outputs(&self, regs: &mut [f64], t: f64, out: &mut [f64]) -> Result<(), EvalError> {
+    /// The outputs at `(t, y)` (independent of [`Tape::rhs`]).
+    pub fn outputs(
+        &self,
+        regs: &mut [f64],
+        t: f64,
+        y: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), EvalError> {
+        for &(k, s) in &self.out_inputs {
+            regs[s as usize] = y[k];
+        }
         self.run(&self.out_code, regs, t)?;
         for (k, &o) in self.out_regs.iter().enumerate() {
             out[k] = regs[o as usize];

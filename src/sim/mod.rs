@@ -313,13 +313,16 @@ where
     };
     let mut y = vec![0.0; n];
     let mut from_ic = vec![false; n];
+    // The element of each variable, once (not a search per state).
+    let mut owner: std::collections::HashMap<VarId, usize> = std::collections::HashMap::new();
+    for (e, ev) in sorted.built.elem_vars.iter().enumerate() {
+        if let Some(ev) = ev {
+            owner.insert(ev.u, e);
+            owner.insert(ev.i, e);
+        }
+    }
     for (k, &s) in tape.states.iter().enumerate() {
-        let Some(e) = sorted
-            .built
-            .elem_vars
-            .iter()
-            .position(|ev| ev.is_some_and(|ev| ev.u == s || ev.i == s))
-        else {
+        let Some(&e) = owner.get(&s) else {
             continue;
         };
         let el = &c.elements.as_slice()[e];
@@ -508,9 +511,7 @@ fn algebraic(
     for (k, &t) in times.iter().enumerate() {
         // The first point is the DC operating point unless `uic`.
         tape.dc.set(k == 0 && t == 0.0 && !tran.uic);
-        let r = tape
-            .rhs(&mut regs, t, &[], &mut [])
-            .and_then(|_| tape.outputs(&mut regs, t, &mut out));
+        let r = tape.outputs(&mut regs, t, &[], &mut out);
         tape.dc.set(false);
         r.map_err(|error| SimError::Eval { error })?;
         stats.rhs_evals += 1;

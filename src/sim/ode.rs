@@ -123,10 +123,7 @@ where
 
     /// The outputs at `(t, y)`.
     pub fn outputs(&self, t: f64, y: &[f64], out: &mut [f64]) -> Result<(), EvalError> {
-        let mut regs = self.regs.borrow_mut();
-        let mut dy = vec![0.0; y.len()];
-        self.tape.rhs(&mut regs, t, y, &mut dy)?;
-        self.tape.outputs(&mut regs, t, out)
+        self.tape.outputs(&mut self.regs.borrow_mut(), t, y, out)
     }
 
     /// `J v` outside the solver.
