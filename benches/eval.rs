@@ -7,6 +7,9 @@ use kausal::io::FsLoader;
 use kausal::pipeline::{self, SortOptions};
 use std::path::Path;
 
+#[global_allocator]
+static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 fn eval(c: &mut Criterion) {
     let n = 100_000usize;
     let text = kausal::generate::rc_ladder(n);

@@ -7,6 +7,9 @@ use kausal::io::FsLoader;
 use kausal::{elab, front, pipeline};
 use std::path::Path;
 
+#[global_allocator]
+static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 fn front_to_equations(c: &mut Criterion) {
     let mut g = c.benchmark_group("parse+build rc_ladder");
     g.sample_size(10);

@@ -10,6 +10,9 @@ use kausal::ir::EquationSystem;
 use kausal::pipeline;
 use std::path::Path;
 
+#[global_allocator]
+static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 fn system(text: String) -> EquationSystem {
     let el = pipeline::elaborate_text("gen.cir", Path::new("gen.cir"), text, &FsLoader)
         .ok()

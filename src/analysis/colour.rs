@@ -37,6 +37,25 @@ pub enum Rule {
     Tear,
 }
 
+impl Rule {
+    fn code(self) -> u8 {
+        match self {
+            Rule::Equation => 1,
+            Rule::Unknown => 2,
+            Rule::Tear => 3,
+        }
+    }
+
+    pub(crate) fn from_code(c: u8) -> Option<Rule> {
+        match c {
+            1 => Some(Rule::Equation),
+            2 => Some(Rule::Unknown),
+            3 => Some(Rule::Tear),
+            _ => None,
+        }
+    }
+}
+
 /// One assignment made by the colouring, in the order made.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 pub struct TraceStep {
@@ -70,6 +89,7 @@ pub struct Colouring<'g> {
     var_eq: Vec<u32>,
     /// Sort numbers, 1-based; 0 while unnumbered.
     pub number: Vec<u32>,
+    rules: Vec<u8>,
     low: u32,
     high: u32,
     eq_queue: Vec<u32>,
@@ -99,6 +119,12 @@ pub struct Parts {
     pub colour: Vec<EdgeColour>,
     pub trace: Vec<TraceStep>,
     pub number: Vec<u32>,
+    /// The unknown of each equation and the equation of each unknown
+    /// (`u32::MAX`: none).
+    pub eq_var: Vec<u32>,
+    pub var_eq: Vec<u32>,
+    /// The rule that assigned each equation (0: none; see [`Rule`]).
+    pub rules: Vec<u8>,
     pub constraints: Vec<EqId>,
     pub orphans: Vec<VarId>,
 }
@@ -109,6 +135,9 @@ impl<'g> Colouring<'g> {
             colour: self.colour,
             trace: self.trace,
             number: self.number,
+            eq_var: self.eq_var,
+            var_eq: self.var_eq,
+            rules: self.rules,
             constraints: self.constraints,
             orphans: self.orphans,
         }
@@ -133,6 +162,7 @@ impl<'g> Colouring<'g> {
             eq_var: vec![NONE; n_eqs],
             var_eq: vec![NONE; n_vars],
             number: vec![0; n_eqs],
+            rules: vec![0; n_eqs],
             low: 1,
             high: n_eqs as u32,
             trace: Vec::with_capacity(n_eqs),
@@ -278,6 +308,7 @@ impl<'g> Colouring<'g> {
             }
         };
         self.number[e as usize] = number;
+        self.rules[e as usize] = rule.code();
         self.trace.push(TraceStep {
             pass: self.pass,
             rule,

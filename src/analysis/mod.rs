@@ -24,7 +24,7 @@ pub use schedule::{Assignment, Block, Schedule, Step, schedule};
 pub use solve::Solved;
 pub use tear::Tear;
 
-use crate::ir::{EqId, EquationSystem, IdVec, VarId};
+use crate::ir::{EqId, EquationSystem, VarId};
 
 /// Options for [`causalize`].
 #[derive(Clone, Copy, Debug)]
@@ -52,14 +52,10 @@ pub struct Stall {
 #[derive(Clone, Debug)]
 pub struct Causalization {
     pub graph: StructureGraph,
-    /// The unknown each equation is solved for (red edge).
-    pub assigned: IdVec<EqId, Option<VarId>>,
-    /// The equation computing each unknown (`None` for states and aliases).
-    pub computed_by: IdVec<VarId, Option<EqId>>,
-    /// Sort numbers from the colouring (1..=N).
-    pub number: IdVec<EqId, u32>,
-    /// The rule that assigned each equation.
-    pub rule: IdVec<EqId, Option<Rule>>,
+    eq_var: Vec<u32>,
+    var_eq: Vec<u32>,
+    numbers: Vec<u32>,
+    rules: Vec<u8>,
     pub trace: Vec<TraceStep>,
     pub tears: Vec<Tear>,
     pub stalls: Vec<Stall>,
@@ -67,12 +63,40 @@ pub struct Causalization {
     pub colours: Vec<EdgeColour>,
 }
 
+impl Causalization {
+    /// The unknown equation `eq` is solved for (its red edge).
+    #[inline]
+    pub fn assigned(&self, eq: EqId) -> Option<VarId> {
+        let v = self.eq_var[eq.0 as usize];
+        (v != u32::MAX).then_some(VarId(v))
+    }
+
+    /// The equation computing `v` (`None` for states and aliases).
+    #[inline]
+    pub fn computed_by(&self, v: VarId) -> Option<EqId> {
+        let e = self.var_eq[v.0 as usize];
+        (e != u32::MAX).then_some(EqId(e))
+    }
+
+    /// The colouring's sort number of `eq` (1..=N).
+    #[inline]
+    pub fn number(&self, eq: EqId) -> u32 {
+        self.numbers[eq.0 as usize]
+    }
+
+    /// The rule that assigned `eq`.
+    #[inline]
+    pub fn rule(&self, eq: EqId) -> Option<Rule> {
+        Rule::from_code(self.rules[eq.0 as usize])
+    }
+}
+
 /// Colour-edge causalization of `sys`: the algorithm of seeds 000/001 with
 /// Cellier's tearing when it stalls.
 pub fn causalize(sys: &EquationSystem, opts: Options) -> Result<Causalization, StructuralError> {
     let graph = StructureGraph::build(sys);
     let n_unknowns = sys.n_unknowns();
-    let (colours, trace, number_vec, tears, stalls, constraints, orphans) = {
+    let (parts, tears, stalls) = {
         let mut c = colour::Colouring::new(&graph);
         let mut tears = Vec::new();
         let mut stalls = Vec::new();
@@ -135,31 +159,11 @@ pub fn causalize(sys: &EquationSystem, opts: Options) -> Result<Causalization, S
                 });
             }
         }
-        let parts = c.into_parts();
-        (
-            parts.colour,
-            parts.trace,
-            parts.number,
-            tears,
-            stalls,
-            parts.constraints,
-            parts.orphans,
-        )
+        (c.into_parts(), tears, stalls)
     };
-    let mut assigned = IdVec::filled(sys.eqs.len(), None);
-    let mut computed_by = IdVec::filled(sys.vars.len(), None);
-    let mut rule = IdVec::filled(sys.eqs.len(), None);
-    for step in &trace {
-        assigned[step.eq] = Some(step.var);
-        computed_by[step.var] = Some(step.eq);
-        rule[step.eq] = Some(step.rule);
-    }
-    let mut number = IdVec::filled(sys.eqs.len(), 0u32);
-    for (k, n) in number_vec.into_iter().enumerate() {
-        number[EqId(k as u32)] = n;
-    }
+    let (constraints, orphans, trace) = (&parts.constraints, &parts.orphans, &parts.trace);
     if !constraints.is_empty() || !orphans.is_empty() {
-        return Err(StructuralError::singular(sys, &constraints, &orphans));
+        return Err(StructuralError::singular(sys, constraints, orphans));
     }
     if trace.len() < sys.eqs.len() || sys.eqs.len() != n_unknowns {
         if !stalls.is_empty() && trace.len() < sys.eqs.len() {
@@ -172,13 +176,13 @@ pub fn causalize(sys: &EquationSystem, opts: Options) -> Result<Causalization, S
     }
     Ok(Causalization {
         graph,
-        assigned,
-        computed_by,
-        number,
-        rule,
-        trace,
+        eq_var: parts.eq_var,
+        var_eq: parts.var_eq,
+        numbers: parts.number,
+        rules: parts.rules,
+        trace: parts.trace,
         tears,
         stalls,
-        colours,
+        colours: parts.colour,
     })
 }

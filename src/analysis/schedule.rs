@@ -83,14 +83,14 @@ impl Schedule {
 }
 
 fn assignment(x: &mut ExprArena, sys: &EquationSystem, c: &Causalization, eq: EqId) -> Assignment {
-    let var = c.assigned[eq].expect("scheduled equations are assigned");
+    let var = c.assigned(eq).expect("scheduled equations are assigned");
     let e = &sys.eqs[eq];
     Assignment {
         eq,
         var,
         solved: solve::solve_for(x, e.lhs, e.rhs, var),
-        number: c.number[eq],
-        rule: c.rule[eq].unwrap_or(Rule::Equation),
+        number: c.number(eq),
+        rule: c.rule(eq).unwrap_or(Rule::Equation),
     }
 }
 
@@ -136,8 +136,8 @@ pub fn schedule(sys: &EquationSystem, c: &Causalization) -> Schedule {
     if c.tears.is_empty() {
         // The colouring's numbers are already a topological order.
         let mut by_number = vec![EqId(0); n];
-        for (eq, &num) in c.number.iter() {
-            by_number[num as usize - 1] = eq;
+        for eq in sys.eqs.ids() {
+            by_number[c.number(eq) as usize - 1] = eq;
         }
         let steps = by_number
             .into_iter()
@@ -148,12 +148,12 @@ pub fn schedule(sys: &EquationSystem, c: &Causalization) -> Schedule {
     // Dependency edges producer -> consumer between equations.
     let mut edges: Vec<(u32, u32)> = Vec::new();
     for eq in sys.eqs.ids() {
-        let own = c.assigned[eq];
+        let own = c.assigned(eq);
         for w in c.graph.eq_vars(eq) {
             if Some(w) == own {
                 continue;
             }
-            if let Some(p) = c.computed_by[w] {
+            if let Some(p) = c.computed_by(w) {
                 edges.push((p.0, eq.0));
             }
         }
@@ -167,7 +167,7 @@ pub fn schedule(sys: &EquationSystem, c: &Causalization) -> Schedule {
     }
     let comp_key: Vec<u32> = comps
         .iter()
-        .map(|comp| comp.iter().map(|&e| c.number[EqId(e)]).min().unwrap_or(0))
+        .map(|comp| comp.iter().map(|&e| c.number(EqId(e))).min().unwrap_or(0))
         .collect();
     let mut comp_edges: Vec<(u32, u32)> = edges
         .iter()
@@ -181,7 +181,7 @@ pub fn schedule(sys: &EquationSystem, c: &Causalization) -> Schedule {
     let mut n_blocks = 0;
     for k in order {
         let comp = &comps[k];
-        let is_tear = |e: u32| c.rule[EqId(e)] == Some(Rule::Tear);
+        let is_tear = |e: u32| c.rule(EqId(e)) == Some(Rule::Tear);
         if comp.len() == 1 && !is_tear(comp[0]) {
             steps.push(Step::Assign(assignment(&mut x, sys, c, EqId(comp[0]))));
             continue;
@@ -202,7 +202,7 @@ fn block(
 ) -> Block {
     let local: std::collections::HashMap<u32, usize> =
         comp.iter().enumerate().map(|(i, &e)| (e, i)).collect();
-    let is_residual = |e: u32| c.rule[EqId(e)] == Some(Rule::Tear);
+    let is_residual = |e: u32| c.rule(EqId(e)) == Some(Rule::Tear);
     // Inside the block the tearing variables are guessed: drop the edges out
     // of residual equations, the rest is acyclic.
     let inner_edges: Vec<(u32, u32)> = edges
@@ -210,7 +210,7 @@ fn block(
         .filter(|(a, b)| local.contains_key(a) && local.contains_key(b) && !is_residual(*a))
         .map(|&(a, b)| (local[&a] as u32, local[&b] as u32))
         .collect();
-    let order = kahn(comp.len(), &inner_edges, |i| c.number[EqId(comp[i])]);
+    let order = kahn(comp.len(), &inner_edges, |i| c.number(EqId(comp[i])));
     let mut inner = Vec::new();
     let mut residuals = Vec::new();
     for i in order {
@@ -224,7 +224,7 @@ fn block(
     residuals.sort_by_key(|a| a.number);
     let tears: Vec<VarId> = residuals.iter().map(|a| a.var).collect();
     let block_vars: std::collections::HashSet<VarId> =
-        comp.iter().filter_map(|&e| c.assigned[EqId(e)]).collect();
+        comp.iter().filter_map(|&e| c.assigned(EqId(e))).collect();
     let linear = comp.iter().all(|&e| {
         let eq = &sys.eqs[EqId(e)];
         let f = x.sub(eq.lhs, eq.rhs);

@@ -320,7 +320,7 @@ pub fn dot(sys: &EquationSystem, c: &Causalization) -> String {
         let _ = writeln!(
             out,
             "  {eq} [shape=box, label=\"{}: {}\"];",
-            c.number[eq],
+            c.number(eq),
             dot_escape(&print::equation(sys, eq))
         );
     }
