@@ -20,6 +20,7 @@
 
 pub mod analysis;
 pub mod back;
+pub mod bench;
 pub mod build;
 pub mod diag;
 pub mod elab;

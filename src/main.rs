@@ -110,6 +110,36 @@ enum Command {
         #[arg(long)]
         rtol: Option<f64>,
     },
+    /// Speed against error: kausal's solvers and ngspice's integrators at a
+    /// range of tolerances, errors against a tight reference, in one run.
+    Bench {
+        /// The netlist files.
+        netlists: Vec<PathBuf>,
+        /// Relative tolerances (kausal's rtol and ngspice's reltol).
+        #[arg(long, value_delimiter = ',', default_values_t = [1e-3, 1e-4, 1e-5, 1e-6, 1e-7])]
+        tolerances: Vec<f64>,
+        /// kausal's solvers.
+        #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Bdf, Method::TrBdf2, Method::Esdirk34])]
+        solvers: Vec<Method>,
+        /// Runs per measurement (the median is reported).
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+        /// kausal only, no ngspice runs.
+        #[arg(long)]
+        no_ngspice: bool,
+        /// Also run generated RC ladders of 10^2 sections up to --max-sections.
+        #[arg(long)]
+        scaling: bool,
+        /// The largest ladder of --scaling.
+        #[arg(long, default_value_t = 100_000)]
+        max_sections: usize,
+        /// Write bench.json and a work-precision SVG per circuit here.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Write the markdown report to this file (else standard output).
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
     /// Generate standalone source of f(t, y) (and J·w) from the sorted equations.
     Codegen {
         /// The netlist file.
@@ -301,6 +331,27 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             emit(out.as_ref(), &text)?;
             Ok(ExitCode::SUCCESS)
         }
+        Command::Bench {
+            netlists,
+            tolerances,
+            solvers,
+            repeats,
+            no_ngspice,
+            scaling,
+            max_sections,
+            out,
+            report,
+        } => cmd_bench(BenchArgs {
+            netlists,
+            tolerances,
+            solvers,
+            repeats,
+            no_ngspice,
+            scaling,
+            max_sections,
+            out,
+            report,
+        }),
         Command::Validate {
             netlist,
             tol,
@@ -497,4 +548,91 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+struct BenchArgs {
+    netlists: Vec<PathBuf>,
+    tolerances: Vec<f64>,
+    solvers: Vec<Method>,
+    repeats: usize,
+    no_ngspice: bool,
+    scaling: bool,
+    max_sections: usize,
+    out: Option<PathBuf>,
+    report: Option<PathBuf>,
+}
+
+fn cmd_bench(a: BenchArgs) -> Result<ExitCode, String> {
+    use kausal::bench;
+    let opts = bench::Options {
+        tolerances: a.tolerances,
+        methods: a.solvers,
+        repeats: a.repeats,
+        ngspice: !a.no_ngspice,
+        ..Default::default()
+    };
+    let sizes: Vec<usize> = if a.scaling {
+        (2..=9)
+            .map(|k| 10usize.pow(k))
+            .take_while(|&n| n <= a.max_sections.max(100))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let total = a.netlists.len() * bench::measurements(&opts) + sizes.len();
+    let bar = if std::io::stderr().is_terminal() {
+        indicatif::ProgressBar::new(total as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} {elapsed} {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let tick = |msg: &str| {
+        bar.set_message(msg.to_string());
+        bar.inc(1);
+    };
+    let mut benches = Vec::new();
+    for path in &a.netlists {
+        bar.set_message(path.display().to_string());
+        match bench::bench_circuit(path, &opts, &tick) {
+            Ok(b) => benches.push(b),
+            Err(e) => {
+                bar.finish_and_clear();
+                return Err(format!("{}: {e}", path.display()));
+            }
+        }
+    }
+    let scaled = if sizes.is_empty() {
+        None
+    } else {
+        let dir = tempfile::tempdir().map_err(|e| e.to_string())?;
+        Some(
+            bench::scaling(&sizes, dir.path(), !a.no_ngspice, &tick)
+                .map_err(|e| format!("scaling: {e}"))?,
+        )
+    };
+    bar.finish_and_clear();
+    let md = bench::markdown(&benches, scaled.as_ref());
+    if let Some(dir) = &a.out {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| format!("cannot create `{}`: {e}", dir.display()))?;
+        for b in &benches {
+            let svg = bench::work_precision_svg(b)?;
+            let p = dir.join(format!("{}.svg", bench::stem(&b.netlist)));
+            kausal::io::write_atomic(&p, svg.as_bytes())
+                .map_err(|e| format!("cannot write `{}`: {e}", p.display()))?;
+        }
+        let json = serde_json::to_string_pretty(&serde_json::json!({
+            "circuits": benches,
+            "scaling": scaled,
+        }))
+        .map_err(|e| e.to_string())?;
+        let p = dir.join("bench.json");
+        kausal::io::write_atomic(&p, json.as_bytes())
+            .map_err(|e| format!("cannot write `{}`: {e}", p.display()))?;
+    }
+    emit(a.report.as_ref(), &md)?;
+    Ok(ExitCode::SUCCESS)
 }

@@ -888,8 +888,9 @@ impl Tape {
                 self.run(&b.body, r, t)?;
                 let mut bar: Vec<f64> = b.residuals.iter().map(|&x| r[x as usize]).collect();
                 lu.solve(&mut bar);
-                let xn: Vec<f64> = b.tears.iter().map(|&x| r[x as usize]).collect();
-                let simplified = scaled(&bar, &xn);
+                // The same scaling as the full correction: a scale that moved
+                // with x would make a shrinking |x| look like no progress.
+                let simplified = scaled(&bar, &x0);
                 if (simplified.is_finite() && simplified <= (1.0 - lambda / 4.0) * full)
                     || simplified == 0.0
                 {

@@ -613,7 +613,7 @@ where
     // diffsol's default minimum step (1e-13 s) is longer than a nanosecond
     // circuit's steps: scale it to the run.
     let mut problem = problem;
-    problem.ode_options.min_timestep = tran.tstop * 1e-14;
+    problem.ode_options.min_timestep = tran.tstop * 1e-16;
     // diffsol counts Newton failures over the whole run, not per step: a
     // long run of a switching circuit would hit any fixed limit. A step that
     // cannot converge ends in step-size underflow instead.

@@ -71,7 +71,7 @@ pub struct RefTol {
 
 /// The netlist text for ngspice: `.include`s made absolute (it runs in a
 /// temporary directory), tolerances appended for a reference run.
-fn prepare_netlist(path: &Path, text: &str, tol: Option<RefTol>) -> String {
+fn prepare_netlist(path: &Path, text: &str, extra: Option<&str>) -> String {
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let mut out = String::with_capacity(text.len() + 200);
     let mut end_seen = false;
@@ -89,16 +89,16 @@ fn prepare_netlist(path: &Path, text: &str, tol: Option<RefTol>) -> String {
         }
         if k > 0 && lower.split_whitespace().next() == Some(".end") {
             end_seen = true;
-            if let Some(t) = tol {
-                out.push_str(&tight_options(t));
+            if let Some(x) = extra {
+                out.push_str(x);
             }
         }
         out.push_str(line);
         out.push('\n');
     }
     if !end_seen {
-        if let Some(t) = tol {
-            out.push_str(&tight_options(t));
+        if let Some(x) = extra {
+            out.push_str(x);
         }
         out.push_str(".end\n");
     }
@@ -125,14 +125,28 @@ pub fn run_program(
     path: &Path,
     tol: Option<RefTol>,
 ) -> Result<RawData, ValidateError> {
+    let extra = tol.map(tight_options);
+    exec(program, path, extra.as_deref()).map(|r| r.raw)
+}
+
+/// One ngspice process: its data, its whole output and its wall time.
+pub struct Execution {
+    pub raw: RawData,
+    pub output: String,
+    pub wall: std::time::Duration,
+}
+
+/// Run `program -b` on `path` with `extra` (an `.options` line) before `.end`.
+pub fn exec(program: &str, path: &Path, extra: Option<&str>) -> Result<Execution, ValidateError> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| ValidateError::Io(format!("{}: {e}", path.display())))?;
     let dir = tempfile::tempdir().map_err(|e| ValidateError::Io(e.to_string()))?;
     let net = dir.path().join("netlist.cir");
     let rawp = dir.path().join("out.raw");
-    std::fs::write(&net, prepare_netlist(path, &text, tol))
+    std::fs::write(&net, prepare_netlist(path, &text, extra))
         .map_err(|e| ValidateError::Io(e.to_string()))?;
     let program = program.to_string();
+    let started = std::time::Instant::now();
     let output = Command::new(&program)
         .arg("-b")
         .arg("-r")
@@ -147,9 +161,11 @@ pub fn run_program(
             },
             _ => ValidateError::Io(format!("{program}: {e}")),
         })?;
+    let wall = started.elapsed();
+    let mut full = String::from_utf8_lossy(&output.stdout).into_owned();
+    full.push_str(&String::from_utf8_lossy(&output.stderr));
     let log = {
-        let mut s = String::from_utf8_lossy(&output.stdout).into_owned();
-        s.push_str(&String::from_utf8_lossy(&output.stderr));
+        let s = &full;
         let lines: Vec<&str> = s.lines().filter(|l| !l.trim().is_empty()).collect();
         let start = lines.len().saturating_sub(20);
         lines[start..].join("\n")
@@ -177,7 +193,11 @@ pub fn run_program(
             output: log,
         });
     }
-    Ok(raw)
+    Ok(Execution {
+        raw,
+        output: full,
+        wall,
+    })
 }
 
 /// How one signal compares.
@@ -246,7 +266,7 @@ pub fn compare(
 }
 
 /// Linear interpolation of `(t, y)` at `x` inside the range (no extrapolation).
-fn interp(t: &[f64], y: &[f64], x: f64) -> Option<f64> {
+pub fn interp(t: &[f64], y: &[f64], x: f64) -> Option<f64> {
     if t.is_empty() || x < t[0] || x > t[t.len() - 1] {
         return None;
     }

@@ -5,6 +5,7 @@ mod codegen;
 mod equations;
 pub mod errors;
 mod front;
+mod hard;
 mod simulate;
 mod singular;
 mod sort;

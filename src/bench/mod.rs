@@ -1,0 +1,764 @@
+//! Speed against error (`kausal bench`): work-precision of kausal's solvers
+//! and of ngspice's integrators on a set of circuits, measured in one run,
+//! and scaling of both with circuit size.
+//!
+//! The reference of a circuit is kausal at a very tight tolerance
+//! ([`Options::ref_rtol`]), cross-checked against ngspice at a tight reltol;
+//! their disagreement is reported next to every table, so a reader can see
+//! how far the errors below it can be trusted.
+
+mod plot;
+
+pub use plot::work_precision_svg;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::io::FsLoader;
+use crate::pipeline::{self, SortOptions, Sorted};
+use crate::sim::{self, Method, Waveforms};
+use crate::validate::{self, RawData, ValidateError, interp};
+
+/// Options of [`bench`].
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Relative tolerances (kausal's rtol, ngspice's reltol).
+    pub tolerances: Vec<f64>,
+    /// kausal's solvers.
+    pub methods: Vec<Method>,
+    /// Runs per measurement; the median time is reported.
+    pub repeats: usize,
+    /// Run ngspice too (else kausal only).
+    pub ngspice: bool,
+    /// kausal's rtol for the reference solution.
+    pub ref_rtol: f64,
+    /// ngspice's reltol for the cross-check of the reference.
+    pub ngspice_ref_reltol: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            tolerances: vec![1e-3, 1e-4, 1e-5, 1e-6, 1e-7],
+            methods: vec![Method::Bdf, Method::TrBdf2, Method::Esdirk34],
+            repeats: 3,
+            ngspice: true,
+            ref_rtol: 1e-11,
+            ngspice_ref_reltol: 1e-8,
+        }
+    }
+}
+
+/// One measurement: a solver at a tolerance.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Point {
+    /// `kausal bdf`, `ngspice gear`, `ngspice default`.
+    pub solver: String,
+    /// The relative tolerance; `None` for ngspice's defaults.
+    pub tol: Option<f64>,
+    /// Median solve time (kausal: `simulate`, in process; ngspice: its
+    /// "Transient analysis time").
+    pub solve_seconds: f64,
+    /// Median whole-job time (kausal: parse + sort + solve in process;
+    /// ngspice: the whole `ngspice -b` process).
+    pub total_seconds: f64,
+    /// Largest absolute error over the compared signals (their units).
+    pub error: f64,
+    pub worst_signal: String,
+    /// Accepted steps.
+    pub steps: usize,
+    /// Largest relative change of the circuit's stored energy
+    /// (`* kausal-bench: energy=...`), when the netlist gives one.
+    pub energy_drift: Option<f64>,
+    /// Why the run failed, if it did.
+    pub failed: Option<String>,
+}
+
+/// Where kausal beats ngspice's default run.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Verdict {
+    pub ngspice_default_error: f64,
+    /// The fastest kausal point with an error at most ngspice's default one.
+    pub kausal: Option<Point>,
+    /// ngspice default solve time / kausal solve time.
+    pub solve_speedup: Option<f64>,
+    /// ngspice default process time / kausal whole job.
+    pub total_speedup: Option<f64>,
+}
+
+/// The benchmark of one circuit.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct CircuitBench {
+    pub netlist: String,
+    pub states: usize,
+    pub equations: usize,
+    /// Parse, elaborate and build the equations.
+    pub front_seconds: f64,
+    /// Index reduction, causalization, tearing and scheduling.
+    pub sort_seconds: f64,
+    pub reference: String,
+    /// Largest difference between the reference and ngspice's tight run.
+    pub reference_check: Option<f64>,
+    pub points: Vec<Point>,
+    pub verdict: Option<Verdict>,
+    /// Solvers whose error did not decrease as the tolerance tightened
+    /// (beyond a factor 3 of noise, above the reference's own accuracy).
+    pub non_monotone: Vec<String>,
+}
+
+/// Errors of a benchmark run.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error("{0}")]
+    Pipeline(String),
+    #[error(transparent)]
+    Sim(#[from] sim::SimError),
+    #[error(transparent)]
+    Ngspice(#[from] ValidateError),
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() { 0.0 } else { v[v.len() / 2] }
+}
+
+fn sorted_from(path: &Path) -> Result<(Sorted, f64, f64), BenchError> {
+    let t0 = Instant::now();
+    let (el, built) =
+        pipeline::equations(path, &FsLoader, SortOptions::default().build).map_err(|f| {
+            BenchError::Pipeline(format!(
+                "{}: {}",
+                path.display(),
+                f.errors()
+                    .map(|d| d.message.clone())
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            ))
+        })?;
+    let front = t0.elapsed().as_secs_f64();
+    let t1 = Instant::now();
+    let sorted = pipeline::sort_built(el, built, &SortOptions::default()).map_err(|f| {
+        BenchError::Pipeline(format!(
+            "{}: {}",
+            path.display(),
+            f.errors()
+                .map(|d| d.message.clone())
+                .collect::<Vec<_>>()
+                .join("; ")
+        ))
+    })?;
+    Ok((sorted, front, t1.elapsed().as_secs_f64()))
+}
+
+/// The stored-energy expression of a netlist: `* kausal-bench:
+/// energy=0.5e-6*v(tank)^2+0.5e-3*i(vs)^2` (a sum of `coef*signal^2`).
+pub fn energy_terms(text: &str) -> Option<Vec<(f64, String)>> {
+    let spec = text.lines().find_map(|l| {
+        l.trim_start()
+            .strip_prefix('*')?
+            .trim_start()
+            .strip_prefix("kausal-bench:")?
+            .split_whitespace()
+            .find_map(|kv| kv.strip_prefix("energy="))
+            .map(str::to_string)
+    })?;
+    spec.split('+')
+        .map(|term| {
+            let (coef, sig) = term.split_once('*')?;
+            let sig = sig.strip_suffix("^2")?;
+            Some((
+                crate::front::expr::parse_number(coef)?,
+                sig.to_ascii_lowercase(),
+            ))
+        })
+        .collect()
+}
+
+/// Largest `|E(t) - E(0)| / E(0)` over the samples.
+pub fn energy_drift(terms: &[(f64, String)], names: &[String], data: &[Vec<f64>]) -> Option<f64> {
+    let cols: Vec<(f64, &Vec<f64>)> = terms
+        .iter()
+        .map(|(c, s)| {
+            let k = names.iter().position(|n| n.eq_ignore_ascii_case(s))?;
+            Some((*c, &data[k]))
+        })
+        .collect::<Option<_>>()?;
+    let len = cols.first()?.1.len();
+    let energy = |i: usize| cols.iter().map(|(c, v)| c * v[i] * v[i]).sum::<f64>();
+    let e0 = energy(0);
+    if e0 <= 0.0 {
+        return None;
+    }
+    Some(
+        (0..len)
+            .map(|i| (energy(i) - e0).abs() / e0)
+            .fold(0.0, f64::max),
+    )
+}
+
+/// Largest absolute error of `test` (on `test_time`, same names) against
+/// `reference` at the reference's points where both have the signal.
+fn max_error(
+    ref_names: &[String],
+    ref_time: &[f64],
+    ref_data: &[Vec<f64>],
+    names: &[String],
+    time: &[f64],
+    data: &[Vec<f64>],
+) -> (f64, String) {
+    let mut worst = (0.0f64, String::new());
+    for (k, name) in ref_names.iter().enumerate() {
+        let Some(j) = names.iter().position(|n| n.eq_ignore_ascii_case(name)) else {
+            continue;
+        };
+        for (i, &t) in ref_time.iter().enumerate() {
+            let v = if time.len() == ref_time.len() && time[i] == t {
+                Some(data[j][i])
+            } else {
+                interp(time, &data[j], t)
+            };
+            if let Some(v) = v {
+                let e = (v - ref_data[k][i]).abs();
+                let e = if e.is_nan() { f64::INFINITY } else { e };
+                if e > worst.0 {
+                    worst = (e, name.clone());
+                }
+            }
+        }
+    }
+    worst
+}
+
+fn method_name(m: Method) -> &'static str {
+    match m {
+        Method::Bdf => "bdf",
+        Method::TrBdf2 => "tr-bdf2",
+        Method::Esdirk34 => "esdirk34",
+        Method::Tsit5 => "tsit5",
+    }
+}
+
+/// kausal on `sorted`, `repeats` times; the waveforms of the last run and
+/// the median solve time.
+fn run_kausal(
+    sorted: &Sorted,
+    opts: &sim::Options,
+    repeats: usize,
+) -> Result<(Waveforms, f64), sim::SimError> {
+    let mut times = Vec::new();
+    let mut last = None;
+    for _ in 0..repeats.max(1) {
+        let w = sim::simulate(sorted, opts)?;
+        times.push(w.stats.wall.as_secs_f64());
+        last = Some(w);
+    }
+    Ok((last.expect("one run"), median(times)))
+}
+
+/// The reference (kausal at `ref_rtol`) at given times.
+fn reference_at(
+    sorted: &Sorted,
+    probes: &[String],
+    ref_rtol: f64,
+    times: Option<Vec<f64>>,
+) -> Result<Waveforms, sim::SimError> {
+    let opts = sim::Options {
+        method: Some(Method::Bdf),
+        rtol: Some(ref_rtol),
+        probes: probes.to_vec(),
+        times,
+        ..Default::default()
+    };
+    sim::simulate(sorted, &opts)
+}
+
+/// ngspice's time points inside `[0, tstop]`, strictly increasing.
+fn clean_times(t: &[f64], tstop: f64) -> Vec<f64> {
+    let mut v: Vec<f64> = t
+        .iter()
+        .copied()
+        .filter(|&x| (0.0..=tstop).contains(&x))
+        .collect();
+    v.dedup();
+    v
+}
+
+/// The seconds of an ngspice `acct` line such as `Transient analysis time = 0.25`.
+fn acct_seconds(output: &str, key: &str) -> Option<f64> {
+    output.lines().find_map(|l| {
+        let rest = l.trim().strip_prefix(key)?;
+        rest.trim().strip_prefix('=')?.trim().parse().ok()
+    })
+}
+
+fn acct_usize(output: &str, key: &str) -> Option<usize> {
+    acct_seconds(output, key).map(|x| x as usize)
+}
+
+/// Run ngspice `repeats` times with an options line; the last run's data
+/// and the median solve and process times.
+fn run_ngspice(
+    path: &Path,
+    options: &str,
+    repeats: usize,
+) -> Result<(RawData, f64, f64, usize), ValidateError> {
+    let program = validate::ngspice_program();
+    let line = format!(".options {options} acct\n");
+    let mut solve = Vec::new();
+    let mut total = Vec::new();
+    let mut last = None;
+    for _ in 0..repeats.max(1) {
+        let e = validate::exec(&program, path, Some(&line))?;
+        total.push(e.wall.as_secs_f64());
+        solve.push(
+            acct_seconds(&e.output, "Transient analysis time").unwrap_or(e.wall.as_secs_f64()),
+        );
+        let steps = acct_usize(&e.output, "Accepted timepoints").unwrap_or(e.raw.time.len());
+        last = Some((e.raw, steps));
+    }
+    let (raw, steps) = last.expect("one run");
+    Ok((raw, median(solve), median(total), steps))
+}
+
+/// Benchmark one netlist. `tick` is called after every measurement.
+pub fn bench_circuit(
+    path: &Path,
+    opts: &Options,
+    tick: &dyn Fn(&str),
+) -> Result<CircuitBench, BenchError> {
+    let (sorted, front, sort) = sorted_from(path)?;
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let energy = energy_terms(&text);
+    let tstop = sorted
+        .elaborated
+        .circuit
+        .tran
+        .as_ref()
+        .ok_or(sim::SimError::NoTran)?
+        .tstop;
+    let probes: Vec<String> = sim::outputs(&sorted, &[])?
+        .into_iter()
+        .map(|o| o.0)
+        .collect();
+    let reference = reference_at(&sorted, &probes, opts.ref_rtol, None)?;
+    tick("reference");
+    let drift = |names: &[String], data: &[Vec<f64>]| {
+        energy.as_ref().and_then(|e| energy_drift(e, names, data))
+    };
+    let mut points = Vec::new();
+    for &m in &opts.methods {
+        for &tol in &opts.tolerances {
+            let so = sim::Options {
+                method: Some(m),
+                rtol: Some(tol),
+                probes: probes.clone(),
+                ..Default::default()
+            };
+            let solver = format!("kausal {}", method_name(m));
+            match run_kausal(&sorted, &so, opts.repeats) {
+                Ok((w, secs)) => {
+                    let (error, worst) = max_error(
+                        &reference.names,
+                        &reference.time,
+                        &reference.data,
+                        &w.names,
+                        &w.time,
+                        &w.data,
+                    );
+                    points.push(Point {
+                        solver,
+                        tol: Some(tol),
+                        solve_seconds: secs,
+                        total_seconds: front + sort + secs,
+                        error,
+                        worst_signal: worst,
+                        steps: w.stats.steps,
+                        energy_drift: drift(&w.names, &w.data),
+                        failed: None,
+                    });
+                }
+                Err(e) => points.push(failed_point(solver, Some(tol), e.to_string())),
+            }
+            tick(&format!("kausal {} {tol:e}", method_name(m)));
+        }
+    }
+    let mut reference_check = None;
+    let mut verdict = None;
+    if opts.ngspice {
+        // The cross-check of the reference.
+        let tight = format!(
+            "reltol={:e} abstol=1e-15 vntol=1e-12 chgtol=1e-18 trtol=1",
+            opts.ngspice_ref_reltol
+        );
+        if let Ok((raw, _, _, _)) = run_ngspice(path, &tight, 1) {
+            let times = clean_times(&raw.time, tstop);
+            let r = reference_at(&sorted, &probes, opts.ref_rtol, Some(times))?;
+            reference_check =
+                Some(max_error(&r.names, &r.time, &r.data, &raw.names, &raw.time, &raw.data).0);
+        }
+        tick("ngspice reference");
+        let mut runs: Vec<(String, Option<f64>, String)> =
+            vec![("ngspice default".into(), None, String::new())];
+        for method in ["trap", "gear"] {
+            for &tol in &opts.tolerances {
+                runs.push((
+                    format!("ngspice {method}"),
+                    Some(tol),
+                    format!("reltol={tol:e} method={method}"),
+                ));
+            }
+        }
+        for (solver, tol, line) in runs {
+            match run_ngspice(path, &line, opts.repeats) {
+                Ok((raw, solve, total, steps)) => {
+                    let times = clean_times(&raw.time, tstop);
+                    let r = reference_at(&sorted, &probes, opts.ref_rtol, Some(times))?;
+                    let (error, worst) =
+                        max_error(&r.names, &r.time, &r.data, &raw.names, &raw.time, &raw.data);
+                    points.push(Point {
+                        solver,
+                        tol,
+                        solve_seconds: solve,
+                        total_seconds: total,
+                        error,
+                        worst_signal: worst,
+                        steps,
+                        energy_drift: drift(&raw.names, &raw.data),
+                        failed: None,
+                    });
+                }
+                Err(e @ ValidateError::Missing { .. }) => return Err(e.into()),
+                Err(e) => points.push(failed_point(solver, tol, e.to_string())),
+            }
+            tick(&line);
+        }
+        verdict = points
+            .iter()
+            .find(|p| p.solver == "ngspice default" && p.failed.is_none())
+            .map(|d| {
+                let best = points
+                    .iter()
+                    .filter(|p| {
+                        p.solver.starts_with("kausal") && p.failed.is_none() && p.error <= d.error
+                    })
+                    .min_by(|a, b| a.solve_seconds.total_cmp(&b.solve_seconds))
+                    .cloned();
+                Verdict {
+                    ngspice_default_error: d.error,
+                    solve_speedup: best
+                        .as_ref()
+                        .map(|b| d.solve_seconds / b.solve_seconds.max(1e-9)),
+                    total_speedup: best
+                        .as_ref()
+                        .map(|b| d.total_seconds / b.total_seconds.max(1e-9)),
+                    kausal: best,
+                }
+            });
+    }
+    let floor = reference_check.unwrap_or(0.0).max(1e-12);
+    let mut non_monotone = Vec::new();
+    let mut solvers: Vec<&str> = points.iter().map(|p| p.solver.as_str()).collect();
+    solvers.dedup();
+    for s in solvers {
+        let mut errs: Vec<(f64, f64)> = points
+            .iter()
+            .filter(|p| p.solver == s && p.failed.is_none())
+            .filter_map(|p| Some((p.tol?, p.error)))
+            .collect();
+        errs.sort_by(|a, b| b.0.total_cmp(&a.0));
+        if errs
+            .windows(2)
+            .any(|w| w[1].1 > 3.0 * w[0].1.max(floor) && w[1].1 > 10.0 * floor)
+        {
+            non_monotone.push(s.to_string());
+        }
+    }
+    Ok(CircuitBench {
+        netlist: path.display().to_string(),
+        states: sorted.system().states().count(),
+        equations: sorted.system().eqs.len(),
+        front_seconds: front,
+        sort_seconds: sort,
+        reference: format!("kausal bdf, rtol {:e}", opts.ref_rtol),
+        reference_check,
+        points,
+        verdict,
+        non_monotone,
+    })
+}
+
+fn failed_point(solver: String, tol: Option<f64>, why: String) -> Point {
+    Point {
+        solver,
+        tol,
+        solve_seconds: f64::NAN,
+        total_seconds: f64::NAN,
+        error: f64::NAN,
+        worst_signal: String::new(),
+        steps: 0,
+        energy_drift: None,
+        failed: Some(why),
+    }
+}
+
+/// How many measurements [`bench_circuit`] makes (for a progress bar).
+pub fn measurements(opts: &Options) -> usize {
+    let k = opts.methods.len() * opts.tolerances.len() + 1;
+    if opts.ngspice {
+        k + 2 + 2 * opts.tolerances.len()
+    } else {
+        k
+    }
+}
+
+fn sci(x: f64) -> String {
+    if x.is_nan() {
+        "—".into()
+    } else if x == 0.0 {
+        "0".into()
+    } else {
+        format!("{x:.1e}")
+    }
+}
+
+fn ms(x: f64) -> String {
+    if x.is_nan() {
+        "—".into()
+    } else if x < 0.01 {
+        format!("{:.3}", x * 1e3)
+    } else {
+        format!("{:.1}", x * 1e3)
+    }
+}
+
+/// The markdown report of a set of circuits.
+pub fn markdown(benches: &[CircuitBench], scaling: Option<&Scaling>) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    if !benches.is_empty() {
+        s.push_str("## At ngspice's default error\n\n");
+        s.push_str(
+            "The fastest kausal run whose error is at most that of ngspice at its defaults \
+             (trapezoidal, reltol 1e-3), against that ngspice run.\n\n",
+        );
+        s.push_str("| circuit | ngspice default error | kausal run | kausal error | solve speed-up | whole-job speed-up |\n");
+        s.push_str("|---|---|---|---|---|---|\n");
+        for b in benches {
+            let name = stem(&b.netlist);
+            match &b.verdict {
+                Some(v) => match &v.kausal {
+                    Some(k) => {
+                        let _ = writeln!(
+                            s,
+                            "| {name} | {} | {} rtol {} | {} | {:.1}× | {:.1}× |",
+                            sci(v.ngspice_default_error),
+                            k.solver,
+                            sci(k.tol.unwrap_or(f64::NAN)),
+                            sci(k.error),
+                            v.solve_speedup.unwrap_or(f64::NAN),
+                            v.total_speedup.unwrap_or(f64::NAN),
+                        );
+                    }
+                    None => {
+                        let _ = writeln!(
+                            s,
+                            "| {name} | {} | none as accurate | — | — | — |",
+                            sci(v.ngspice_default_error)
+                        );
+                    }
+                },
+                None => {
+                    let _ = writeln!(s, "| {name} | (ngspice not run) | | | | |");
+                }
+            }
+        }
+        s.push('\n');
+    }
+    for b in benches {
+        let name = stem(&b.netlist);
+        let _ = writeln!(s, "## {name}\n");
+        let _ = writeln!(
+            s,
+            "`{}`: {} equations, {} states; parse+build {} ms, sort {} ms. Reference: {}{}.\n",
+            b.netlist,
+            b.equations,
+            b.states,
+            ms(b.front_seconds),
+            ms(b.sort_seconds),
+            b.reference,
+            match b.reference_check {
+                Some(c) => format!(", within {} of ngspice at a tight reltol", sci(c)),
+                None => String::new(),
+            }
+        );
+        let energy = b.points.iter().any(|p| p.energy_drift.is_some());
+        s.push_str(
+            "| solver | tol | solve (ms) | whole job (ms) | steps | max error | worst signal |",
+        );
+        if energy {
+            s.push_str(" energy drift |");
+        }
+        s.push_str("\n|---|---|---|---|---|---|---|");
+        if energy {
+            s.push_str("---|");
+        }
+        s.push('\n');
+        for p in &b.points {
+            let _ = write!(
+                s,
+                "| {} | {} | {} | {} | {} | {} | {} |",
+                p.solver,
+                p.tol.map(sci).unwrap_or_else(|| "default".into()),
+                ms(p.solve_seconds),
+                ms(p.total_seconds),
+                p.steps,
+                match &p.failed {
+                    Some(why) => format!("failed: {}", why.lines().next().unwrap_or("")),
+                    None => sci(p.error),
+                },
+                p.worst_signal,
+            );
+            if energy {
+                let _ = write!(s, " {} |", p.energy_drift.map(sci).unwrap_or_default());
+            }
+            s.push('\n');
+        }
+        if !b.non_monotone.is_empty() {
+            let _ = writeln!(
+                s,
+                "\nError not decreasing with tolerance: {}.",
+                b.non_monotone.join(", ")
+            );
+        }
+        let _ = writeln!(s, "\n![work-precision of {name}]({name}.svg)\n");
+    }
+    if let Some(sc) = scaling {
+        s.push_str(&scaling_markdown(sc));
+    }
+    s
+}
+
+/// The file stem of a netlist path.
+pub fn stem(netlist: &str) -> String {
+    Path::new(netlist)
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| netlist.to_string())
+}
+
+/// One size of the scaling run.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ScalePoint {
+    pub sections: usize,
+    pub states: usize,
+    pub front_seconds: f64,
+    pub sort_seconds: f64,
+    pub solve_seconds: f64,
+    pub ngspice_solve_seconds: Option<f64>,
+    pub ngspice_total_seconds: Option<f64>,
+    /// Largest difference of the last node's voltage, kausal against ngspice.
+    pub difference: Option<f64>,
+}
+
+/// The scaling run: RC ladders of growing size at default tolerances.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Scaling {
+    pub points: Vec<ScalePoint>,
+    /// Log-log slopes between the first and the last size.
+    pub slope_front_sort: f64,
+    pub slope_solve: f64,
+    pub slope_ngspice: Option<f64>,
+}
+
+/// Generated RC ladders of `sizes` sections (written to `dir`), simulated at
+/// default tolerances by kausal and ngspice.
+pub fn scaling(
+    sizes: &[usize],
+    dir: &Path,
+    ngspice: bool,
+    tick: &dyn Fn(&str),
+) -> Result<Scaling, BenchError> {
+    let mut points = Vec::new();
+    for &n in sizes {
+        let mut text = crate::generate::rc_ladder(n);
+        let end = text.rfind(".end").unwrap_or(text.len());
+        text.insert_str(end, &format!(".save v(n{n})\n"));
+        let path: PathBuf = dir.join(format!("rc_ladder_{n}.cir"));
+        std::fs::write(&path, &text).map_err(|e| BenchError::Pipeline(e.to_string()))?;
+        let (sorted, front, sort) = sorted_from(&path)?;
+        let probe = vec![format!("v(n{n})")];
+        let so = sim::Options {
+            probes: probe.clone(),
+            ..Default::default()
+        };
+        let w = sim::simulate(&sorted, &so)?;
+        let solve = w.stats.wall.as_secs_f64();
+        let (mut ns, mut nt, mut diff) = (None, None, None);
+        if ngspice {
+            let (raw, s, t, _) = run_ngspice(&path, "", 1)?;
+            ns = Some(s);
+            nt = Some(t);
+            diff = Some(max_error(&w.names, &w.time, &w.data, &raw.names, &raw.time, &raw.data).0);
+        }
+        points.push(ScalePoint {
+            sections: n,
+            states: w.stats.states,
+            front_seconds: front,
+            sort_seconds: sort,
+            solve_seconds: solve,
+            ngspice_solve_seconds: ns,
+            ngspice_total_seconds: nt,
+            difference: diff,
+        });
+        tick(&format!("ladder {n}"));
+    }
+    let slope = |f: &dyn Fn(&ScalePoint) -> Option<f64>| -> Option<f64> {
+        let a = points.first()?;
+        let b = points.last()?;
+        let (ya, yb) = (f(a)?, f(b)?);
+        if points.len() < 2 || ya <= 0.0 || yb <= 0.0 {
+            return None;
+        }
+        Some((yb / ya).ln() / (b.sections as f64 / a.sections as f64).ln())
+    };
+    Ok(Scaling {
+        slope_front_sort: slope(&|p| Some(p.front_seconds + p.sort_seconds)).unwrap_or(f64::NAN),
+        slope_solve: slope(&|p| Some(p.solve_seconds)).unwrap_or(f64::NAN),
+        slope_ngspice: slope(&|p| p.ngspice_solve_seconds),
+        points,
+    })
+}
+
+fn scaling_markdown(sc: &Scaling) -> String {
+    use std::fmt::Write;
+    let mut s = String::from("## Scaling: RC ladders at default tolerances\n\n");
+    s.push_str("Generated ladders (`kausal::generate::rc_ladder`, 10 ms, 10 001 output points), only the last node saved. kausal: rtol 1e-7; ngspice: its defaults.\n\n");
+    s.push_str("| sections | states | parse+build (ms) | sort (ms) | kausal solve (ms) | ngspice solve (ms) | ngspice process (ms) | solve speed-up | max |Δv| vs ngspice |\n|---|---|---|---|---|---|---|---|---|\n");
+    for p in &sc.points {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            p.sections,
+            p.states,
+            ms(p.front_seconds),
+            ms(p.sort_seconds),
+            ms(p.solve_seconds),
+            p.ngspice_solve_seconds.map(ms).unwrap_or_default(),
+            p.ngspice_total_seconds.map(ms).unwrap_or_default(),
+            p.ngspice_solve_seconds
+                .map(|n| format!("{:.1}×", n / p.solve_seconds))
+                .unwrap_or_default(),
+            p.difference.map(sci).unwrap_or_default(),
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nLog-log slopes from the smallest to the largest ladder: parse+build+sort {:.2}, kausal solve {:.2}{}.\n",
+        sc.slope_front_sort,
+        sc.slope_solve,
+        sc.slope_ngspice
+            .map(|x| format!(", ngspice solve {x:.2}"))
+            .unwrap_or_default()
+    );
+    s
+}

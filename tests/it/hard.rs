@@ -1,0 +1,140 @@
+//! Numerical stability on the hard cases of `netlists/hard/`: no blow-up,
+//! bounded energy drift on the LC tank, and errors that shrink as the
+//! tolerance tightens. Properties, never timings.
+
+use std::path::PathBuf;
+
+use kausal::bench;
+use kausal::io::FsLoader;
+use kausal::pipeline::{self, SortOptions, Sorted};
+use kausal::sim::{self, Method};
+
+fn hard(name: &str) -> PathBuf {
+    crate::root().join("netlists/hard").join(name)
+}
+
+fn sorted(name: &str) -> Sorted {
+    pipeline::sort(&hard(name), &FsLoader, &SortOptions::default())
+        .unwrap_or_else(|_| panic!("{name} sorts"))
+}
+
+fn sim(s: &Sorted, method: Method, rtol: f64) -> sim::Waveforms {
+    let o = sim::Options {
+        method: Some(method),
+        rtol: Some(rtol),
+        ..Default::default()
+    };
+    sim::simulate(s, &o).expect("simulates")
+}
+
+/// Every hard case simulates at default settings with finite outputs
+/// bounded by a physical limit of its sources.
+#[test]
+fn hard_cases_do_not_blow_up() {
+    // (netlist, bound on every voltage output in V)
+    let cases = [
+        ("stiff_rc_ladder.cir", 1.0),
+        ("lc_tank_1000_periods.cir", 1.0),
+        ("rectifier_big_cap.cir", 12.0),
+        ("sin_rectifier.cir", 5.0),
+        ("fast_edges_diode.cir", 5.0),
+        ("pwl_sharp.cir", 2.0),
+        ("rc_line_10k.cir", 1.0),
+        ("rlc_ladder_1k.cir", 1.0),
+    ];
+    for (name, bound) in cases {
+        let s = sorted(name);
+        let w =
+            sim::simulate(&s, &sim::Options::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        for (k, n) in w.names.iter().enumerate() {
+            for &v in &w.data[k] {
+                assert!(v.is_finite(), "{name}: {n} is not finite");
+                if n.starts_with("v(") {
+                    assert!(
+                        v.abs() <= bound * 1.05,
+                        "{name}: {n} = {v} beyond the sources' bound {bound}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// The lossless LC tank over 1000 periods at default settings: within 1e-3 V
+/// of cos(w0 t) and its energy within 0.2 % of the initial 0.5 uJ.
+#[test]
+fn lc_tank_keeps_amplitude_phase_and_energy() {
+    let s = sorted("lc_tank_1000_periods.cir");
+    let w = sim::simulate(&s, &sim::Options::default()).expect("simulates");
+    let w0 = 1.0 / (1e-3f64 * 1e-6).sqrt();
+    let v = &w.data[0];
+    let err = w
+        .time
+        .iter()
+        .zip(v)
+        .map(|(&t, &y)| (y - (w0 * t).cos()).abs())
+        .fold(0.0, f64::max);
+    assert!(err <= 1e-3, "max |v - cos(w0 t)| = {err:e}");
+    let text = std::fs::read_to_string(hard("lc_tank_1000_periods.cir")).unwrap();
+    let terms = bench::energy_terms(&text).expect("the netlist states its energy");
+    let drift = bench::energy_drift(&terms, &w.names, &w.data).expect("energy computable");
+    assert!(drift <= 2e-3, "energy drift {drift:e}");
+}
+
+/// Tighter tolerance, smaller error against the exact solution, for every
+/// stiff solver (a factor of noise allowed between neighbours, and an overall
+/// decrease of at least 100x over four decades).
+#[test]
+fn lc_tank_error_decreases_with_tolerance() {
+    let s = sorted("lc_tank_1000_periods.cir");
+    let w0 = 1.0 / (1e-3f64 * 1e-6).sqrt();
+    for m in [Method::Bdf, Method::TrBdf2, Method::Esdirk34] {
+        let errs: Vec<f64> = [1e-4, 1e-5, 1e-6, 1e-7]
+            .iter()
+            .map(|&tol| {
+                let w = sim(&s, m, tol);
+                w.time
+                    .iter()
+                    .zip(&w.data[0])
+                    .map(|(&t, &y)| (y - (w0 * t).cos()).abs())
+                    .fold(0.0, f64::max)
+            })
+            .collect();
+        for p in errs.windows(2) {
+            assert!(p[1] <= 1.5 * p[0], "{m:?}: errors {errs:?}");
+        }
+        assert!(errs[3] * 20.0 <= errs[0], "{m:?}: errors {errs:?}");
+    }
+}
+
+/// The same property on the stiff ladder, the pulse-driven diode and the
+/// sharp PWL against kausal's tight reference, via `kausal bench`'s own
+/// measurement (so the benchmark's error is known to be really measured).
+#[test]
+fn bench_errors_decrease_with_tolerance() {
+    let opts = bench::Options {
+        tolerances: vec![1e-3, 1e-4, 1e-5, 1e-6],
+        repeats: 1,
+        ngspice: false,
+        ..Default::default()
+    };
+    for name in [
+        "stiff_rc_ladder.cir",
+        "fast_edges_diode.cir",
+        "pwl_sharp.cir",
+    ] {
+        let b = bench::bench_circuit(&hard(name), &opts, &|_| {}).expect("benchmarks");
+        assert!(b.non_monotone.is_empty(), "{name}: {:?}", b.non_monotone);
+        for m in ["kausal bdf", "kausal tr-bdf2", "kausal esdirk34"] {
+            let e: Vec<f64> = b
+                .points
+                .iter()
+                .filter(|p| p.solver == m)
+                .map(|p| p.error)
+                .collect();
+            assert_eq!(e.len(), 4, "{name} {m}: {:?}", b.points);
+            assert!(e.iter().all(|x| x.is_finite()), "{name} {m}: {e:?}");
+            assert!(e[3] < e[0], "{name} {m}: errors {e:?} do not shrink");
+        }
+    }
+}
