@@ -594,13 +594,20 @@ fn cmd_bench(a: BenchArgs) -> Result<ExitCode, String> {
         bar.inc(1);
     };
     let mut benches = Vec::new();
+    let mut failures = Vec::new();
     for path in &a.netlists {
         bar.set_message(path.display().to_string());
         match bench::bench_circuit(path, &opts, &tick) {
             Ok(b) => benches.push(b),
-            Err(e) => {
+            // ngspice missing fails the run; a circuit that fails is reported
+            // and the others go on.
+            Err(e @ bench::BenchError::Ngspice(validate::ValidateError::Missing { .. })) => {
                 bar.finish_and_clear();
-                return Err(format!("{}: {e}", path.display()));
+                return Err(e.to_string());
+            }
+            Err(e) => {
+                bar.suspend(|| eprintln!("{}: {e}", path.display()));
+                failures.push(format!("{}: {e}", path.display()));
             }
         }
     }
@@ -614,7 +621,28 @@ fn cmd_bench(a: BenchArgs) -> Result<ExitCode, String> {
         )
     };
     bar.finish_and_clear();
-    let md = bench::markdown(&benches, scaled.as_ref());
+    let plots = match &a.out {
+        Some(d) => format!("{}/", d.display()),
+        None => String::new(),
+    };
+    let mut md = String::from("# kausal benchmarks\n\n");
+    md.push_str(&format!(
+        "Measured on {} (one run of `kausal bench`; times are medians of {} repeats, wall clock). Regenerate with:\n\n```\n{}\n```\n\n",
+        bench::machine(),
+        opts.repeats,
+        std::env::args()
+            .enumerate()
+            .map(|(k, a)| if k == 0 { "kausal".to_string() } else { a })
+            .collect::<Vec<_>>()
+            .join(" ")
+    ));
+    md.push_str(&bench::markdown(&benches, scaled.as_ref(), &plots));
+    if !failures.is_empty() {
+        md.push_str("## Circuits that failed\n\n");
+        for f in &failures {
+            md.push_str(&format!("- {f}\n"));
+        }
+    }
     if let Some(dir) = &a.out {
         std::fs::create_dir_all(dir)
             .map_err(|e| format!("cannot create `{}`: {e}", dir.display()))?;
@@ -634,5 +662,9 @@ fn cmd_bench(a: BenchArgs) -> Result<ExitCode, String> {
             .map_err(|e| format!("cannot write `{}`: {e}", p.display()))?;
     }
     emit(a.report.as_ref(), &md)?;
-    Ok(ExitCode::SUCCESS)
+    Ok(if failures.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
 }

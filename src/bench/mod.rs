@@ -392,9 +392,10 @@ pub fn bench_circuit(
         );
         if let Ok((raw, _, _, _)) = run_ngspice(path, &tight, 1) {
             let times = clean_times(&raw.time, tstop);
-            let r = reference_at(&sorted, &probes, opts.ref_rtol, Some(times))?;
-            reference_check =
-                Some(max_error(&r.names, &r.time, &r.data, &raw.names, &raw.time, &raw.data).0);
+            if let Ok(r) = reference_at(&sorted, &probes, opts.ref_rtol, Some(times)) {
+                reference_check =
+                    Some(max_error(&r.names, &r.time, &r.data, &raw.names, &raw.time, &raw.data).0);
+            }
         }
         tick("ngspice reference");
         let mut runs: Vec<(String, Option<f64>, String)> =
@@ -412,7 +413,18 @@ pub fn bench_circuit(
             match run_ngspice(path, &line, opts.repeats) {
                 Ok((raw, solve, total, steps)) => {
                     let times = clean_times(&raw.time, tstop);
-                    let r = reference_at(&sorted, &probes, opts.ref_rtol, Some(times))?;
+                    let r = match reference_at(&sorted, &probes, opts.ref_rtol, Some(times)) {
+                        Ok(r) => r,
+                        Err(e) => {
+                            points.push(failed_point(
+                                solver,
+                                tol,
+                                format!("reference at ngspice's points: {e}"),
+                            ));
+                            tick(&line);
+                            continue;
+                        }
+                    };
                     let (error, worst) =
                         max_error(&r.names, &r.time, &r.data, &raw.names, &raw.time, &raw.data);
                     points.push(Point {
@@ -532,7 +544,8 @@ fn ms(x: f64) -> String {
 }
 
 /// The markdown report of a set of circuits.
-pub fn markdown(benches: &[CircuitBench], scaling: Option<&Scaling>) -> String {
+/// Plots are linked as `{plots}{stem}.svg`.
+pub fn markdown(benches: &[CircuitBench], scaling: Option<&Scaling>, plots: &str) -> String {
     use std::fmt::Write;
     let mut s = String::new();
     if !benches.is_empty() {
@@ -630,7 +643,7 @@ pub fn markdown(benches: &[CircuitBench], scaling: Option<&Scaling>) -> String {
                 b.non_monotone.join(", ")
             );
         }
-        let _ = writeln!(s, "\n![work-precision of {name}]({name}.svg)\n");
+        let _ = writeln!(s, "\n![work-precision of {name}]({plots}{name}.svg)\n");
     }
     if let Some(sc) = scaling {
         s.push_str(&scaling_markdown(sc));
@@ -761,4 +774,32 @@ fn scaling_markdown(sc: &Scaling) -> String {
             .unwrap_or_default()
     );
     s
+}
+
+/// Where the numbers come from: the machine, ngspice's version, the date.
+pub fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|c| {
+            c.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|s| s.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let cores = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1);
+    let ngspice = std::process::Command::new(validate::ngspice_program())
+        .arg("-v")
+        .output()
+        .ok()
+        .and_then(|o| {
+            String::from_utf8_lossy(&o.stdout)
+                .lines()
+                .find(|l| l.contains("ngspice-"))
+                .map(|l| l.trim().trim_start_matches('*').trim().to_string())
+        })
+        .unwrap_or_else(|| "ngspice (version unknown)".into());
+    format!("{cpu}, {cores} cores; {ngspice}")
 }

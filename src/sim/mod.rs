@@ -884,7 +884,9 @@ where
         if !inside {
             break;
         }
-        let y = if (tg - t).abs() <= scale {
+        // At or past the solver's time (a stop reached to within a
+        // sub-ulp remainder): the state itself, never an extrapolation.
+        let y = if (tg - t).abs() <= scale || tg >= solver.state().t {
             solver.state().y.slice().to_vec()
         } else {
             solver
