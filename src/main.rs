@@ -112,34 +112,7 @@ enum Command {
     },
     /// Speed against error: kausal's solvers and ngspice's integrators at a
     /// range of tolerances, errors against a tight reference, in one run.
-    Bench {
-        /// The netlist files.
-        netlists: Vec<PathBuf>,
-        /// Relative tolerances (kausal's rtol and ngspice's reltol).
-        #[arg(long, value_delimiter = ',', default_values_t = [1e-3, 1e-4, 1e-5, 1e-6, 1e-7])]
-        tolerances: Vec<f64>,
-        /// kausal's solvers.
-        #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Bdf, Method::TrBdf2, Method::Esdirk34])]
-        solvers: Vec<Method>,
-        /// Runs per measurement (the median is reported).
-        #[arg(long, default_value_t = 3)]
-        repeats: usize,
-        /// kausal only, no ngspice runs.
-        #[arg(long)]
-        no_ngspice: bool,
-        /// Also run generated RC ladders of 10^2 sections up to --max-sections.
-        #[arg(long)]
-        scaling: bool,
-        /// The largest ladder of --scaling.
-        #[arg(long, default_value_t = 100_000)]
-        max_sections: usize,
-        /// Write bench.json and a work-precision SVG per circuit here.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Write the markdown report to this file (else standard output).
-        #[arg(long)]
-        report: Option<PathBuf>,
-    },
+    Bench(BenchArgs),
     /// Generate standalone source of f(t, y) (and J·w) from the sorted equations.
     Codegen {
         /// The netlist file.
@@ -331,27 +304,7 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             emit(out.as_ref(), &text)?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Bench {
-            netlists,
-            tolerances,
-            solvers,
-            repeats,
-            no_ngspice,
-            scaling,
-            max_sections,
-            out,
-            report,
-        } => cmd_bench(BenchArgs {
-            netlists,
-            tolerances,
-            solvers,
-            repeats,
-            no_ngspice,
-            scaling,
-            max_sections,
-            out,
-            report,
-        }),
+        Command::Bench(args) => cmd_bench(args),
         Command::Validate {
             netlist,
             tol,
@@ -550,15 +503,33 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
     }
 }
 
+#[derive(clap::Args)]
 struct BenchArgs {
+    /// The netlist files.
     netlists: Vec<PathBuf>,
+    /// Relative tolerances (kausal's rtol and ngspice's reltol).
+    #[arg(long, value_delimiter = ',', default_values_t = [1e-3, 1e-4, 1e-5, 1e-6, 1e-7])]
     tolerances: Vec<f64>,
+    /// kausal's solvers.
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Bdf, Method::TrBdf2, Method::Esdirk34])]
     solvers: Vec<Method>,
+    /// Runs per measurement (the median is reported).
+    #[arg(long, default_value_t = 3)]
     repeats: usize,
+    /// kausal only, no ngspice runs.
+    #[arg(long)]
     no_ngspice: bool,
+    /// Also run generated RC ladders of 10^2 sections up to --max-sections.
+    #[arg(long)]
     scaling: bool,
+    /// The largest ladder of --scaling.
+    #[arg(long, default_value_t = 100_000)]
     max_sections: usize,
+    /// Write bench.json and a work-precision SVG per circuit here.
+    #[arg(long)]
     out: Option<PathBuf>,
+    /// Write the markdown report to this file (else standard output).
+    #[arg(long)]
     report: Option<PathBuf>,
 }
 

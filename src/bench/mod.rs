@@ -122,31 +122,21 @@ fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() { 0.0 } else { v[v.len() / 2] }
 }
 
+/// A pipeline failure as one line: the file and the errors' messages.
+fn pipeline_error(path: &Path, f: &pipeline::Failed) -> BenchError {
+    let msgs: Vec<String> = f.errors().map(|d| d.message.clone()).collect();
+    BenchError::Pipeline(format!("{}: {}", path.display(), msgs.join("; ")))
+}
+
+/// Parse, build and sort `path`; the front-end and sort times.
 fn sorted_from(path: &Path) -> Result<(Sorted, f64, f64), BenchError> {
     let t0 = Instant::now();
-    let (el, built) =
-        pipeline::equations(path, &FsLoader, SortOptions::default().build).map_err(|f| {
-            BenchError::Pipeline(format!(
-                "{}: {}",
-                path.display(),
-                f.errors()
-                    .map(|d| d.message.clone())
-                    .collect::<Vec<_>>()
-                    .join("; ")
-            ))
-        })?;
+    let (el, built) = pipeline::equations(path, &FsLoader, SortOptions::default().build)
+        .map_err(|f| pipeline_error(path, &f))?;
     let front = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
-    let sorted = pipeline::sort_built(el, built, &SortOptions::default()).map_err(|f| {
-        BenchError::Pipeline(format!(
-            "{}: {}",
-            path.display(),
-            f.errors()
-                .map(|d| d.message.clone())
-                .collect::<Vec<_>>()
-                .join("; ")
-        ))
-    })?;
+    let sorted = pipeline::sort_built(el, built, &SortOptions::default())
+        .map_err(|f| pipeline_error(path, &f))?;
     Ok((sorted, front, t1.elapsed().as_secs_f64()))
 }
 
