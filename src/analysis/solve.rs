@@ -46,13 +46,7 @@ fn dependence<'n>(
     for &n in nodes {
         let d = match x.get(n) {
             Expr::Var(v) => is_var(v),
-            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => false,
-            Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => dep[&a],
-            Expr::Add(a, b)
-            | Expr::Sub(a, b)
-            | Expr::Mul(a, b)
-            | Expr::Div(a, b)
-            | Expr::Pow(a, b) => dep[&a] || dep[&b],
+            op => op.operands().into_iter().flatten().any(|a| dep[&a]),
         };
         dep.vals.push(d);
     }

@@ -3,6 +3,7 @@
 //! simple on purpose: it is the yardstick the fast evaluator and generated
 //! code are checked against, and it serves tests on small systems.
 
+use super::tape::solve_dense;
 use crate::analysis::{Assignment, Schedule, Solved, Step};
 use crate::ir::{EquationSystem, Expr, ExprArena, ExprId, VarId};
 
@@ -78,39 +79,6 @@ fn assign(
             })
         }
     }
-}
-
-/// Solve a small dense system `a x = b` in place (partial pivoting).
-fn solve_dense(n: usize, a: &mut [f64], b: &mut [f64]) -> bool {
-    for k in 0..n {
-        let p = (k..n)
-            .max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs()))
-            .unwrap_or(k);
-        if a[p * n + k] == 0.0 || !a[p * n + k].is_finite() {
-            return false;
-        }
-        if p != k {
-            for j in 0..n {
-                a.swap(k * n + j, p * n + j);
-            }
-            b.swap(k, p);
-        }
-        for i in k + 1..n {
-            let f = a[i * n + k] / a[k * n + k];
-            for j in k..n {
-                a[i * n + j] -= f * a[k * n + j];
-            }
-            b[i] -= f * b[k];
-        }
-    }
-    for k in (0..n).rev() {
-        let mut s = b[k];
-        for j in k + 1..n {
-            s -= a[k * n + j] * b[j];
-        }
-        b[k] = s / a[k * n + k];
-    }
-    true
 }
 
 /// Execute the schedule: on entry `vals` holds the states (and warm-start

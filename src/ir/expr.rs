@@ -97,6 +97,23 @@ pub enum Expr {
     Device(DeviceFn, ExprId),
 }
 
+impl Expr {
+    /// The operands, left to right (`None` past the arity).
+    pub fn operands(self) -> [Option<ExprId>; 2] {
+        match self {
+            Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => [Some(a), None],
+            Expr::Add(a, b)
+            | Expr::Sub(a, b)
+            | Expr::Mul(a, b)
+            | Expr::Div(a, b)
+            | Expr::Pow(a, b) => [Some(a), Some(b)],
+            Expr::Const(_) | Expr::Var(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => {
+                [None, None]
+            }
+        }
+    }
+}
+
 /// The deduplicating arena that owns every expression of a system.
 #[derive(Clone, Debug, Default)]
 pub struct ExprArena {
@@ -365,16 +382,8 @@ impl ExprArena {
                         out.push(v);
                     }
                 }
-                Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => {}
-                Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => stack.push(a),
-                Expr::Add(a, b)
-                | Expr::Sub(a, b)
-                | Expr::Mul(a, b)
-                | Expr::Div(a, b)
-                | Expr::Pow(a, b) => {
-                    stack.push(b);
-                    stack.push(a);
-                }
+                // Right operand pushed first: variables are listed left to right.
+                op => stack.extend(op.operands().into_iter().rev().flatten()),
             }
         }
     }
@@ -402,18 +411,7 @@ impl ExprArena {
                 continue;
             }
             out.push(e);
-            match self.get(e) {
-                Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => stack.push(a),
-                Expr::Add(a, b)
-                | Expr::Sub(a, b)
-                | Expr::Mul(a, b)
-                | Expr::Div(a, b)
-                | Expr::Pow(a, b) => {
-                    stack.push(a);
-                    stack.push(b);
-                }
-                _ => {}
-            }
+            stack.extend(self.get(e).operands().into_iter().flatten());
         }
         out.sort_unstable();
         out.dedup();
@@ -425,13 +423,12 @@ impl ExprArena {
     pub fn occurrences(&self, root: ExprId, v: VarId) -> usize {
         match self.get(root) {
             Expr::Var(x) => usize::from(x == v),
-            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => 0,
-            Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => self.occurrences(a, v),
-            Expr::Add(a, b)
-            | Expr::Sub(a, b)
-            | Expr::Mul(a, b)
-            | Expr::Div(a, b)
-            | Expr::Pow(a, b) => self.occurrences(a, v) + self.occurrences(b, v),
+            op => op
+                .operands()
+                .into_iter()
+                .flatten()
+                .map(|a| self.occurrences(a, v))
+                .sum(),
         }
     }
 

@@ -25,16 +25,7 @@ pub fn verify(sys: &EquationSystem) -> Vec<VerifyError> {
     let mut errs = Vec::new();
     for (i, &e) in sys.exprs.nodes().iter().enumerate() {
         let user = ExprId::new(i);
-        let ops: [Option<ExprId>; 2] = match e {
-            Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => [Some(a), None],
-            Expr::Add(a, b)
-            | Expr::Sub(a, b)
-            | Expr::Mul(a, b)
-            | Expr::Div(a, b)
-            | Expr::Pow(a, b) => [Some(a), Some(b)],
-            _ => [None, None],
-        };
-        for op in ops.into_iter().flatten() {
+        for op in e.operands().into_iter().flatten() {
             if op >= user {
                 errs.push(VerifyError::OperandOrder { user, operand: op });
             }

@@ -131,13 +131,7 @@ pub fn check_annotations(
 
 #[test]
 fn error_fixtures_report_what_they_annotate() {
-    let dir = root().join("netlists/errors");
-    let mut files: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "cir"))
-        .collect();
-    files.sort();
+    let files = crate::cir_files("netlists/errors");
     assert!(files.len() >= 15);
     for path in files {
         // Relative names keep the rendered goldens independent of the checkout.

@@ -20,8 +20,13 @@ pub fn root() -> PathBuf {
 
 /// Every `netlists/*.cir` file, sorted.
 pub fn netlists() -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(root().join("netlists"))
-        .expect("netlists/ exists")
+    cir_files("netlists")
+}
+
+/// Every `*.cir` file of a directory of the repository, sorted.
+pub fn cir_files(dir: &str) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(root().join(dir))
+        .unwrap_or_else(|e| panic!("{dir}/: {e}"))
         .map(|e| e.expect("readable dir entry").path())
         .filter(|p| p.extension().is_some_and(|e| e == "cir"))
         .collect();

@@ -23,13 +23,7 @@ fn sort(file: &str, prefer: &[&str]) -> Result<pipeline::Sorted, Box<pipeline::F
 
 #[test]
 fn unfixable_faults_are_errors_that_name_the_elements() {
-    let dir = root().join("netlists/faults");
-    let mut files: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "cir"))
-        .collect();
-    files.sort();
+    let files = crate::cir_files("netlists/faults");
     assert!(files.len() >= 5);
     for path in files {
         let rel = path.strip_prefix(root()).unwrap().to_path_buf();
