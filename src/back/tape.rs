@@ -87,6 +87,9 @@ pub struct TapeBlock {
     /// Tears that enter an `exp(x/vt)` (junction voltages), with the register
     /// of `vt`: their Newton steps are limited as ngspice limits junctions.
     pub junctions: Vec<(usize, u32)>,
+    /// Registers the body reads or writes, each once: the tangents a
+    /// Jacobian column clears before it runs.
+    pub touched: Vec<u32>,
 }
 
 /// Why an evaluation failed.
@@ -245,6 +248,19 @@ impl Compiler<'_> {
     }
 
     /// Find a block's junction tears; diode thermal voltages get registers.
+    fn set_touched(&mut self, k: usize) {
+        let b = &mut self.blocks[k];
+        let mut touched: Vec<u32> = b
+            .body
+            .iter()
+            .flat_map(|ins| sources_of(ins, &[]).into_iter().chain([dest(ins)]))
+            .filter(|&x| x != NONE)
+            .collect();
+        touched.sort_unstable();
+        touched.dedup();
+        b.touched = touched;
+    }
+
     fn set_junctions(&mut self, k: usize) {
         let diodes: Vec<u32> = self.blocks[k]
             .body
@@ -312,9 +328,11 @@ impl Compiler<'_> {
                         .map(String::from)
                         .collect(),
                     junctions: Vec::new(),
+                    touched: Vec::new(),
                 });
                 let kk = k as usize;
                 self.set_junctions(kk);
+                self.set_touched(kk);
                 out.push(Instr::Block { k });
             }
         }
@@ -356,9 +374,11 @@ impl Compiler<'_> {
                     linear: b.linear,
                     elements: b.elements.clone(),
                     junctions: Vec::new(),
+                    touched: Vec::new(),
                 });
                 let kk = k as usize;
                 self.set_junctions(kk);
+                self.set_touched(kk);
                 out.push(Instr::Block { k });
             }
         }
@@ -689,8 +709,9 @@ impl Tape {
                 Instr::Device { d, f, a } => {
                     let x = r[a as usize];
                     let p = &self.diodes[f.diode as usize];
-                    r[d as usize] = p.eval(f.part, f.order, x);
-                    dr[d as usize] = p.eval(f.part, f.order + 1, x) * dr[a as usize];
+                    let (v, slope) = p.eval_with_slope(f.part, f.order, x);
+                    r[d as usize] = v;
+                    dr[d as usize] = slope * dr[a as usize];
                 }
                 Instr::Src { d, s, order } => {
                     r[d as usize] = self.source(s, t, order);
@@ -704,25 +725,20 @@ impl Tape {
                     // Value first (Newton), then the tangent of the solution by
                     // the implicit function theorem: J dt = -(dR/dx) dx.
                     let b = &self.blocks[k as usize];
-                    let reads: Vec<u32> = b
-                        .body
-                        .iter()
-                        .flat_map(|i| sources_of(i, &self.blocks))
-                        .collect();
-                    let saved: Vec<f64> = reads.iter().map(|&x| dr[x as usize]).collect();
-                    self.solve_block(k as usize, r, t)?;
                     let n = b.tears.len();
-                    let jac = self.block_jacobian(b, r, dr, t)?;
-                    for (&x, &v) in reads.iter().zip(&saved) {
+                    let mut w = Work::take(n, 0);
+                    w.saved.extend(b.touched.iter().map(|&x| dr[x as usize]));
+                    self.solve_block(k as usize, r, t)?;
+                    self.block_jacobian(b, r, dr, t, &mut w.jac)?;
+                    for (&x, &v) in b.touched.iter().zip(&w.saved) {
                         dr[x as usize] = v;
                     }
                     for &x in &b.tears {
                         dr[x as usize] = 0.0;
                     }
                     self.run_tangent(&b.body, r, dr, t)?;
-                    let mut rhs: Vec<f64> = b.residuals.iter().map(|&x| -dr[x as usize]).collect();
-                    let mut a = jac;
-                    if !solve_dense(n, &mut a, &mut rhs) {
+                    w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
+                    if !solve_dense(n, &mut w.jac, &mut w.res) {
                         return Err(EvalError::Singular {
                             block: b.index,
                             elements: b.elements.clone(),
@@ -730,8 +746,9 @@ impl Tape {
                         });
                     }
                     for (j, &x) in b.tears.iter().enumerate() {
-                        dr[x as usize] = rhs[j];
+                        dr[x as usize] = w.res[j];
                     }
+                    w.give();
                     self.run_tangent(&b.body, r, dr, t)?;
                 }
             }
@@ -739,77 +756,48 @@ impl Tape {
         Ok(())
     }
 
-    /// ∂residuals/∂tears at the current point (row-major n×n); leaves `dr`
-    /// of the body registers dirty.
+    /// ∂residuals/∂tears at the current point into `jac` (row-major n×n),
+    /// evaluating the body there too; leaves `dr` of the body registers dirty.
     fn block_jacobian(
         &self,
         b: &TapeBlock,
         r: &mut [f64],
         dr: &mut [f64],
         t: f64,
-    ) -> Result<Vec<f64>, EvalError> {
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
         let n = b.tears.len();
-        let mut jac = vec![0.0; n * n];
-        // Registers read by the body but not written are constants here.
-        let mut body_writes = Vec::with_capacity(b.body.len());
-        for ins in &b.body {
-            body_writes.push(dest(ins));
+        if n == 0 {
+            return self.run(&b.body, r, t);
         }
         for j in 0..n {
-            for ins in &b.body {
-                for s in sources_of(ins, &self.blocks) {
-                    dr[s as usize] = 0.0;
-                }
+            // Registers read by the body but not written are constants here.
+            for &x in &b.touched {
+                dr[x as usize] = 0.0;
             }
-            for &w in &body_writes {
-                if w != NONE {
-                    dr[w as usize] = 0.0;
-                }
-            }
-            for (i, &x) in b.tears.iter().enumerate() {
-                dr[x as usize] = if i == j { 1.0 } else { 0.0 };
-            }
+            dr[b.tears[j] as usize] = 1.0;
             self.run_tangent(&b.body, r, dr, t)?;
             for (i, &res) in b.residuals.iter().enumerate() {
                 jac[i * n + j] = dr[res as usize];
             }
         }
-        Ok(jac)
+        Ok(())
     }
 
     /// Damped Newton on a block's tearing variables, warm-started from their
-    /// current values.
+    /// current values; on failure the warm start is left for the solver's
+    /// retry.
     fn solve_block(&self, k: usize, r: &mut [f64], t: f64) -> Result<(), EvalError> {
         let b = &self.blocks[k];
-        let norm = |r: &[f64]| -> f64 {
-            b.residuals
-                .iter()
-                .map(|&x| r[x as usize].abs())
-                .fold(0.0, f64::max)
-        };
-        let mut dr = take_scratch(r.len());
-        let result = self.newton(b, r, &mut dr, t, &norm);
-        give_scratch(dr);
-        result
-    }
-
-    fn newton(
-        &self,
-        b: &TapeBlock,
-        r: &mut [f64],
-        dr: &mut [f64],
-        t: f64,
-        norm: &dyn Fn(&[f64]) -> f64,
-    ) -> Result<(), EvalError> {
-        let n = b.tears.len();
-        let start: Vec<f64> = b.tears.iter().map(|&x| r[x as usize]).collect();
-        let result = self.newton_iterate(b, r, dr, t, norm, n);
+        let mut w = Work::take(b.tears.len(), r.len());
+        w.start.extend(b.tears.iter().map(|&x| r[x as usize]));
+        let result = self.newton_iterate(b, r, t, &mut w);
         if result.is_err() {
-            // Leave the warm start usable for the solver's retry.
             for (j, &x) in b.tears.iter().enumerate() {
-                r[x as usize] = start[j];
+                r[x as usize] = w.start[j];
             }
         }
+        w.give();
         result
     }
 
@@ -817,19 +805,28 @@ impl Tape {
     /// is accepted when the simplified Newton correction at the new point,
     /// `J⁻¹ r(x_new)` with the old `J`, is shorter than the full correction.
     /// Affine invariant, so badly scaled residuals (amperes beside volts)
-    /// do not mislead the damping.
+    /// do not mislead the damping. Allocation-free: `w` holds the buffers.
     fn newton_iterate(
         &self,
         b: &TapeBlock,
         r: &mut [f64],
-        dr: &mut [f64],
         t: f64,
-        norm: &dyn Fn(&[f64]) -> f64,
-        n: usize,
+        w: &mut Work,
     ) -> Result<(), EvalError> {
+        let n = b.tears.len();
         let singular = || EvalError::Singular {
             block: b.index,
             elements: b.elements.clone(),
+            t,
+        };
+        let no_convergence = |r: &[f64]| EvalError::NoConvergence {
+            block: b.index,
+            elements: b.elements.clone(),
+            residual: b
+                .residuals
+                .iter()
+                .map(|&x| r[x as usize].abs())
+                .fold(0.0, f64::max),
             t,
         };
         let scaled = |d: &[f64], x: &[f64]| -> f64 {
@@ -838,26 +835,34 @@ impl Tape {
                 .map(|(d, x)| d.abs() / (1.0 + x.abs()))
                 .fold(0.0, f64::max)
         };
-        self.run(&b.body, r, t)?;
+        let set = |r: &mut [f64], x0: &[f64], step: &[f64], lambda: f64| {
+            for (j, &x) in b.tears.iter().enumerate() {
+                r[x as usize] = x0[j] - lambda * step[j];
+            }
+        };
+        // The Jacobian's tangent runs evaluate the body too.
         for _ in 0..200 {
-            let jac = self.block_jacobian(b, r, dr, t)?;
-            let lu = Lu::new(n, jac).ok_or_else(singular)?;
-            let res: Vec<f64> = b.residuals.iter().map(|&x| r[x as usize]).collect();
-            if res.iter().all(|v| *v == 0.0) {
+            self.block_jacobian(b, r, &mut w.dr, t, &mut w.jac)?;
+            if !lu_factor(n, &mut w.jac, &mut w.perm) {
+                return Err(singular());
+            }
+            for (j, &x) in b.residuals.iter().enumerate() {
+                w.step[j] = r[x as usize];
+            }
+            if w.step.iter().all(|v| *v == 0.0) {
                 return Ok(());
             }
-            let mut step = res.clone();
-            lu.solve(&mut step);
-            let x0: Vec<f64> = b.tears.iter().map(|&x| r[x as usize]).collect();
-            let full = scaled(&step, &x0);
+            lu_solve(n, &w.jac, &w.perm, &mut w.step, &mut w.tmp);
+            for (j, &x) in b.tears.iter().enumerate() {
+                w.x0[j] = r[x as usize];
+            }
+            let full = scaled(&w.step, &w.x0);
             if !full.is_finite() {
                 return Err(singular());
             }
             if full <= 1e-13 {
                 // Converged to rounding: take the last correction and stop.
-                for (j, &x) in b.tears.iter().enumerate() {
-                    r[x as usize] = x0[j] - step[j];
-                }
+                set(r, &w.x0, &w.step, 1.0);
                 return self.run(&b.body, r, t);
             }
             // Junction limiting (ngspice's pnjlim) on tears inside an exp().
@@ -866,35 +871,32 @@ impl Tape {
             for &(j, vt) in &b.junctions {
                 let vt = r[vt as usize].abs();
                 if vt > 0.0 {
-                    let new = pnjlim(x0[j] - step[j], x0[j], vt);
-                    if new != x0[j] - step[j] {
+                    let new = pnjlim(w.x0[j] - w.step[j], w.x0[j], vt);
+                    if new != w.x0[j] - w.step[j] {
                         limited = true;
                     }
-                    step[j] = x0[j] - new;
+                    w.step[j] = w.x0[j] - new;
                 }
             }
             if limited {
-                for (j, &x) in b.tears.iter().enumerate() {
-                    r[x as usize] = x0[j] - step[j];
-                }
-                self.run(&b.body, r, t)?;
+                set(r, &w.x0, &w.step, 1.0);
                 continue;
             }
             let mut lambda = 1.0;
-            loop {
-                for (j, &x) in b.tears.iter().enumerate() {
-                    r[x as usize] = x0[j] - lambda * step[j];
-                }
+            let simplified = loop {
+                set(r, &w.x0, &w.step, lambda);
                 self.run(&b.body, r, t)?;
-                let mut bar: Vec<f64> = b.residuals.iter().map(|&x| r[x as usize]).collect();
-                lu.solve(&mut bar);
+                for (j, &x) in b.residuals.iter().enumerate() {
+                    w.bar[j] = r[x as usize];
+                }
+                lu_solve(n, &w.jac, &w.perm, &mut w.bar, &mut w.tmp);
                 // The same scaling as the full correction: a scale that moved
                 // with x would make a shrinking |x| look like no progress.
-                let simplified = scaled(&bar, &x0);
+                let simplified = scaled(&w.bar, &w.x0);
                 if (simplified.is_finite() && simplified <= (1.0 - lambda / 4.0) * full)
                     || simplified == 0.0
                 {
-                    break;
+                    break simplified;
                 }
                 lambda *= 0.5;
                 if lambda < 1e-10 {
@@ -902,27 +904,25 @@ impl Tape {
                         // Stalled at rounding level: converged as far as f64 allows.
                         return Ok(());
                     }
-                    return Err(EvalError::NoConvergence {
-                        block: b.index,
-                        elements: b.elements.clone(),
-                        residual: norm(r),
-                        t,
-                    });
+                    return Err(no_convergence(r));
                 }
-            }
+            };
             if b.linear && lambda == 1.0 && b.junctions.is_empty() {
                 return Ok(());
+            }
+            if lambda == 1.0 && simplified <= 1e-10 && simplified <= 1e-2 * full {
+                // Quadratic convergence has set in: the simplified correction
+                // leaves an error of order `simplified * full`, below rounding.
+                for (j, &x) in b.tears.iter().enumerate() {
+                    r[x as usize] -= w.bar[j];
+                }
+                return self.run(&b.body, r, t);
             }
             // Otherwise go on: the next correction (at most 1e-13) is applied
             // at the top, so the solution is as exact as f64 allows; the
             // integrator's Newton needs f to be smooth to its own tolerance.
         }
-        Err(EvalError::NoConvergence {
-            block: b.index,
-            elements: b.elements.clone(),
-            residual: norm(r),
-            t,
-        })
+        Err(no_convergence(r))
     }
 
     /// `f(t, y)`: load the states, run the program, read the derivatives.
@@ -1177,72 +1177,107 @@ fn sources_of(ins: &Instr, _blocks: &[TapeBlock]) -> Vec<u32> {
     }
 }
 
-thread_local! {
-    /// Register-sized scratch buffers for Newton's tangents, reused across
-    /// calls (blocks can nest, so it is a pool, not one buffer).
-    static SCRATCH: std::cell::RefCell<Vec<Vec<f64>>> = const { std::cell::RefCell::new(Vec::new()) };
-}
-
-fn take_scratch(n: usize) -> Vec<f64> {
-    let mut v = SCRATCH.with(|p| p.borrow_mut().pop()).unwrap_or_default();
-    v.resize(n, 0.0);
-    v
-}
-
-fn give_scratch(v: Vec<f64>) {
-    SCRATCH.with(|p| p.borrow_mut().push(v));
-}
-
-/// An LU factorization (partial pivoting) of a small dense matrix.
-struct Lu {
-    n: usize,
-    a: Vec<f64>,
+/// Buffers of one Newton solve, pooled per thread so that evaluating `f`
+/// allocates nothing once warm (blocks can nest, so it is a pool).
+#[derive(Default)]
+struct Work {
+    jac: Vec<f64>,
     perm: Vec<usize>,
+    step: Vec<f64>,
+    x0: Vec<f64>,
+    bar: Vec<f64>,
+    tmp: Vec<f64>,
+    /// The tears on entry (empty until filled).
+    start: Vec<f64>,
+    /// Saved tangents (empty until filled).
+    saved: Vec<f64>,
+    /// Residual right-hand side (empty until filled).
+    res: Vec<f64>,
+    /// Register-sized tangents.
+    dr: Vec<f64>,
 }
 
-impl Lu {
-    fn new(n: usize, mut a: Vec<f64>) -> Option<Lu> {
-        let mut perm: Vec<usize> = (0..n).collect();
-        for k in 0..n {
-            let p = (k..n).max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs()))?;
-            if a[p * n + k] == 0.0 || !a[p * n + k].is_finite() {
-                return None;
-            }
-            if p != k {
-                for j in 0..n {
-                    a.swap(k * n + j, p * n + j);
-                }
-                perm.swap(k, p);
-            }
-            for i in k + 1..n {
-                let f = a[i * n + k] / a[k * n + k];
-                a[i * n + k] = f;
-                if f != 0.0 {
-                    for j in k + 1..n {
-                        a[i * n + j] -= f * a[k * n + j];
-                    }
-                }
-            }
+thread_local! {
+    static WORK: std::cell::RefCell<Vec<Box<Work>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+impl Work {
+    /// Buffers for an `n`-tear block and `regs` tangent registers.
+    fn take(n: usize, regs: usize) -> Box<Work> {
+        let mut w = WORK.with(|p| p.borrow_mut().pop()).unwrap_or_default();
+        for v in [&mut w.jac] {
+            v.clear();
+            v.resize(n * n, 0.0);
         }
-        Some(Lu { n, a, perm })
+        for v in [&mut w.step, &mut w.x0, &mut w.bar, &mut w.tmp] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+        w.perm.clear();
+        w.perm.resize(n, 0);
+        w.start.clear();
+        w.saved.clear();
+        w.res.clear();
+        if w.dr.len() < regs {
+            w.dr.resize(regs, 0.0);
+        }
+        w
     }
 
-    fn solve(&self, b: &mut [f64]) {
-        let n = self.n;
-        let mut x: Vec<f64> = self.perm.iter().map(|&p| b[p]).collect();
-        for i in 0..n {
-            for j in 0..i {
-                x[i] -= self.a[i * n + j] * x[j];
-            }
-        }
-        for i in (0..n).rev() {
-            for j in i + 1..n {
-                x[i] -= self.a[i * n + j] * x[j];
-            }
-            x[i] /= self.a[i * n + i];
-        }
-        b.copy_from_slice(&x);
+    fn give(self: Box<Work>) {
+        WORK.with(|p| p.borrow_mut().push(self));
     }
+}
+
+/// LU-factorize the row-major `n`×`n` matrix `a` in place (partial
+/// pivoting, row order into `perm`); false if it is singular.
+fn lu_factor(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
+    for (k, p) in perm.iter_mut().enumerate() {
+        *p = k;
+    }
+    for k in 0..n {
+        let p = (k..n)
+            .max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs()))
+            .unwrap_or(k);
+        if a[p * n + k] == 0.0 || !a[p * n + k].is_finite() {
+            return false;
+        }
+        if p != k {
+            for j in 0..n {
+                a.swap(k * n + j, p * n + j);
+            }
+            perm.swap(k, p);
+        }
+        for i in k + 1..n {
+            let f = a[i * n + k] / a[k * n + k];
+            a[i * n + k] = f;
+            if f != 0.0 {
+                for j in k + 1..n {
+                    a[i * n + j] -= f * a[k * n + j];
+                }
+            }
+        }
+    }
+    true
+}
+
+/// Solve with the factors of [`lu_factor`]; `tmp` is scratch of length `n`.
+fn lu_solve(n: usize, a: &[f64], perm: &[usize], b: &mut [f64], tmp: &mut [f64]) {
+    for (x, &p) in tmp.iter_mut().zip(perm) {
+        *x = b[p];
+    }
+    for i in 0..n {
+        for j in 0..i {
+            tmp[i] -= a[i * n + j] * tmp[j];
+        }
+    }
+    for i in (0..n).rev() {
+        for j in i + 1..n {
+            tmp[i] -= a[i * n + j] * tmp[j];
+        }
+        tmp[i] /= a[i * n + i];
+    }
+    b[..n].copy_from_slice(&tmp[..n]);
 }
 
 /// Solve a small dense system `a x = b` in place (partial pivoting).

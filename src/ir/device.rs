@@ -130,6 +130,16 @@ impl DiodeParams {
         vals.get(order as usize).copied().unwrap_or(f64::NAN)
     }
 
+    /// `(f^(order)(v), f^(order+1)(v))` from one evaluation of the device.
+    pub fn eval_with_slope(&self, part: DiodePart, order: u8, v: f64) -> (f64, f64) {
+        let vals = match part {
+            DiodePart::Current => self.current(v),
+            DiodePart::Charge => self.charge(v),
+        };
+        let get = |k: usize| vals.get(k).copied().unwrap_or(f64::NAN);
+        (get(order as usize), get(order as usize + 1))
+    }
+
     /// Whether the charge is used at all (a junction with capacitance).
     pub fn has_charge(&self) -> bool {
         self.cjo != 0.0 || self.tt != 0.0
