@@ -1198,6 +1198,8 @@ struct Work {
 }
 
 thread_local! {
+    // Boxed so that taking and giving back moves a pointer, not ten vectors.
+    #[allow(clippy::vec_box)]
     static WORK: std::cell::RefCell<Vec<Box<Work>>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
@@ -1205,10 +1207,8 @@ impl Work {
     /// Buffers for an `n`-tear block and `regs` tangent registers.
     fn take(n: usize, regs: usize) -> Box<Work> {
         let mut w = WORK.with(|p| p.borrow_mut().pop()).unwrap_or_default();
-        for v in [&mut w.jac] {
-            v.clear();
-            v.resize(n * n, 0.0);
-        }
+        w.jac.clear();
+        w.jac.resize(n * n, 0.0);
         for v in [&mut w.step, &mut w.x0, &mut w.bar, &mut w.tmp] {
             v.clear();
             v.resize(n, 0.0);
