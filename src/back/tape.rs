@@ -151,6 +151,8 @@ struct Compiler<'a> {
     memo: HashMap<ExprId, u32>,
     var_reg: Vec<u32>,
     param_reg: Vec<u32>,
+    /// Constant registers (constants, parameters, reciprocals) by value.
+    consts: HashMap<u64, u32>,
     reg_var: Vec<Option<VarId>>,
     blocks: Vec<TapeBlock>,
 }
@@ -167,6 +169,26 @@ impl Compiler<'_> {
     }
 
     /// Emit `e` into `out` (post-order, memoized); returns its register.
+    /// The register of a constant value, one per distinct value: a ladder
+    /// of 10^5 equal resistors reads one `1/R`, which stays in cache.
+    fn const_reg(&mut self, v: f64) -> u32 {
+        if let Some(&r) = self.consts.get(&v.to_bits()) {
+            return r;
+        }
+        let r = self.reg(v);
+        self.consts.insert(v.to_bits(), r);
+        r
+    }
+
+    /// The value of a constant or parameter expression.
+    fn constant(&self, e: ExprId) -> Option<f64> {
+        match self.sched.exprs.get(e) {
+            Expr::Const(b) => Some(f64::from_bits(b)),
+            Expr::Param(p) => Some(self.sys.params[p].value),
+            _ => None,
+        }
+    }
+
     fn emit(&mut self, e: ExprId, out: &mut Vec<Instr>) -> u32 {
         if let Some(&r) = self.memo.get(&e) {
             return r;
@@ -174,14 +196,14 @@ impl Compiler<'_> {
         let x = &self.sched.exprs;
         let r = match x.get(e) {
             Expr::Const(b) => {
-                let r = self.reg(f64::from_bits(b));
+                let r = self.const_reg(f64::from_bits(b));
                 self.memo.insert(e, r);
                 return r;
             }
             Expr::Param(p) => {
                 let k = p.0 as usize;
                 if self.param_reg[k] == NONE {
-                    self.param_reg[k] = self.reg(self.sys.params[p].value);
+                    self.param_reg[k] = self.const_reg(self.sys.params[p].value);
                 }
                 return self.param_reg[k];
             }
@@ -224,6 +246,16 @@ impl Compiler<'_> {
                 let a = self.emit(a, out);
                 let d = self.reg(0.0);
                 out.push(Instr::Device { d, f, a });
+                d
+            }
+            // Division by a constant is multiplication by its reciprocal,
+            // computed once here (within an ulp of dividing; a division costs
+            // several multiplications).
+            Expr::Div(a, b) if self.constant(b).is_some_and(|c| c != 0.0 && c.is_finite()) => {
+                let ra = self.emit(a, out);
+                let rb = self.const_reg(1.0 / self.constant(b).unwrap_or(1.0));
+                let d = self.reg(0.0);
+                out.push(Instr::Mul { d, a: ra, b: rb });
                 d
             }
             Expr::Add(a, b)
@@ -433,6 +465,7 @@ pub fn compile(
         memo: HashMap::new(),
         var_reg: vec![NONE; sys.vars.len()],
         param_reg: vec![NONE; sys.params.len()],
+        consts: HashMap::new(),
         reg_var: Vec::new(),
         blocks: Vec::new(),
     };
