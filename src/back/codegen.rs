@@ -4,10 +4,12 @@
 //! directional difference; the in-process evaluator has the analytic one).
 //!
 //! Every statement is commented with the equation and element it comes from.
-//! Values live in one array `v` indexed by variable, and the statements are
-//! split into functions of at most [`CHUNK`] statements, so that the source
-//! of a 10^4-section ladder compiles quickly. Blocks are solved by a small
-//! damped Newton in the generated code.
+//! Values live in one array `v` indexed by variable. Runs of assignments of
+//! one shape whose indices step evenly (the repeated sections of a big
+//! circuit) are written as loops, and the statements are split into
+//! functions of at most [`CHUNK`] statements, so that the source of a
+//! 10^4-section ladder compiles in well under a second. Blocks are solved by
+//! a small damped Newton in the generated code.
 
 use std::fmt::Write;
 
@@ -16,6 +18,90 @@ use crate::ir::{DiodePart, EquationSystem, Expr, ExprArena, ExprId, Func, VarRol
 
 /// Statements per generated function.
 pub const CHUNK: usize = 50;
+
+/// Consecutive assignments of one shape whose indices step evenly become a
+/// loop from this many on (a big circuit's repeated sections).
+pub const MIN_RUN: usize = 16;
+
+/// An explicit assignment with its indices taken out (see [`Gen::shaped`]).
+struct Shaped {
+    template: String,
+    leaves: Vec<i64>,
+    var: String,
+    comment: String,
+}
+
+impl Shaped {
+    /// The statement with the holes filled by `index(hole)`.
+    fn fill(&self, mut index: impl FnMut(usize) -> String) -> String {
+        let mut out = String::with_capacity(self.template.len() + 8 * self.leaves.len());
+        for (h, piece) in self.template.split(HOLE).enumerate() {
+            if h > 0 {
+                out.push_str(&index(h - 1));
+            }
+            out.push_str(piece);
+        }
+        out
+    }
+}
+
+/// Statements for a sequence of shaped assignments: runs of at least
+/// [`MIN_RUN`] with one shape and evenly stepping indices as loops, in the
+/// same order as the assignments.
+fn reroll(run: &[Shaped], lang: Lang, out: &mut Vec<String>) {
+    let mut i = 0;
+    while i < run.len() {
+        let first = &run[i];
+        if let Some(second) = run.get(i + 1)
+            && second.template == first.template
+        {
+            let stride: Vec<i64> = second
+                .leaves
+                .iter()
+                .zip(&first.leaves)
+                .map(|(b, a)| b - a)
+                .collect();
+            let mut len = 2;
+            while let Some(next) = run.get(i + len)
+                && next.template == first.template
+                && next
+                    .leaves
+                    .iter()
+                    .zip(&run[i + len - 1].leaves)
+                    .zip(&stride)
+                    .all(|((b, a), d)| b - a == *d)
+            {
+                len += 1;
+            }
+            if len >= MIN_RUN {
+                let last = &run[i + len - 1];
+                let body = first.fill(|h| match stride[h] {
+                    0 => first.leaves[h].to_string(),
+                    1 => format!("{} + k", first.leaves[h]),
+                    d if d > 0 => format!("{} + {d} * k", first.leaves[h]),
+                    d => format!("{} - {} * k", first.leaves[h], -d),
+                });
+                let head = match lang {
+                    Lang::Rust => format!("for k in 0..{len}"),
+                    Lang::C => format!("for (size_t k = 0; k < {len}; k++)"),
+                };
+                out.push(format!(
+                    "    {head} {{ {body} }} // {len} assignments, {} .. {}: as {}",
+                    first.var, last.var, first.comment
+                ));
+                i += len;
+                continue;
+            }
+        }
+        out.push(format!(
+            "    {} // {} := ... from {}",
+            first.fill(|h| first.leaves[h].to_string()),
+            first.var,
+            first.comment
+        ));
+        i += 1;
+    }
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Lang {
@@ -41,9 +127,28 @@ struct Gen<'a> {
     lang: Lang,
 }
 
+/// An indexed operand of a generated expression.
+#[derive(Clone, Copy)]
+enum Leaf {
+    Var(u32),
+    Param(u32),
+}
+
+/// Placeholder for an index in an expression shape.
+const HOLE: char = '#';
+
 impl Gen<'_> {
     fn expr(&self, e: ExprId) -> String {
+        self.expr_with(e, &mut |leaf| match leaf {
+            Leaf::Var(v) => format!("v[{v}]"),
+            Leaf::Param(p) => format!("p[{p}]"),
+        })
+    }
+
+    /// The expression with its indexed operands written by `leaf`.
+    fn expr_with(&self, e: ExprId, leaf: &mut dyn FnMut(Leaf) -> String) -> String {
         let rust = self.lang == Lang::Rust;
+        let mut sub = |e| self.expr_with(e, leaf);
         match self.x.get(e) {
             Expr::Const(b) => {
                 let s = num(f64::from_bits(b));
@@ -53,20 +158,20 @@ impl Gen<'_> {
                     format!("({s})")
                 }
             }
-            Expr::Var(v) => format!("v[{}]", v.0),
-            Expr::Param(p) => format!("p[{}]", p.0),
+            Expr::Var(v) => leaf(Leaf::Var(v.0)),
+            Expr::Param(p) => leaf(Leaf::Param(p.0)),
             Expr::Time => "t".into(),
             Expr::Source(s, order) => format!("src_{}(t, {order})", s.0),
-            Expr::Neg(a) => format!("(-{})", self.expr(a)),
-            Expr::Add(a, b) => format!("({} + {})", self.expr(a), self.expr(b)),
-            Expr::Sub(a, b) => format!("({} - {})", self.expr(a), self.expr(b)),
-            Expr::Mul(a, b) => format!("({} * {})", self.expr(a), self.expr(b)),
-            Expr::Div(a, b) => format!("({} / {})", self.expr(a), self.expr(b)),
+            Expr::Neg(a) => format!("(-{})", sub(a)),
+            Expr::Add(a, b) => format!("({} + {})", sub(a), sub(b)),
+            Expr::Sub(a, b) => format!("({} - {})", sub(a), sub(b)),
+            Expr::Mul(a, b) => format!("({} * {})", sub(a), sub(b)),
+            Expr::Div(a, b) => format!("({} / {})", sub(a), sub(b)),
             Expr::Pow(a, b) => {
                 if rust {
-                    format!("{}.powf({})", self.expr(a), self.expr(b))
+                    format!("{}.powf({})", sub(a), sub(b))
                 } else {
-                    format!("pow({}, {})", self.expr(a), self.expr(b))
+                    format!("pow({}, {})", sub(a), sub(b))
                 }
             }
             Expr::Call(f, a) => {
@@ -75,14 +180,14 @@ impl Gen<'_> {
                     other => other.name(),
                 };
                 if rust {
-                    format!("{}.{name}()", self.expr(a))
+                    format!("{}.{name}()", sub(a))
                 } else {
                     let c = match f {
                         Func::Ln => "log",
                         Func::Abs => "fabs",
                         other => other.name(),
                     };
-                    format!("{c}({})", self.expr(a))
+                    format!("{c}({})", sub(a))
                 }
             }
             Expr::Device(f, a) => {
@@ -90,7 +195,7 @@ impl Gen<'_> {
                     DiodePart::Current => 0,
                     DiodePart::Charge => 1,
                 };
-                format!("diode_{}({part}, {}, {})", f.diode, f.order, self.expr(a))
+                format!("diode_{}({part}, {}, {})", f.diode, f.order, sub(a))
             }
         }
     }
@@ -99,6 +204,28 @@ impl Gen<'_> {
         let eq = &self.sys.eqs[a.eq];
         let text = crate::ir::print::equation(self.sys, a.eq).replace("*/", "* /");
         format!("{} ({}): {}", a.eq, eq.origin.describe(), text)
+    }
+
+    /// An explicit assignment as a shape, `v[#] = ...;` with a [`HOLE`] for
+    /// each index, and the indices that fill the holes.
+    fn shaped(&self, a: &Assignment, e: ExprId) -> Shaped {
+        let mut leaves = vec![i64::from(a.var.0)];
+        let rhs = self.expr_with(e, &mut |leaf| match leaf {
+            Leaf::Var(v) => {
+                leaves.push(i64::from(v));
+                format!("v[{HOLE}]")
+            }
+            Leaf::Param(p) => {
+                leaves.push(i64::from(p));
+                format!("p[{HOLE}]")
+            }
+        });
+        Shaped {
+            template: format!("v[{HOLE}] = {rhs};"),
+            leaves,
+            var: self.sys.vars[a.var].name.clone(),
+            comment: self.comment(a),
+        }
     }
 
     /// Statements of one step (blocks become a Newton call).
@@ -616,11 +743,21 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
             g.block_fns(step, k, &mut out);
         }
     }
-    // Statements, in chunks.
+    // Statements, in chunks; repeated sections as loops.
     let mut stmts = Vec::new();
+    let mut run = Vec::new();
     for (k, step) in sched.steps.iter().enumerate() {
+        if let Step::Assign(a) = step
+            && let Solved::Explicit(e) = a.solved
+        {
+            run.push(g.shaped(a, e));
+            continue;
+        }
+        reroll(&run, lang, &mut stmts);
+        run.clear();
         g.step(step, k, &mut stmts);
     }
+    reroll(&run, lang, &mut stmts);
     let chunks: Vec<&[String]> = stmts.chunks(CHUNK).collect();
     for (c, chunk) in chunks.iter().enumerate() {
         if rust {
