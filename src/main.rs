@@ -421,7 +421,7 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             };
             let s = &w.stats;
             eprintln!(
-                "{} states, {:?}: {} steps ({} rejected), {} f-evaluations, {} J·v, {} Jacobians, {} LU factorizations, {} restarts; {:.3} s",
+                "{} states, {:?}: {} steps ({} rejected), {} f-evaluations, {} J·v, {} Jacobians, {} LU factorizations, {} restarts{}; {:.3} s",
                 s.states,
                 s.method.unwrap_or(Method::Bdf),
                 s.steps,
@@ -431,6 +431,11 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                 s.jacobians,
                 s.lu_factorizations,
                 s.restarts,
+                if s.rescues > 0 {
+                    format!(" (+{} after repeated error-test failures)", s.rescues)
+                } else {
+                    String::new()
+                },
                 s.wall.as_secs_f64()
             );
             eprintln!(

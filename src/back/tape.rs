@@ -90,6 +90,9 @@ pub struct TapeBlock {
     /// Registers the body reads or writes, each once: the tangents a
     /// Jacobian column clears before it runs.
     pub touched: Vec<u32>,
+    /// Nothing outside the body reads what it computes but the tears: a
+    /// converged Newton may move the tears last without re-running it.
+    pub private: bool,
 }
 
 /// Why an evaluation failed.
@@ -361,6 +364,7 @@ impl Compiler<'_> {
                         .collect(),
                     junctions: Vec::new(),
                     touched: Vec::new(),
+                    private: false,
                 });
                 let kk = k as usize;
                 self.set_junctions(kk);
@@ -407,6 +411,7 @@ impl Compiler<'_> {
                     elements: b.elements.clone(),
                     junctions: Vec::new(),
                     touched: Vec::new(),
+                    private: false,
                 });
                 let kk = k as usize;
                 self.set_junctions(kk);
@@ -605,6 +610,11 @@ pub fn compile(
         .filter(|(_, r)| read.contains(r))
         .map(|(k, &r)| (k, r))
         .collect();
+    set_private(
+        &mut c.blocks,
+        &[&code, &out_code],
+        &[&deriv_regs, &out_regs],
+    );
     let n_in_f = count(&in_f);
     let n_at_outputs = count(&at_out);
     Tape {
@@ -896,7 +906,11 @@ impl Tape {
             if full <= 1e-13 {
                 // Converged to rounding: take the last correction and stop.
                 set(r, &w.x0, &w.step, 1.0);
-                return self.run(&b.body, r, t);
+                return if b.private {
+                    Ok(())
+                } else {
+                    self.run(&b.body, r, t)
+                };
             }
             // Junction limiting (ngspice's pnjlim) on tears inside an exp().
             // A limited step is taken as it is, as SPICE does.
@@ -949,7 +963,11 @@ impl Tape {
                 for (j, &x) in b.tears.iter().enumerate() {
                     r[x as usize] -= w.bar[j];
                 }
-                return self.run(&b.body, r, t);
+                return if b.private {
+                    Ok(())
+                } else {
+                    self.run(&b.body, r, t)
+                };
             }
             // Otherwise go on: the next correction (at most 1e-13) is applied
             // at the top, so the solution is as exact as f64 allows; the
@@ -1127,6 +1145,49 @@ impl Tape {
             }
         }
         out
+    }
+}
+
+/// Mark the blocks whose body values (other than the tears) are read only
+/// inside the body itself.
+fn set_private(blocks: &mut [TapeBlock], programs: &[&[Instr]], direct: &[&[u32]]) {
+    // Who reads each register: `None` for top-level code, `Some(k)` for the
+    // body of block k, and a conflict (read by two) as top level.
+    let mut reader: HashMap<u32, Option<usize>> = HashMap::new();
+    let mut note = |r: u32, by: Option<usize>| {
+        reader
+            .entry(r)
+            .and_modify(|old| {
+                if *old != by {
+                    *old = None;
+                }
+            })
+            .or_insert(by);
+    };
+    for code in programs {
+        for ins in code.iter() {
+            for r in sources_of(ins, &[]) {
+                note(r, None);
+            }
+        }
+    }
+    for regs in direct {
+        for &r in regs.iter() {
+            note(r, None);
+        }
+    }
+    for (k, b) in blocks.iter().enumerate() {
+        for ins in &b.body {
+            for r in sources_of(ins, &[]) {
+                note(r, Some(k));
+            }
+        }
+    }
+    for (k, b) in blocks.iter_mut().enumerate() {
+        b.private = b.body.iter().all(|ins| {
+            let d = dest(ins);
+            d == NONE || b.tears.contains(&d) || reader.get(&d).is_none_or(|by| *by == Some(k))
+        });
     }
 }
 

@@ -72,6 +72,8 @@ pub struct Stats {
     pub jacobians: usize,
     pub lu_factorizations: usize,
     pub restarts: usize,
+    /// Restarts after repeated error-test failures (a kink in the history).
+    pub rescues: usize,
     pub wall: Duration,
     /// Assignments computed in `f` / at output points only / never.
     pub in_f: usize,
@@ -770,7 +772,8 @@ where
         }
     }
     let mut last_report = Instant::now();
-    let mut prev_stats = (0usize, 0usize, 0usize);
+    // Restarts after too many error-test failures: (time, how many there).
+    let mut rescues = (f64::NAN, 0usize);
     loop {
         let (stop, is_hard) = stops[k];
         solver
@@ -811,7 +814,31 @@ where
                     if let Some(error) = problem.eqn.error.borrow_mut().take() {
                         return Err(SimError::Eval { error });
                     }
-                    return Err(diagnose(problem, &solver, e));
+                    // diffsol's BDF keeps its order through repeated error-test
+                    // failures; when the history holds a kink (a diode that just
+                    // switched), the estimate then stops shrinking with the step.
+                    // Restart from the last accepted point at order 1, as CVODE
+                    // does after repeated failures, a few times at most.
+                    let t = solver.state().t;
+                    let too_many = matches!(
+                        e,
+                        diffsol::DiffsolError::OdeSolverError(
+                            diffsol::error::OdeSolverError::TooManyErrorTestFailures { .. }
+                        )
+                    );
+                    if too_many && rescues.0 == t && rescues.1 >= 3 || !too_many {
+                        return Err(diagnose(problem, &solver, e));
+                    }
+                    rescues = if rescues.0 == t {
+                        (t, rescues.1 + 1)
+                    } else {
+                        (t, 1)
+                    };
+                    stats.rescues += 1;
+                    solver = restart(problem, solver, &make, t, stats, order)?;
+                    solver
+                        .set_stop_time(stop)
+                        .map_err(|e| solver_err(stop, e))?;
                 }
             }
         };
@@ -822,47 +849,56 @@ where
             let y = solver.state().y.slice().to_vec();
             insert_step(&mut rec, reason, &y)?;
         }
-        let s = solver.get_statistics();
-        let _ = prev_stats;
-        prev_stats = (
-            s.number_of_steps,
-            s.number_of_error_test_failures,
-            s.number_of_linear_solver_setups,
-        );
         if reason >= t_end || k + 1 >= stops.len() {
-            stats.steps += prev_stats.0;
-            stats.rejected += prev_stats.1;
-            stats.lu_factorizations += prev_stats.2;
+            let s = solver.get_statistics();
+            stats.steps += s.number_of_steps;
+            stats.rejected += s.number_of_error_test_failures;
+            stats.lu_factorizations += s.number_of_linear_solver_setups;
             break;
         }
         if is_hard {
             // Restart after a corner: fresh history, recomputed slope and step.
-            stats.steps += prev_stats.0;
-            stats.rejected += prev_stats.1;
-            stats.lu_factorizations += prev_stats.2;
             stats.restarts += 1;
-            let mut common = solver.into_state().into_common();
-            common.t = reason;
-            let y = common.y.slice().to_vec();
-            let mut dy = vec![0.0; y.len()];
-            problem
-                .eqn
-                .eval(reason, &y, &mut dy)
-                .map_err(|error| SimError::Eval { error })?;
-            common.dy.slice_mut().copy_from_slice(&dy);
-            let mut state = S::State::new_from_common(common);
-            state.as_mut().set_step_size(
-                problem.h0,
-                &problem.atol,
-                problem.rtol,
-                &problem.eqn,
-                order,
-            );
-            solver = make(problem, state).map_err(|e| solver_err(reason, e))?;
+            solver = restart(problem, solver, &make, reason, stats, order)?;
         }
         k += 1;
     }
     Ok(rec)
+}
+
+/// A new solver from `solver`'s state at `t`: fresh history (order 1),
+/// recomputed slope and initial step. Its statistics go into `stats`.
+fn restart<'p, M, S>(
+    problem: &'p OdeSolverProblem<CircuitOde<M>>,
+    solver: S,
+    make: &impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, S::State) -> Result<S, diffsol::DiffsolError>,
+    t: f64,
+    stats: &mut Stats,
+    order: usize,
+) -> Result<S, SimError>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    let s = solver.get_statistics();
+    stats.steps += s.number_of_steps;
+    stats.rejected += s.number_of_error_test_failures;
+    stats.lu_factorizations += s.number_of_linear_solver_setups;
+    let mut common = solver.into_state().into_common();
+    common.t = t;
+    let y = common.y.slice().to_vec();
+    let mut dy = vec![0.0; y.len()];
+    problem
+        .eqn
+        .eval(t, &y, &mut dy)
+        .map_err(|error| SimError::Eval { error })?;
+    common.dy.slice_mut().copy_from_slice(&dy);
+    let mut state = S::State::new_from_common(common);
+    state
+        .as_mut()
+        .set_step_size(problem.h0, &problem.atol, problem.rtol, &problem.eqn, order);
+    make(problem, state).map_err(|e| solver_err(t, e))
 }
 
 /// Record the grid points up to `t` (inclusive when `at_stop`).
