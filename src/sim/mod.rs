@@ -826,7 +826,7 @@ where
                             diffsol::error::OdeSolverError::TooManyErrorTestFailures { .. }
                         )
                     );
-                    if too_many && rescues.0 == t && rescues.1 >= 3 || !too_many {
+                    if !too_many || (rescues.0 == t && rescues.1 >= 3) {
                         return Err(diagnose(problem, &solver, e));
                     }
                     rescues = if rescues.0 == t {
