@@ -104,7 +104,7 @@ enum Command {
         #[arg(long = "probe", value_name = "VECTOR")]
         probes: Vec<String>,
         /// kausal's integration method.
-        #[arg(long, value_enum)]
+        #[arg(long, visible_alias = "solver", value_enum)]
         method: Option<Method>,
         /// kausal's relative tolerance.
         #[arg(long)]
@@ -167,7 +167,7 @@ enum Command {
         #[arg(long = "probe", value_name = "VECTOR")]
         probes: Vec<String>,
         /// Integration method (default: bdf).
-        #[arg(long, value_enum)]
+        #[arg(long, visible_alias = "solver", value_enum)]
         method: Option<Method>,
         /// Relative tolerance (default 1e-7).
         #[arg(long)]

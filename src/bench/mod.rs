@@ -659,7 +659,8 @@ pub struct ScalePoint {
     pub solve_seconds: f64,
     pub ngspice_solve_seconds: Option<f64>,
     pub ngspice_total_seconds: Option<f64>,
-    /// Largest difference of the last node's voltage, kausal against ngspice.
+    /// Largest difference of the first and last nodes' voltages, kausal
+    /// against ngspice.
     pub difference: Option<f64>,
 }
 
@@ -685,11 +686,12 @@ pub fn scaling(
     for &n in sizes {
         let mut text = crate::generate::rc_ladder(n);
         let end = text.rfind(".end").unwrap_or(text.len());
-        text.insert_str(end, &format!(".save v(n{n})\n"));
+        text.insert_str(end, &format!(".save v(n1) v(n{n})\n"));
         let path: PathBuf = dir.join(format!("rc_ladder_{n}.cir"));
         std::fs::write(&path, &text).map_err(|e| BenchError::Pipeline(e.to_string()))?;
         let (sorted, front, sort) = sorted_from(&path)?;
-        let probe = vec![format!("v(n{n})")];
+        // The first node carries the step; the last barely moves.
+        let probe = vec!["v(n1)".to_string(), format!("v(n{n})")];
         let so = sim::Options {
             probes: probe.clone(),
             ..Default::default()
@@ -735,7 +737,7 @@ pub fn scaling(
 fn scaling_markdown(sc: &Scaling) -> String {
     use std::fmt::Write;
     let mut s = String::from("## Scaling: RC ladders at default tolerances\n\n");
-    s.push_str("Generated ladders (`kausal::generate::rc_ladder`, 10 ms, 10 001 output points), only the last node saved. kausal: rtol 1e-7; ngspice: its defaults.\n\n");
+    s.push_str("Generated ladders (`kausal::generate::rc_ladder`, 10 ms, 10 001 output points), the first and the last node saved. kausal: rtol 1e-7; ngspice: its defaults.\n\n");
     s.push_str("| sections | states | parse+build (ms) | sort (ms) | kausal solve (ms) | ngspice solve (ms) | ngspice process (ms) | solve speed-up | max |Δv| vs ngspice |\n|---|---|---|---|---|---|---|---|---|\n");
     for p in &sc.points {
         let _ = writeln!(
