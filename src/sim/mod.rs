@@ -39,6 +39,9 @@ pub enum Method {
 
 /// Default relative tolerance: accurate by default (see README).
 pub const DEFAULT_RTOL: f64 = 1e-7;
+/// Up to this many states the integrator's matrices are dense (nalgebra);
+/// above, sparse (faer) with a coloured Jacobian.
+pub const DENSE_STATES: usize = 64;
 /// Default absolute tolerance on voltage-like states (V).
 pub const DEFAULT_ATOL_V: f64 = 1e-9;
 /// Default absolute tolerance on current-like states (A).
@@ -294,7 +297,7 @@ fn breakpoints(sys: &EquationSystem, t0: f64, t1: f64, tmax: Option<f64>) -> (Ve
 
 /// The initial states: `uic` (element `ic=` and `.ic` values) or the DC
 /// operating point (capacitors open, inductors shorted: `f(0, y) = 0`).
-fn initial_state<M: Matrix<T = f64>>(
+fn initial_state<M: Matrix<T = f64>, LS: LinearSolver<M>>(
     sorted: &Sorted,
     ode: &CircuitOde<M>,
     t0: f64,
@@ -348,14 +351,86 @@ where
         return Ok(y);
     }
     tape.dc.set(true);
-    let r = dc_point(c, ode, t0, y, &from_ic);
+    let r = dc_point::<M, LS>(c, ode, t0, y, &from_ic);
     tape.dc.set(false);
     r
 }
 
+/// The DC operating point of a large circuit (no `.ic`): damped Newton on
+/// `f(t0, y) = 0` with the integrator's sparse LU of the coloured Jacobian.
+fn dc_point_sparse<M: Matrix<T = f64>, LS: LinearSolver<M>>(
+    ode: &CircuitOde<M>,
+    t0: f64,
+    mut y: Vec<f64>,
+    mut f: Vec<f64>,
+    mut norm: f64,
+) -> Result<Vec<f64>, SimError>
+where
+    M::V: HostVec,
+{
+    use diffsol::{OdeEquations, Op, Vector};
+    let n = y.len();
+    let op = ode.rhs();
+    let ctx = ode.context().clone();
+    let mut ls = LS::default();
+    LinearSolver::set_problem(&mut ls, &op);
+    let failed = |e: Option<EvalError>| {
+        match e {
+        Some(error) => SimError::Eval { error },
+        None => SimError::DcFailed {
+            message: "the DC Jacobian is singular: a node or loop has no DC path (a capacitor-only node, an inductor loop); use `.tran ... uic`".into(),
+        },
+    }
+    };
+    let resid = |y: &[f64], f: &mut Vec<f64>| -> Result<f64, SimError> {
+        ode.eval(t0, y, f)
+            .map_err(|error| SimError::Eval { error })?;
+        Ok(f.iter().map(|x| x.abs()).fold(0.0, f64::max))
+    };
+    for _ in 0..200 {
+        let yv = M::V::from_vec(y.clone(), ctx.clone());
+        LinearSolver::set_linearisation(&mut ls, &op, &yv, t0);
+        let mut sv = M::V::from_vec(f.clone(), ctx.clone());
+        let solved = ls.solve_in_place(&mut sv);
+        if let Some(error) = ode.error.borrow_mut().take() {
+            return Err(failed(Some(error)));
+        }
+        let step = sv.slice().to_vec();
+        if solved.is_err() || step.iter().any(|s| !s.is_finite()) {
+            return Err(failed(None));
+        }
+        let y0 = y.clone();
+        let mut lambda = 1.0;
+        loop {
+            for k in 0..n {
+                y[k] = y0[k] - lambda * step[k];
+            }
+            let nn = resid(&y, &mut f)?;
+            if (nn.is_finite() && nn < norm) || lambda < 1e-10 {
+                norm = nn;
+                break;
+            }
+            lambda *= 0.5;
+        }
+        let small = step
+            .iter()
+            .zip(&y0)
+            .all(|(s, x)| (lambda * s).abs() <= 1e-12 * (1.0 + x.abs()));
+        if small || norm <= 1e-15 {
+            return Ok(y);
+        }
+    }
+    if norm.is_finite() && norm < 1e-9 {
+        return Ok(y);
+    }
+    Err(SimError::DcFailed {
+        message: format!("Newton did not converge (residual {norm:.3e})"),
+    })
+}
+
 /// DC operating point by damped Newton on f(t0, y) = 0 in DC mode, with the
 /// states that `.ic` fixes held.
-fn dc_point<M: Matrix<T = f64>>(
+fn dc_point<M: Matrix<T = f64>, LS: LinearSolver<M>>(
     c: &Circuit,
     ode: &CircuitOde<M>,
     t0: f64,
@@ -382,10 +457,13 @@ where
     if norm == 0.0 {
         return Ok(y);
     }
+    if n > DENSE_STATES && !fix.iter().any(|&f| f) {
+        return dc_point_sparse::<M, LS>(ode, t0, y, f, norm);
+    }
     if n > 4000 {
         return Err(SimError::DcFailed {
             message: format!(
-                "the DC solve of {n} states is dense; use `.tran ... uic` with initial conditions"
+                "the DC solve of {n} states with `.ic` values is dense; use `.tran ... uic` with initial conditions"
             ),
         });
     }
@@ -460,7 +538,7 @@ pub fn simulate(sorted: &Sorted, opts: &Options) -> Result<Waveforms, SimError> 
     let method = opts.method.unwrap_or(Method::Bdf);
     let mut w = if n == 0 {
         algebraic(sys, tape.clone(), &tran, opts)?
-    } else if n <= 64 {
+    } else if n <= DENSE_STATES {
         run::<NalgebraMat<f64>, NalgebraLU<f64>>(
             sorted,
             sys,
@@ -593,7 +671,7 @@ where
 {
     let t0 = 0.0;
     let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; tape.states.len()], sparse);
-    let y0 = initial_state(sorted, &ode, t0)?;
+    let y0 = initial_state::<M, LS>(sorted, &ode, t0)?;
     *ode.y0.borrow_mut() = y0;
     let c = &sorted.elaborated.circuit;
     let rtol = opts.rtol.unwrap_or_else(|| {

@@ -191,3 +191,28 @@ fn csv_and_raw_output_follow_ngspice_names() {
     let w = sim::simulate(&s, &sim::Options::default()).unwrap();
     assert_eq!(w.names, ["v(a)", "v(b)", "v(x1.n)", "i(v1)", "i(v.x1.vm)"]);
 }
+
+/// A DC start of a circuit large enough for the sparse integrator (more than
+/// `sim::DENSE_STATES` states) solves the operating point with the sparse LU:
+/// a resistive divider along an RC ladder.
+#[test]
+fn a_large_circuit_starts_from_its_dc_operating_point() {
+    // Beyond the dense solve's reach too (it stopped at 4000 states).
+    let n = 4100;
+    let mut text = String::from("ladder from DC\nV1 n0 0 PULSE(1 0 1m 1u 1u 1 2)\n");
+    for k in 1..=n {
+        text.push_str(&format!("R{k} n{} n{k} 1k\nC{k} n{k} 0 1n\n", k - 1));
+    }
+    text.push_str(&format!("Rl n{n} 0 1Meg\n.tran 10u 20u\n.end\n"));
+    // Every section drops 1k * I, I = 1 V / (n * 1k + 1M).
+    let current = 1.0 / (n as f64 * 1e3 + 1e6);
+    for (node, k) in [("n1", 1.0), (&*format!("n{n}"), n as f64)] {
+        let (_, y) = run(&text, &format!("v({node})"), None, 1e-7);
+        let exact = 1.0 - k * 1e3 * current;
+        assert!(
+            (y[0] - exact).abs() <= 1e-9,
+            "v({node}) = {} at t = 0, expected {exact}",
+            y[0]
+        );
+    }
+}
