@@ -419,6 +419,13 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                     return Ok(ExitCode::FAILURE);
                 }
             };
+            // The files first: a closed stderr cannot lose them.
+            if let Some(path) = &raw {
+                let text = sim::output::raw_ascii(&w, &sorted.elaborated.circuit.title);
+                kausal::io::write_atomic(path, text.as_bytes())
+                    .map_err(|e| format!("cannot write `{}`: {e}", path.display()))?;
+            }
+            emit(out.as_ref(), &sim::output::csv(&w))?;
             let s = &w.stats;
             eprintln!(
                 "{} states, {:?}: {} steps ({} rejected), {} f-evaluations, {} J·v, {} Jacobians, {} LU factorizations, {} restarts{}; {:.3} s",
@@ -442,12 +449,6 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                 "assignments: {} in f, {} at output points only, {} pruned",
                 s.in_f, s.at_outputs, s.unused
             );
-            if let Some(path) = &raw {
-                let text = sim::output::raw_ascii(&w, &sorted.elaborated.circuit.title);
-                kausal::io::write_atomic(path, text.as_bytes())
-                    .map_err(|e| format!("cannot write `{}`: {e}", path.display()))?;
-            }
-            emit(out.as_ref(), &sim::output::csv(&w))?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Sort {
