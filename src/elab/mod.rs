@@ -22,14 +22,17 @@ use crate::ir::Waveform;
 /// Flatten a parsed netlist into a circuit. Errors and warnings are collected;
 /// the circuit holds everything that elaborated.
 pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
+    // Sized for a flat netlist (about as many nodes as elements): no rehash
+    // while a big circuit fills them.
+    let n = netlist.stmts.len();
     let mut e = Elab {
         circuit: Circuit {
             title: netlist.title.to_string(),
             ..Circuit::default()
         },
         errors: Vec::new(),
-        node_map: FxHashMap::default(),
-        elem_map: FxHashMap::default(),
+        node_map: FxHashMap::with_capacity_and_hasher(n, Default::default()),
+        elem_map: FxHashMap::with_capacity_and_hasher(n, Default::default()),
         pending: Vec::new(),
         model_cache: HashMap::new(),
         tstep: 1.0,
