@@ -258,7 +258,14 @@ impl Elab {
         if let Some(&n) = scope.ports.get(&key) {
             return n;
         }
-        let full = format!("{}{}", scope.prefix.to_ascii_lowercase(), key);
+        // At top level the key is the name: no second string per lookup.
+        let full = if scope.prefix.is_empty() {
+            key
+        } else {
+            let mut full = scope.prefix.to_ascii_lowercase();
+            full.push_str(&key);
+            full
+        };
         if let Some(&n) = self.node_map.get(&full) {
             return n;
         }
@@ -291,7 +298,9 @@ impl Elab {
         scope: &Scope<'s, 'a>,
         stack: &mut Vec<String>,
     ) {
-        let name = format!("{}{}", scope.prefix, el.name.text);
+        let mut name = String::with_capacity(scope.prefix.len() + el.name.text.len());
+        name.push_str(&scope.prefix);
+        name.push_str(el.name.text);
         if let ElementBody::Instance { subckt, params } = &el.body {
             self.instance(el, &name, subckt, params, scope, stack);
             return;
