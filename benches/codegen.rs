@@ -3,21 +3,15 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use kausal::back::codegen::{self, Lang};
-use kausal::io::FsLoader;
 use kausal::pipeline::{self, SortOptions};
-use std::path::Path;
 use std::process::Command;
 
 fn compile(c: &mut Criterion) {
     let n = 10_000usize;
     let text = kausal::generate::rc_ladder(n);
-    let el = pipeline::elaborate_text("ladder.cir", Path::new("ladder.cir"), text, &FsLoader)
+    let s = pipeline::sort_text("ladder.cir", text, &SortOptions::default())
         .ok()
-        .expect("ladder elaborates");
-    let built = kausal::build::build(&el.circuit, Default::default());
-    let s = pipeline::sort_built(el, built, &SortOptions::default())
-        .ok()
-        .expect("sorts");
+        .expect("the ladder sorts");
     let dir = tempfile::tempdir().expect("a temporary directory");
     let mut g = c.benchmark_group("compile generated rc_ladder 1e4");
     g.sample_size(10);

@@ -3,9 +3,7 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use kausal::back::tape;
-use kausal::io::FsLoader;
 use kausal::pipeline::{self, SortOptions};
-use std::path::Path;
 
 #[global_allocator]
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
@@ -13,13 +11,9 @@ static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
 fn eval(c: &mut Criterion) {
     let n = 100_000usize;
     let text = kausal::generate::rc_ladder(n);
-    let el = pipeline::elaborate_text("ladder.cir", Path::new("ladder.cir"), text, &FsLoader)
+    let s = pipeline::sort_text("ladder.cir", text, &SortOptions::default())
         .ok()
-        .expect("ladder elaborates");
-    let built = kausal::build::build(&el.circuit, Default::default());
-    let s = pipeline::sort_built(el, built, &SortOptions::default())
-        .ok()
-        .expect("sorts");
+        .expect("the ladder sorts");
     let t = tape::compile(s.system(), &s.causal.graph, &s.schedule, &[]);
     assert_eq!(t.states.len(), n);
     let y: Vec<f64> = (0..n).map(|k| (k as f64 * 0.37).sin()).collect();

@@ -139,6 +139,14 @@ pub fn sort(path: &Path, loader: &dyn Loader, opts: &SortOptions) -> Result<Sort
     sort_built(el, built, opts)
 }
 
+/// [`sort`] of netlist text that has no file (generated circuits); includes
+/// are read relative to the working directory.
+pub fn sort_text(name: &str, text: String, opts: &SortOptions) -> Result<Sorted, Box<Failed>> {
+    let el = elaborate_text(name, Path::new(name), text, &crate::io::FsLoader)?;
+    let built = crate::build::build(&el.circuit, opts.build);
+    sort_built(el, built, opts)
+}
+
 /// [`sort`] from an elaborated circuit and its equations.
 pub fn sort_built(el: Elaborated, built: Built, opts: &SortOptions) -> Result<Sorted, Box<Failed>> {
     let c = &el.circuit;

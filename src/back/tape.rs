@@ -781,7 +781,9 @@ impl Tape {
                     }
                     self.run_tangent(&b.body, r, dr, t)?;
                     w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
-                    if !solve_dense(n, &mut w.jac, &mut w.res) {
+                    if lu_factor(n, &mut w.jac, &mut w.perm) {
+                        lu_solve(n, &w.jac, &w.perm, &mut w.res, &mut w.tmp);
+                    } else {
                         return Err(EvalError::Singular {
                             block: b.index,
                             elements: b.elements.clone(),
@@ -1374,38 +1376,14 @@ fn lu_solve(n: usize, a: &[f64], perm: &[usize], b: &mut [f64], tmp: &mut [f64])
     b[..n].copy_from_slice(&tmp[..n]);
 }
 
-/// Solve a small dense system `a x = b` in place (partial pivoting).
+/// Solve a small dense system `a x = b` in place (partial pivoting); false
+/// if `a` is singular.
 pub fn solve_dense(n: usize, a: &mut [f64], b: &mut [f64]) -> bool {
-    for k in 0..n {
-        let p = (k..n)
-            .max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs()))
-            .unwrap_or(k);
-        if a[p * n + k] == 0.0 || !a[p * n + k].is_finite() {
-            return false;
-        }
-        if p != k {
-            for j in 0..n {
-                a.swap(k * n + j, p * n + j);
-            }
-            b.swap(k, p);
-        }
-        for i in k + 1..n {
-            let f = a[i * n + k] / a[k * n + k];
-            if f == 0.0 {
-                continue;
-            }
-            for j in k..n {
-                a[i * n + j] -= f * a[k * n + j];
-            }
-            b[i] -= f * b[k];
-        }
+    let mut perm = vec![0; n];
+    if !lu_factor(n, a, &mut perm) {
+        return false;
     }
-    for k in (0..n).rev() {
-        let mut s = b[k];
-        for j in k + 1..n {
-            s -= a[k * n + j] * b[j];
-        }
-        b[k] = s / a[k * n + k];
-    }
+    let mut tmp = vec![0.0; n];
+    lu_solve(n, a, &perm, b, &mut tmp);
     true
 }

@@ -356,90 +356,23 @@ where
     r
 }
 
-/// The DC operating point of a large circuit (no `.ic`): damped Newton on
-/// `f(t0, y) = 0` with the integrator's sparse LU of the coloured Jacobian.
-fn dc_point_sparse<M: Matrix<T = f64>, LS: LinearSolver<M>>(
-    ode: &CircuitOde<M>,
-    t0: f64,
-    mut y: Vec<f64>,
-    mut f: Vec<f64>,
-    mut norm: f64,
-) -> Result<Vec<f64>, SimError>
-where
-    M::V: HostVec,
-{
-    use diffsol::{OdeEquations, Op, Vector};
-    let n = y.len();
-    let op = ode.rhs();
-    let ctx = ode.context().clone();
-    let mut ls = LS::default();
-    LinearSolver::set_problem(&mut ls, &op);
-    let failed = |e: Option<EvalError>| {
-        match e {
-        Some(error) => SimError::Eval { error },
-        None => SimError::DcFailed {
-            message: "the DC Jacobian is singular: a node or loop has no DC path (a capacitor-only node, an inductor loop); use `.tran ... uic`".into(),
-        },
-    }
-    };
-    let resid = |y: &[f64], f: &mut Vec<f64>| -> Result<f64, SimError> {
-        ode.eval(t0, y, f)
-            .map_err(|error| SimError::Eval { error })?;
-        Ok(f.iter().map(|x| x.abs()).fold(0.0, f64::max))
-    };
-    for _ in 0..200 {
-        let yv = M::V::from_vec(y.clone(), ctx.clone());
-        LinearSolver::set_linearisation(&mut ls, &op, &yv, t0);
-        let mut sv = M::V::from_vec(f.clone(), ctx.clone());
-        let solved = ls.solve_in_place(&mut sv);
-        if let Some(error) = ode.error.borrow_mut().take() {
-            return Err(failed(Some(error)));
-        }
-        let step = sv.slice().to_vec();
-        if solved.is_err() || step.iter().any(|s| !s.is_finite()) {
-            return Err(failed(None));
-        }
-        let y0 = y.clone();
-        let mut lambda = 1.0;
-        loop {
-            for k in 0..n {
-                y[k] = y0[k] - lambda * step[k];
-            }
-            let nn = resid(&y, &mut f)?;
-            if (nn.is_finite() && nn < norm) || lambda < 1e-10 {
-                norm = nn;
-                break;
-            }
-            lambda *= 0.5;
-        }
-        let small = step
-            .iter()
-            .zip(&y0)
-            .all(|(s, x)| (lambda * s).abs() <= 1e-12 * (1.0 + x.abs()));
-        if small || norm <= 1e-15 {
-            return Ok(y);
-        }
-    }
-    if norm.is_finite() && norm < 1e-9 {
-        return Ok(y);
-    }
-    Err(SimError::DcFailed {
-        message: format!("Newton did not converge (residual {norm:.3e})"),
-    })
-}
+/// Why a DC Newton step could not be computed.
+const DC_SINGULAR: &str = "the DC Jacobian is singular: a node or loop has no DC path (a capacitor-only node, an inductor loop); use `.tran ... uic`";
 
 /// DC operating point by damped Newton on f(t0, y) = 0 in DC mode, with the
-/// states that `.ic` fixes held.
+/// states that `.ic` fixes held: the integrator's sparse LU of the coloured
+/// Jacobian for large circuits without `.ic`, else a dense solve.
 fn dc_point<M: Matrix<T = f64>, LS: LinearSolver<M>>(
     c: &Circuit,
     ode: &CircuitOde<M>,
     t0: f64,
-    mut y: Vec<f64>,
+    y: Vec<f64>,
     from_ic: &[bool],
 ) -> Result<Vec<f64>, SimError>
 where
     M::V: HostVec,
 {
+    use diffsol::{OdeEquations, Op, Vector};
     let n = y.len();
     let mut f = vec![0.0; n];
     let fix: Vec<bool> = from_ic.iter().map(|&b| b && !c.ics.is_empty()).collect();
@@ -453,12 +386,32 @@ where
         }
         Ok(f.iter().map(|x| x.abs()).fold(0.0, f64::max))
     };
-    let mut norm = resid(&y, &mut f)?;
+    let norm = resid(&y, &mut f)?;
     if norm == 0.0 {
         return Ok(y);
     }
+    let singular = || SimError::DcFailed {
+        message: DC_SINGULAR.into(),
+    };
     if n > DENSE_STATES && !fix.iter().any(|&f| f) {
-        return dc_point_sparse::<M, LS>(ode, t0, y, f, norm);
+        let op = ode.rhs();
+        let ctx = ode.context().clone();
+        let mut ls = LS::default();
+        LinearSolver::set_problem(&mut ls, &op);
+        return dc_newton(y, f, norm, &resid, |y, f| {
+            let yv = M::V::from_vec(y.to_vec(), ctx.clone());
+            LinearSolver::set_linearisation(&mut ls, &op, &yv, t0);
+            let mut sv = M::V::from_vec(f.to_vec(), ctx.clone());
+            let solved = ls.solve_in_place(&mut sv);
+            if let Some(error) = ode.error.borrow_mut().take() {
+                return Err(SimError::Eval { error });
+            }
+            let step = sv.slice().to_vec();
+            if solved.is_err() || step.iter().any(|s| !s.is_finite()) {
+                return Err(singular());
+            }
+            Ok(step)
+        });
     }
     if n > 4000 {
         return Err(SimError::DcFailed {
@@ -470,10 +423,10 @@ where
     let mut jac = vec![0.0; n * n];
     let mut col = vec![0.0; n];
     let mut e = vec![0.0; n];
-    for _ in 0..200 {
+    dc_newton(y, f, norm, &resid, |y, f| {
         for j in 0..n {
             e[j] = 1.0;
-            ode.jv(t0, &y, &e, &mut col)
+            ode.jv(t0, y, &e, &mut col)
                 .map_err(|error| SimError::Eval { error })?;
             e[j] = 0.0;
             for i in 0..n {
@@ -484,13 +437,29 @@ where
                 };
             }
         }
-        let mut step = f.clone();
-        let mut a = jac.clone();
-        if !tape::solve_dense(n, &mut a, &mut step) {
-            return Err(SimError::DcFailed {
-                message: "the DC Jacobian is singular: a node or loop has no DC path (a capacitor-only node, an inductor loop); use `.tran ... uic`".into(),
-            });
+        let mut step = f.to_vec();
+        if !tape::solve_dense(n, &mut jac, &mut step) {
+            return Err(singular());
         }
+        Ok(step)
+    })
+}
+
+/// `f` into its argument, returning its max-norm.
+type Residual<'a> = dyn Fn(&[f64], &mut Vec<f64>) -> Result<f64, SimError> + 'a;
+
+/// Damped Newton from `y` (residual `f`, max-norm `norm`): `solve(y, f)`
+/// gives the full correction; the step is halved until the residual drops.
+fn dc_newton(
+    mut y: Vec<f64>,
+    mut f: Vec<f64>,
+    mut norm: f64,
+    resid: &Residual<'_>,
+    mut solve: impl FnMut(&[f64], &[f64]) -> Result<Vec<f64>, SimError>,
+) -> Result<Vec<f64>, SimError> {
+    let n = y.len();
+    for _ in 0..200 {
+        let step = solve(&y, &f)?;
         let y0 = y.clone();
         let mut lambda = 1.0;
         loop {
