@@ -33,15 +33,13 @@ impl StructureGraph {
     pub fn build(sys: &EquationSystem) -> StructureGraph {
         let n_eqs = sys.eqs.len();
         let n_vars = sys.vars.len();
-        let is_unknown: Vec<bool> = sys.vars.values().map(|v| v.is_unknown()).collect();
+        let is_unknown: Vec<bool> = sys.unknown_flags().to_vec();
         let mut eq_start = Vec::with_capacity(n_eqs + 1);
         let mut edge_var = Vec::with_capacity(n_eqs * 3);
         let mut edge_eq = Vec::with_capacity(n_eqs * 3);
-        let (mut vars, mut stack) = (Vec::new(), Vec::new());
         eq_start.push(0);
         for eq in sys.eqs.ids() {
-            sys.eq_vars(eq, &mut vars, &mut stack);
-            for &v in &vars {
+            for &v in sys.incidence(eq) {
                 if is_unknown[v.0 as usize] {
                     edge_var.push(v);
                     edge_eq.push(eq);

@@ -143,6 +143,7 @@ pub fn reduce_index(
                 });
             }
         }
+        aug.refresh_unknown();
         // A state whose derivative the differentiated set contains.
         let derived: Vec<EqId> = set.iter().map(|e| deq[e]).collect();
         let Some(state) = choose_state(&aug, g, &derived, opts) else {
@@ -151,8 +152,7 @@ pub fn reduce_index(
             });
         };
         let der = derivs[&state];
-        aug.vars[state].role = VarRole::Unknown;
-        aug.vars[der].role = VarRole::Unknown;
+        aug.demote_state(state, der);
         red.removed.push(RemovedIntegrator {
             state,
             der,
@@ -241,7 +241,8 @@ fn overdetermined_set(sys: &EquationSystem, prefer: Option<EqId>) -> Option<(EqI
     Some((EqId(g as u32), set))
 }
 
-/// A fresh algebraic unknown `der(x)`.
+/// A fresh algebraic unknown `der(x)` (the caller refreshes the system's
+/// unknown flags).
 fn new_derivative(vars: &mut crate::ir::IdVec<VarId, crate::ir::Var>, x: VarId) -> VarId {
     let base = &vars[x];
     vars.push(crate::ir::Var {

@@ -217,8 +217,9 @@ pub fn eliminate(b: &mut Built, circuit: &Circuit) {
             .substitute(e.rhs, &mut |v| repl.get(&v).copied(), &mut memo);
         sys.eqs.push(e);
     }
+    sys.rebuild_incidence();
     for (&v, &e) in &repl {
-        sys.vars[v].alias = Some(e);
+        sys.set_alias(v, e);
     }
     for p in b.node_pot.iter_mut() {
         *p = sys

@@ -63,13 +63,14 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
     let n = circuit.elements.len() + circuit.nodes.len();
     let mut b = Builder {
         c: circuit,
-        sys: EquationSystem {
-            title: circuit.title.clone(),
-            exprs: crate::ir::ExprArena::with_capacity(8 * n),
-            vars: crate::ir::IdVec::with_capacity(3 * n),
-            params: crate::ir::IdVec::with_capacity(n),
-            eqs: crate::ir::IdVec::with_capacity(3 * n),
-            ..EquationSystem::default()
+        sys: {
+            let mut sys = EquationSystem::default();
+            sys.title = circuit.title.clone();
+            sys.exprs = crate::ir::ExprArena::with_capacity(8 * n);
+            sys.vars = crate::ir::IdVec::with_capacity(3 * n);
+            sys.params = crate::ir::IdVec::with_capacity(n);
+            sys.eqs = crate::ir::IdVec::with_capacity(3 * n);
+            sys
         },
         names: circuit
             .elements

@@ -377,10 +377,22 @@ pub struct EquationSystem {
     pub eliminated: Vec<String>,
     /// Diode models used by device functions.
     pub diodes: Vec<super::DiodeParams>,
+    /// The variables of each equation, left to right without repeats, in
+    /// compressed rows: computed once when the equation is added (its nodes
+    /// are still in cache then), so that passes need not walk the DAGs.
+    /// [`EquationSystem::add_eq`] and [`EquationSystem::rebuild_incidence`]
+    /// keep it; `ir::verify` checks it.
+    incidence_start: Vec<u32>,
+    incidence: Vec<VarId>,
+    /// [`Var::is_unknown`] of every variable, compact (a pass over 10^6
+    /// `Var`s reads 100 MB); kept by the methods that change roles and
+    /// aliases, checked by `ir::verify`.
+    unknown: Vec<bool>,
 }
 
 impl EquationSystem {
     pub fn add_var(&mut self, name: String, kind: VarKind, origin: Origin) -> VarId {
+        self.unknown.push(true);
         self.vars.push(Var {
             name,
             kind,
@@ -401,8 +413,34 @@ impl EquationSystem {
             origin,
             alias: None,
         });
+        self.unknown.push(true);
         self.vars[state].role = VarRole::State { der };
+        self.unknown[state.0 as usize] = false;
         der
+    }
+
+    /// A state and its derivative become algebraic unknowns (index reduction).
+    pub fn demote_state(&mut self, state: VarId, der: VarId) {
+        self.vars[state].role = VarRole::Unknown;
+        self.vars[der].role = VarRole::Unknown;
+        self.unknown[state.0 as usize] = self.vars[state].alias.is_none();
+        self.unknown[der.0 as usize] = self.vars[der].alias.is_none();
+    }
+
+    /// `v` is replaced by `e` everywhere (alias elimination).
+    pub fn set_alias(&mut self, v: VarId, e: ExprId) {
+        self.vars[v].alias = Some(e);
+        self.unknown[v.0 as usize] = false;
+    }
+
+    /// Recompute the unknown flags after variables were pushed directly.
+    pub fn refresh_unknown(&mut self) {
+        self.unknown = self.vars.values().map(Var::is_unknown).collect();
+    }
+
+    /// [`Var::is_unknown`] of every variable, by id.
+    pub fn unknown_flags(&self) -> &[bool] {
+        &self.unknown
     }
 
     pub fn add_param(&mut self, name: String, value: f64) -> ParamId {
@@ -410,7 +448,39 @@ impl EquationSystem {
     }
 
     pub fn add_eq(&mut self, lhs: ExprId, rhs: ExprId, origin: Origin) -> EqId {
-        self.eqs.push(Equation { lhs, rhs, origin })
+        let id = self.eqs.push(Equation { lhs, rhs, origin });
+        self.push_incidence(id);
+        id
+    }
+
+    fn push_incidence(&mut self, eq: EqId) {
+        if self.incidence_start.is_empty() {
+            self.incidence_start.push(0);
+        }
+        let (mut vars, mut stack) = (Vec::new(), Vec::new());
+        self.eq_vars(eq, &mut vars, &mut stack);
+        self.incidence.extend_from_slice(&vars);
+        self.incidence_start.push(self.incidence.len() as u32);
+    }
+
+    /// Recompute the incidence after equations were replaced in place.
+    pub fn rebuild_incidence(&mut self) {
+        self.incidence_start.clear();
+        self.incidence.clear();
+        for eq in self.eqs.ids() {
+            self.push_incidence(eq);
+        }
+    }
+
+    /// The variables of `eq` (knowns included), as [`EquationSystem::eq_vars`]
+    /// lists them, without walking its expressions.
+    #[inline]
+    pub fn incidence(&self, eq: EqId) -> &[VarId] {
+        let k = eq.0 as usize;
+        match (self.incidence_start.get(k), self.incidence_start.get(k + 1)) {
+            (Some(&a), Some(&b)) => &self.incidence[a as usize..b as usize],
+            _ => &[],
+        }
     }
 
     pub fn states(&self) -> impl Iterator<Item = VarId> + '_ {

@@ -18,6 +18,10 @@ pub enum VerifyError {
     },
     #[error("equation {eq} refers to expression {expr}, which does not exist")]
     EquationExpr { eq: super::EqId, expr: ExprId },
+    #[error("the stored variables of equation {eq} differ from its expressions'")]
+    Incidence { eq: super::EqId },
+    #[error("the stored unknown flag of variable {var} is stale")]
+    UnknownFlag { var: super::VarId },
 }
 
 /// Check every invariant of `sys`; returns all violations found.
@@ -63,10 +67,24 @@ pub fn verify(sys: &EquationSystem) -> Vec<VerifyError> {
             VarRole::Unknown => {}
         }
     }
+    for (id, v) in sys.vars.iter() {
+        if sys.unknown_flags().get(id.index()) != Some(&v.is_unknown()) {
+            errs.push(VerifyError::UnknownFlag { var: id });
+        }
+    }
+    let (mut vars, mut stack) = (Vec::new(), Vec::new());
     for (id, eq) in sys.eqs.iter() {
+        let mut exprs_ok = true;
         for expr in [eq.lhs, eq.rhs] {
             if expr.index() >= sys.exprs.len() {
                 errs.push(VerifyError::EquationExpr { eq: id, expr });
+                exprs_ok = false;
+            }
+        }
+        if exprs_ok {
+            sys.eq_vars(id, &mut vars, &mut stack);
+            if sys.incidence(id) != vars.as_slice() {
+                errs.push(VerifyError::Incidence { eq: id });
             }
         }
     }
