@@ -16,6 +16,10 @@ use std::fmt::Write;
 use crate::analysis::{Assignment, Schedule, Solved, Step};
 use crate::ir::{DiodePart, EquationSystem, Expr, ExprArena, ExprId, Func, VarRole, Waveform};
 
+/// The fixed-size views of `v` and `p` at the top of a generated Rust
+/// function (constant indices then need no bounds checks).
+const RUST_ARRAY_VIEWS: &str = "    let v: &mut [f64; N_VARS] = v.try_into().expect(\"N_VARS values in v\");\n    let p: &[f64; NP] = p.try_into().expect(\"NP parameters\");\n";
+
 /// Statements per generated function.
 pub const CHUNK: usize = 50;
 
@@ -232,13 +236,7 @@ impl Gen<'_> {
     fn step(&self, step: &Step, k: usize, out: &mut Vec<String>) {
         match step {
             Step::Assign(a) => match a.solved {
-                Solved::Explicit(e) => out.push(format!(
-                    "    v[{}] = {}; // {} := ... from {}",
-                    a.var.0,
-                    self.expr(e),
-                    self.sys.vars[a.var].name,
-                    self.comment(a)
-                )),
+                Solved::Explicit(e) => reroll(&[self.shaped(a, e)], self.lang, out),
                 Solved::Implicit(_) => out.push(format!(
                     "    block_{k}(t, y, p, v); // {} solved numerically from {}",
                     self.sys.vars[a.var].name,
@@ -293,14 +291,7 @@ impl Gen<'_> {
                 "fn resid_{k}(t: f64, y: &[f64], p: &[f64], v: &mut [f64], r: &mut [f64]) {{"
             );
             let _ = writeln!(out, "    let _ = (t, y, p);");
-            let _ = writeln!(
-                out,
-                "    let v: &mut [f64; N_VARS] = v.try_into().expect(\"N_VARS values in v\");"
-            );
-            let _ = writeln!(
-                out,
-                "    let p: &[f64; NP] = p.try_into().expect(\"NP parameters\");"
-            );
+            out.push_str(RUST_ARRAY_VIEWS);
         } else {
             let _ = writeln!(
                 out,
@@ -816,14 +807,7 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
     let dt = table(ders.clone());
     let ns = states.len().max(1);
     if rust {
-        let _ = writeln!(
-            out,
-            "    let v: &mut [f64; N_VARS] = v.try_into().expect(\"N_VARS values in v\");"
-        );
-        let _ = writeln!(
-            out,
-            "    let p: &[f64; NP] = p.try_into().expect(\"NP parameters\");"
-        );
+        out.push_str(RUST_ARRAY_VIEWS);
         let _ = writeln!(
             out,
             "    const STATE_VAR: [usize; {}] = [{st}];",

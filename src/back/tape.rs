@@ -283,17 +283,22 @@ impl Compiler<'_> {
     }
 
     /// Find a block's junction tears; diode thermal voltages get registers.
+    /// A nested block (compiled before its enclosing one) contributes its
+    /// own registers: a Jacobian column must clear those tangents too.
     fn set_touched(&mut self, k: usize) {
-        let b = &mut self.blocks[k];
-        let mut touched: Vec<u32> = b
-            .body
-            .iter()
-            .flat_map(|ins| sources_of(ins, &[]).into_iter().chain([dest(ins)]))
-            .filter(|&x| x != NONE)
-            .collect();
+        let mut touched: Vec<u32> = Vec::new();
+        for ins in &self.blocks[k].body {
+            match *ins {
+                Instr::Block { k: inner } => {
+                    touched.extend_from_slice(&self.blocks[inner as usize].touched)
+                }
+                _ => touched.extend(sources_of(ins, &[]).into_iter().chain([dest(ins)])),
+            }
+        }
+        touched.retain(|&x| x != NONE);
         touched.sort_unstable();
         touched.dedup();
-        b.touched = touched;
+        self.blocks[k].touched = touched;
     }
 
     fn set_junctions(&mut self, k: usize) {

@@ -123,11 +123,7 @@ impl DiodeParams {
 
     /// `f^(order)(v)`; orders above 2 are not needed by any pass (NaN).
     pub fn eval(&self, part: DiodePart, order: u8, v: f64) -> f64 {
-        let vals = match part {
-            DiodePart::Current => self.current(v),
-            DiodePart::Charge => self.charge(v),
-        };
-        vals.get(order as usize).copied().unwrap_or(f64::NAN)
+        self.eval_with_slope(part, order, v).0
     }
 
     /// `(f^(order)(v), f^(order+1)(v))` from one evaluation of the device.

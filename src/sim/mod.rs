@@ -820,7 +820,7 @@ where
     }
     let mut last_report = Instant::now();
     // Restarts after too many error-test failures: (time, how many there).
-    let mut rescues = (f64::NAN, 0usize);
+    let mut rescues: Option<(f64, usize)> = None;
     loop {
         let (stop, is_hard) = stops[k];
         solver
@@ -873,14 +873,14 @@ where
                             diffsol::error::OdeSolverError::TooManyErrorTestFailures { .. }
                         )
                     );
-                    if !too_many || (rescues.0 == t && rescues.1 >= 3) {
+                    let here = match rescues {
+                        Some((at, n)) if at == t => n,
+                        _ => 0,
+                    };
+                    if !too_many || here >= 3 {
                         return Err(diagnose(problem, &solver, e));
                     }
-                    rescues = if rescues.0 == t {
-                        (t, rescues.1 + 1)
-                    } else {
-                        (t, 1)
-                    };
+                    rescues = Some((t, here + 1));
                     stats.rescues += 1;
                     solver = restart(problem, solver, &make, t, stats, order)?;
                     solver
