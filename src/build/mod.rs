@@ -64,12 +64,11 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
     let mut b = Builder {
         c: circuit,
         sys: {
-            let mut sys = EquationSystem::default();
+            // A flat circuit's system has about four expressions, two
+            // variables and two equations per element or node.
+            let mut sys = EquationSystem::with_capacity(4 * n, 2 * n, 2 * n);
             sys.title = circuit.title.clone();
-            sys.exprs = crate::ir::ExprArena::with_capacity(8 * n);
-            sys.vars = crate::ir::IdVec::with_capacity(3 * n);
             sys.params = crate::ir::IdVec::with_capacity(n);
-            sys.eqs = crate::ir::IdVec::with_capacity(3 * n);
             sys
         },
         names: circuit

@@ -28,6 +28,8 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     let mut e = Elab {
         circuit: Circuit {
             title: netlist.title.to_string(),
+            elements: crate::ir::IdVec::with_capacity(n),
+            nodes: crate::ir::IdVec::with_capacity(n),
             ..Circuit::default()
         },
         errors: Vec::new(),

@@ -31,7 +31,7 @@ pub enum Value<'a> {
         span: Span,
     },
     Expr {
-        expr: PExpr,
+        expr: Box<PExpr>,
         text: &'a str,
         span: Span,
     },
@@ -193,11 +193,11 @@ pub struct OptionDef<'a> {
 pub enum Stmt<'a> {
     Element(Element<'a>),
     Model(Model<'a>),
-    Subckt(Subckt<'a>),
+    Subckt(Box<Subckt<'a>>),
     Param(Vec<Assign<'a>>, Span),
     /// `.ic v(node)=value ...`
     Ic(Vec<(OutVec<'a>, Value<'a>)>, Span),
-    Tran(Tran<'a>),
+    Tran(Box<Tran<'a>>),
     Options(Vec<OptionDef<'a>>, Span),
     /// `.print`, `.save`, `.probe`: the directive name and its vectors.
     Output {

@@ -36,25 +36,41 @@ impl Token<'_> {
 }
 
 /// One statement: a physical line plus its `+` continuation lines.
-#[derive(Clone, Debug)]
-pub struct LogicalLine<'a> {
-    pub tokens: Vec<Token<'a>>,
+#[derive(Clone, Copy, Debug)]
+pub struct LogicalLine<'t, 'a> {
+    pub tokens: &'t [Token<'a>],
     /// The lexer reported an error on this line; the parser skips it so that
     /// one mistake gives one message.
     pub poisoned: bool,
 }
 
-impl LogicalLine<'_> {
+impl LogicalLine<'_, '_> {
     pub fn span(&self) -> Span {
         let first = self.tokens[0].span;
         self.tokens.last().map_or(first, |t| first.to(t.span))
     }
 }
 
-/// A lexed file: its title line (root file only) and its logical lines.
+/// A lexed file: its title line (root file only) and its logical lines, whose
+/// tokens lie end to end in one vector.
 pub struct LexedFile<'a> {
     pub title: Option<(&'a str, Span)>,
-    pub lines: Vec<LogicalLine<'a>>,
+    tokens: Vec<Token<'a>>,
+    /// Each logical line's token range and poisoned flag.
+    ranges: Vec<(u32, u32, bool)>,
+}
+
+impl<'a> LexedFile<'a> {
+    /// The logical lines, in order.
+    pub fn lines(&self) -> Vec<LogicalLine<'_, 'a>> {
+        self.ranges
+            .iter()
+            .map(|&(s, e, poisoned)| LogicalLine {
+                tokens: &self.tokens[s as usize..e as usize],
+                poisoned,
+            })
+            .collect()
+    }
 }
 
 /// Split `file` into logical lines. The first line is the title when
@@ -66,7 +82,9 @@ pub fn lex_file<'a>(
     errors: &mut Vec<ParseError>,
 ) -> LexedFile<'a> {
     let text = sources.file(file).text.as_str();
-    let mut lines: Vec<LogicalLine<'a>> = Vec::new();
+    // A line of a netlist holds a handful of tokens.
+    let mut tokens: Vec<Token<'a>> = Vec::with_capacity(text.len() / 6);
+    let mut ranges: Vec<(u32, u32, bool)> = Vec::with_capacity(text.len() / 24);
     let mut title = None;
     let mut offset = 0usize;
     let mut first = true;
@@ -92,26 +110,33 @@ pub fn lex_file<'a>(
             None => (trimmed, start + lead, false),
         };
         let n_errors = errors.len();
-        let toks = tokenize(body, file, body_start, errors);
+        let before = tokens.len();
+        tokenize(body, file, body_start, errors, &mut tokens);
         let poisoned = errors.len() > n_errors;
         if continuation {
-            match lines.last_mut() {
+            // The previous logical line ends where this one's tokens begin,
+            // so extending its range takes them in.
+            match ranges.last_mut() {
                 Some(prev) => {
-                    prev.tokens.extend(toks);
-                    prev.poisoned |= poisoned;
+                    prev.1 = tokens.len() as u32;
+                    prev.2 |= poisoned;
                 }
-                None => errors.push(ParseError::StrayContinuation {
-                    span: Span::new(file, start + lead, start + lead + 1),
-                }),
+                None => {
+                    tokens.truncate(before);
+                    errors.push(ParseError::StrayContinuation {
+                        span: Span::new(file, start + lead, start + lead + 1),
+                    })
+                }
             }
-        } else if !toks.is_empty() {
-            lines.push(LogicalLine {
-                tokens: toks,
-                poisoned,
-            });
+        } else if tokens.len() > before {
+            ranges.push((before as u32, tokens.len() as u32, poisoned));
         }
     }
-    LexedFile { title, lines }
+    LexedFile {
+        title,
+        tokens,
+        ranges,
+    }
 }
 
 fn is_sep(c: char) -> bool {
@@ -137,14 +162,15 @@ fn separators(input: &str) -> IResult<&str, &str> {
     take_while(is_sep).parse(input)
 }
 
-/// Split one line body (after any `+`) into tokens; `base` is its file offset.
+/// Split one line body (after any `+`) into tokens appended to `toks`;
+/// `base` is its file offset.
 pub fn tokenize<'a>(
     body: &'a str,
     file: FileId,
     base: usize,
     errors: &mut Vec<ParseError>,
-) -> Vec<Token<'a>> {
-    let mut toks = Vec::new();
+    toks: &mut Vec<Token<'a>>,
+) {
     let mut rest = body;
     let at = |rest: &str| base + (body.len() - rest.len());
     while let Ok((r, _)) = separators(rest) {
@@ -204,7 +230,6 @@ pub fn tokenize<'a>(
             Err(_) => break,
         }
     }
-    toks
 }
 
 /// Byte index of the delimiter closing the one at `s[0]`, counting nesting for braces.
@@ -233,7 +258,8 @@ mod tests {
 
     fn kinds(s: &str) -> Vec<(TokKind, &str)> {
         let mut errs = Vec::new();
-        let toks = tokenize(s, FileId(0), 0, &mut errs);
+        let mut toks = Vec::new();
+        tokenize(s, FileId(0), 0, &mut errs, &mut toks);
         assert!(errs.is_empty(), "{errs:?}");
         toks.into_iter().map(|t| (t.kind, t.text)).collect()
     }

@@ -57,12 +57,20 @@ fn load_includes(
     stack: &mut Vec<FileId>,
     errors: &mut Vec<ParseError>,
 ) {
-    // Lex once to find the include lines; the parse lexes again (cheap).
+    // Lex to find the include lines (the parse lexes again), but only when
+    // some line could be one.
+    let may_include = sources.file(file).text.lines().any(|l| {
+        let l = l.trim_start().as_bytes();
+        l.len() >= 4 && l[..4].eq_ignore_ascii_case(b".inc")
+    });
+    if !may_include {
+        return;
+    }
     let includes: Vec<(String, Span)> = {
         let mut scratch = Vec::new();
         let lexed = lex::lex_file(sources, file, is_root, &mut scratch);
         lexed
-            .lines
+            .lines()
             .iter()
             .filter(|l| l.tokens[0].is_word(".include") || l.tokens[0].is_word(".inc"))
             .filter_map(|l| {

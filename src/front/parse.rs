@@ -40,7 +40,7 @@ impl<'a> Parser<'a> {
         };
         self.include_stack.push(root);
         let mut idx = 0;
-        let (stmts, end) = self.block(&lexed.lines, &mut idx, false);
+        let (stmts, end) = self.block(&lexed.lines(), &mut idx, false);
         if let BlockEnd::Ends(span) = end {
             self.errors.push(ParseError::StrayEnds { span });
         }
@@ -50,11 +50,17 @@ impl<'a> Parser<'a> {
     /// Parse lines from `*idx` until EOF, `.end`, or (inside a subcircuit) `.ends`.
     fn block(
         &mut self,
-        lines: &[LogicalLine<'a>],
+        lines: &[LogicalLine<'_, 'a>],
         idx: &mut usize,
         in_subckt: bool,
     ) -> (Vec<Stmt<'a>>, BlockEnd) {
-        let mut out = Vec::new();
+        // A file's top level takes most of its lines (never reserve the rest
+        // of the file for every subcircuit body).
+        let mut out = if in_subckt {
+            Vec::new()
+        } else {
+            Vec::with_capacity(lines.len() - *idx)
+        };
         while *idx < lines.len() {
             let line = &lines[*idx];
             *idx += 1;
@@ -81,7 +87,7 @@ impl<'a> Parser<'a> {
                     }
                     "subckt" => {
                         if let Some(s) = self.subckt(line, lines, idx) {
-                            out.push(Stmt::Subckt(s));
+                            out.push(Stmt::Subckt(Box::new(s)));
                         }
                     }
                     "control" => {
@@ -117,8 +123,8 @@ impl<'a> Parser<'a> {
 
     fn subckt(
         &mut self,
-        line: &LogicalLine<'a>,
-        lines: &[LogicalLine<'a>],
+        line: &LogicalLine<'_, 'a>,
+        lines: &[LogicalLine<'_, 'a>],
         idx: &mut usize,
     ) -> Option<Subckt<'a>> {
         let toks = &line.tokens;
@@ -163,7 +169,7 @@ impl<'a> Parser<'a> {
         })
     }
 
-    fn directive(&mut self, d: &str, line: &LogicalLine<'a>) -> Option<Stmt<'a>> {
+    fn directive(&mut self, d: &str, line: &LogicalLine<'_, 'a>) -> Option<Stmt<'a>> {
         let toks = &line.tokens;
         let span = line.span();
         let mut c = Cursor::new(toks);
@@ -251,14 +257,14 @@ impl<'a> Parser<'a> {
                     });
                 }
                 let mut it = vals.into_iter();
-                Some(Stmt::Tran(Tran {
+                Some(Stmt::Tran(Box::new(Tran {
                     tstep: it.next()?,
                     tstop: it.next()?,
                     tstart: it.next(),
                     tmax: it.next(),
                     uic,
                     span,
-                }))
+                })))
             }
             "options" | "option" | "opt" | "opts" => {
                 let mut opts = Vec::new();
@@ -343,7 +349,7 @@ impl<'a> Parser<'a> {
                 self.include_stack.push(file);
                 let lexed = lex_file(self.sources, file, false, &mut self.errors);
                 let mut i = 0;
-                let (body, end) = self.block(&lexed.lines, &mut i, false);
+                let (body, end) = self.block(&lexed.lines(), &mut i, false);
                 if let BlockEnd::Ends(span) = end {
                     self.errors.push(ParseError::StrayEnds { span });
                 }
@@ -393,7 +399,7 @@ impl<'a> Parser<'a> {
         }
     }
 
-    fn element(&mut self, line: &LogicalLine<'a>) -> Option<Element<'a>> {
+    fn element(&mut self, line: &LogicalLine<'_, 'a>) -> Option<Element<'a>> {
         let toks = &line.tokens;
         let name = name_of(&toks[0]);
         let span = line.span();
@@ -863,7 +869,7 @@ pub(super) fn value_of<'a>(t: &Token<'a>) -> Result<Value<'a>, ParseError> {
     match t.kind {
         TokKind::Expr => match parse_expr(t.text) {
             Ok(expr) => Ok(Value::Expr {
-                expr,
+                expr: Box::new(expr),
                 text: t.text,
                 span: t.span,
             }),

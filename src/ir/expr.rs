@@ -6,7 +6,9 @@
 
 use std::collections::HashMap;
 
-use rustc_hash::FxHashMap;
+use hashbrown::hash_table::{Entry, HashTable};
+use rustc_hash::FxHasher;
+use std::hash::{Hash, Hasher};
 
 use super::device::DeviceFn;
 use super::system::{ParamId, SourceId, VarId};
@@ -17,6 +19,12 @@ crate::entity_id!(
     ExprId,
     "e"
 );
+
+fn hash_expr(e: &Expr) -> u64 {
+    let mut h = FxHasher::default();
+    e.hash(&mut h);
+    h.finish()
+}
 
 /// The bits of an `f64`, so constants can be hashed.
 pub fn bits(x: f64) -> u64 {
@@ -118,7 +126,10 @@ impl Expr {
 #[derive(Clone, Debug, Default)]
 pub struct ExprArena {
     nodes: Vec<Expr>,
-    dedup: FxHashMap<Expr, ExprId>,
+    /// Ids of the hashed nodes (all but variables and parameters), keyed by
+    /// the node they point to: four bytes a slot keep the table small enough
+    /// to stay in cache on systems of a million expressions.
+    dedup: HashTable<ExprId>,
     /// The node of each variable and parameter, by index (`u32::MAX`: none).
     var_nodes: Vec<u32>,
     param_nodes: Vec<u32>,
@@ -129,12 +140,13 @@ impl ExprArena {
         ExprArena::default()
     }
 
-    /// An arena with room for `n` expressions.
+    /// An arena with room for `n` expressions (about half of them variable
+    /// leaves, which are not hashed).
     pub fn with_capacity(n: usize) -> ExprArena {
         ExprArena {
             nodes: Vec::with_capacity(n),
-            dedup: FxHashMap::with_capacity_and_hasher(n, Default::default()),
-            var_nodes: Vec::new(),
+            dedup: HashTable::with_capacity(n / 2),
+            var_nodes: Vec::with_capacity(n / 2),
             param_nodes: Vec::new(),
         }
     }
@@ -162,13 +174,21 @@ impl ExprArena {
             Expr::Var(v) => self.leaf(e, v.0 as usize, false),
             Expr::Param(p) => self.leaf(e, p.0 as usize, true),
             _ => {
-                if let Some(&id) = self.dedup.get(&e) {
-                    return id;
+                let nodes = &self.nodes;
+                let hash = hash_expr(&e);
+                match self.dedup.entry(
+                    hash,
+                    |&id| nodes[id.0 as usize] == e,
+                    |&id| hash_expr(&nodes[id.0 as usize]),
+                ) {
+                    Entry::Occupied(o) => *o.get(),
+                    Entry::Vacant(v) => {
+                        let id = ExprId(self.nodes.len() as u32);
+                        v.insert(id);
+                        self.nodes.push(e);
+                        id
+                    }
                 }
-                let id = ExprId(self.nodes.len() as u32);
-                self.nodes.push(e);
-                self.dedup.insert(e, id);
-                id
             }
         }
     }

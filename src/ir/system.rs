@@ -443,6 +443,21 @@ impl EquationSystem {
         &self.unknown
     }
 
+    /// An empty system with room for `exprs` expressions, `vars` variables
+    /// and `eqs` equations.
+    pub fn with_capacity(exprs: usize, vars: usize, eqs: usize) -> EquationSystem {
+        let mut sys = EquationSystem {
+            exprs: ExprArena::with_capacity(exprs),
+            vars: IdVec::with_capacity(vars),
+            eqs: IdVec::with_capacity(eqs),
+            ..EquationSystem::default()
+        };
+        sys.unknown.reserve(vars);
+        sys.incidence_start.reserve(eqs + 1);
+        sys.incidence.reserve(3 * eqs);
+        sys
+    }
+
     pub fn add_param(&mut self, name: String, value: f64) -> ParamId {
         self.params.push(Param { name, value })
     }
