@@ -8,13 +8,14 @@
 
 pub mod ode;
 pub mod output;
+mod sparse_lu;
 
 use std::rc::Rc;
 use std::time::{Duration, Instant};
 
 use diffsol::{
-    FaerSparseLU, FaerSparseMat, LinearSolver, Matrix, NalgebraLU, NalgebraMat, OdeBuilder,
-    OdeSolverMethod, OdeSolverProblem, OdeSolverState, OdeSolverStopReason,
+    FaerSparseMat, LinearSolver, Matrix, NalgebraLU, NalgebraMat, OdeBuilder, OdeSolverMethod,
+    OdeSolverProblem, OdeSolverState, OdeSolverStopReason,
 };
 
 use crate::back::tape::{self, EvalError, OutputRef, Tape};
@@ -518,7 +519,7 @@ pub fn simulate(sorted: &Sorted, opts: &Options) -> Result<Waveforms, SimError> 
             false,
         )?
     } else {
-        run::<FaerSparseMat<f64>, FaerSparseLU<f64>>(
+        run::<FaerSparseMat<f64>, sparse_lu::CircuitLu>(
             sorted,
             sys,
             tape.clone(),

@@ -1,0 +1,593 @@
+//! Sparse LU for circuit Jacobians, as a diffsol linear solver.
+//!
+//! Circuit matrices are very sparse, nearly structurally symmetric and
+//! refactored thousands of times with one pattern. The method is the one
+//! circuit simulators use (Davis & Palamadai Natarajan, "Algorithm 907:
+//! KLU", ACM TOMS 37(3), 2010):
+//! - a fill-reducing order of the columns from approximate minimum degree on
+//!   `A + Aᵀ` (faer's AMD), fixed for the run;
+//! - left-looking factorization column by column (Gilbert & Peierls): the
+//!   pattern of each column of `L \ A(:,j)` is found by a depth-first search
+//!   through `L`, then computed in topological order;
+//! - threshold partial pivoting that keeps the diagonal when it is within a
+//!   factor [`PIVOT_TOL`] of the column's largest entry, so a circuit's
+//!   natural pivots survive;
+//! - refactorization with the same pivots and pattern (no search), which
+//!   falls back to a full factorization if a pivot has become too small.
+//!
+//! The solve is two sparse triangular sweeps over compressed columns.
+
+use std::cell::RefCell;
+
+use diffsol::{FaerSparseMat, Matrix, MatrixCommon};
+use diffsol_la::LinearOp;
+use diffsol_la::LinearSolver as LaLinearSolver;
+use diffsol_la::error::{LaError, LinearSolverError};
+use faer::dyn_stack::{MemBuffer, MemStack};
+
+use super::ode::HostVec;
+
+/// A pivot is kept on the diagonal while it is at least this fraction of the
+/// largest candidate in its column (KLU's default).
+const PIVOT_TOL: f64 = 1e-3;
+
+/// A refactorization keeps the old pivot while it is at least this fraction
+/// of the largest entry below it; otherwise the matrix is factored afresh.
+const REFACTOR_TOL: f64 = 1e-8;
+
+const NONE: usize = usize::MAX;
+
+type Vf = <FaerSparseMat<f64> as MatrixCommon>::V;
+
+/// The factors `P A Q = L U`: `L` unit lower triangular, `U` upper
+/// triangular, both by columns in pivot order.
+#[derive(Default)]
+struct Factors {
+    n: usize,
+    /// Step `k` eliminates column `q[k]` of `A`.
+    q: Vec<usize>,
+    /// `pinv[row]`: the step whose pivot row is `row`.
+    pinv: Vec<usize>,
+    /// Strictly lower part of `L`, rows in step numbering.
+    lp: Vec<usize>,
+    li: Vec<usize>,
+    lx: Vec<f64>,
+    /// `U` by columns: off-diagonal entries (rows in step numbering, in an
+    /// order where each entry's dependencies come first), then the pivot.
+    up: Vec<usize>,
+    ui: Vec<usize>,
+    ux: Vec<f64>,
+    /// `1 / U(k,k)`: the solves multiply (a division's latency would chain
+    /// through the whole backward sweep).
+    inv_pivot: Vec<f64>,
+    valid: bool,
+}
+
+/// The matrix of `A` as compressed columns.
+struct Csc<'m> {
+    col_ptr: &'m [usize],
+    row_idx: &'m [usize],
+    val: &'m [f64],
+}
+
+impl Csc<'_> {
+    fn col(&self, j: usize) -> (&[usize], &[f64]) {
+        let (a, b) = (self.col_ptr[j], self.col_ptr[j + 1]);
+        (&self.row_idx[a..b], &self.val[a..b])
+    }
+}
+
+/// Scratch of the factorization, kept between calls.
+#[derive(Default)]
+struct Work {
+    x: Vec<f64>,
+    /// Depth-first search: the reach (topological order at its top), the
+    /// stack of rows and of positions within their `L` columns, and marks.
+    reach: Vec<usize>,
+    stack: Vec<usize>,
+    pos: Vec<usize>,
+    mark: Vec<u32>,
+    epoch: u32,
+}
+
+impl Factors {
+    /// Factor `a` afresh, choosing pivots. `Err` when it is singular.
+    fn factor(&mut self, a: &Csc<'_>, w: &mut Work) -> Result<(), ()> {
+        let n = self.n;
+        self.valid = false;
+        self.pinv.clear();
+        self.pinv.resize(n, NONE);
+        // During the factorization `L` holds original row numbers (rows not
+        // yet pivotal have no step); they are renumbered at the end.
+        self.lp.clear();
+        self.li.clear();
+        self.lx.clear();
+        self.up.clear();
+        self.ui.clear();
+        self.ux.clear();
+        self.inv_pivot.clear();
+        self.lp.push(0);
+        self.up.push(0);
+        w.x.clear();
+        w.x.resize(n, 0.0);
+        w.mark.clear();
+        w.mark.resize(n, 0);
+        w.epoch = 0;
+        for k in 0..n {
+            let col = self.q[k];
+            let (rows, vals) = a.col(col);
+            self.reach(rows, w);
+            for &i in &w.reach {
+                w.x[i] = 0.0;
+            }
+            for (&i, &v) in rows.iter().zip(vals) {
+                w.x[i] += v;
+            }
+            // Eliminate with the finished columns, dependencies first.
+            for &i in &w.reach {
+                let j = self.pinv[i];
+                if j == NONE {
+                    continue;
+                }
+                let xi = w.x[i];
+                for p in self.lp[j]..self.lp[j + 1] {
+                    w.x[self.li[p]] -= self.lx[p] * xi;
+                }
+            }
+            // Pivot: the diagonal unless it is much smaller than the largest.
+            let (mut big, mut ipiv) = (0.0f64, NONE);
+            for &i in &w.reach {
+                if self.pinv[i] == NONE && w.x[i].abs() > big {
+                    big = w.x[i].abs();
+                    ipiv = i;
+                }
+            }
+            if ipiv == NONE || big == 0.0 || !big.is_finite() {
+                return Err(());
+            }
+            if self.pinv[col] == NONE && w.x[col].abs() >= PIVOT_TOL * big {
+                ipiv = col;
+            }
+            let pivot = w.x[ipiv];
+            for &i in &w.reach {
+                let j = self.pinv[i];
+                if j != NONE {
+                    self.ui.push(j);
+                    self.ux.push(w.x[i]);
+                }
+            }
+            self.ui.push(k);
+            self.ux.push(pivot);
+            self.up.push(self.ui.len());
+            self.inv_pivot.push(1.0 / pivot);
+            self.pinv[ipiv] = k;
+            for &i in &w.reach {
+                if self.pinv[i] == NONE {
+                    self.li.push(i);
+                    self.lx.push(w.x[i] / pivot);
+                }
+            }
+            self.lp.push(self.li.len());
+        }
+        for i in self.li.iter_mut() {
+            *i = self.pinv[*i];
+        }
+        self.valid = true;
+        Ok(())
+    }
+
+    /// The rows reachable from `rows` through the columns of `L` finished so
+    /// far, into `w.reach` in topological order (a row before the rows its
+    /// `L` column updates).
+    fn reach(&self, rows: &[usize], w: &mut Work) {
+        w.epoch = w.epoch.wrapping_add(1);
+        if w.epoch == 0 {
+            w.mark.iter_mut().for_each(|m| *m = 0);
+            w.epoch = 1;
+        }
+        let epoch = w.epoch;
+        w.reach.clear();
+        for &start in rows {
+            if w.mark[start] == epoch {
+                continue;
+            }
+            w.mark[start] = epoch;
+            w.stack.clear();
+            w.pos.clear();
+            w.stack.push(start);
+            w.pos.push(self.l_begin(start));
+            while let Some(&i) = w.stack.last() {
+                let top = w.stack.len() - 1;
+                let end = self.l_end(i);
+                let mut p = w.pos[top];
+                let mut descended = false;
+                while p < end {
+                    let r = self.li[p];
+                    p += 1;
+                    if w.mark[r] != epoch {
+                        w.mark[r] = epoch;
+                        w.pos[top] = p;
+                        w.stack.push(r);
+                        w.pos.push(self.l_begin(r));
+                        descended = true;
+                        break;
+                    }
+                }
+                if !descended {
+                    w.stack.pop();
+                    w.pos.pop();
+                    w.reach.push(i);
+                }
+            }
+        }
+        // Finished last = needed first.
+        w.reach.reverse();
+    }
+
+    fn l_begin(&self, row: usize) -> usize {
+        match self.pinv[row] {
+            NONE => 0,
+            j => self.lp[j],
+        }
+    }
+
+    fn l_end(&self, row: usize) -> usize {
+        match self.pinv[row] {
+            NONE => 0,
+            j => self.lp[j + 1],
+        }
+    }
+
+    /// Factor `a` again with the pivots and pattern of the last
+    /// factorization. `false` when a pivot became too small (or not finite).
+    fn refactor(&mut self, a: &Csc<'_>, x: &mut [f64]) -> bool {
+        for k in 0..self.n {
+            let (rows, vals) = a.col(self.q[k]);
+            for (&i, &v) in rows.iter().zip(vals) {
+                x[self.pinv[i]] += v;
+            }
+            let (u0, u1) = (self.up[k], self.up[k + 1] - 1);
+            for p in u0..u1 {
+                let j = self.ui[p];
+                let xj = x[j];
+                x[j] = 0.0;
+                self.ux[p] = xj;
+                for q in self.lp[j]..self.lp[j + 1] {
+                    x[self.li[q]] -= self.lx[q] * xj;
+                }
+            }
+            let pivot = x[k];
+            x[k] = 0.0;
+            let mut big = 0.0f64;
+            for p in self.lp[k]..self.lp[k + 1] {
+                big = big.max(x[self.li[p]].abs());
+            }
+            let ok = pivot.is_finite() && pivot != 0.0 && pivot.abs() >= REFACTOR_TOL * big;
+            self.ux[u1] = pivot;
+            self.inv_pivot[k] = 1.0 / pivot;
+            for p in self.lp[k]..self.lp[k + 1] {
+                let r = self.li[p];
+                self.lx[p] = x[r] / pivot;
+                x[r] = 0.0;
+            }
+            if !ok {
+                x.iter_mut().for_each(|v| *v = 0.0);
+                return false;
+            }
+        }
+        true
+    }
+
+    /// Solve `A x = b` in place; `y` is scratch of length `n`.
+    fn solve(&self, b: &mut [f64], y: &mut [f64]) {
+        let n = self.n;
+        let y = &mut y[..n];
+        for (&k, &bi) in self.pinv.iter().zip(b.iter()) {
+            y[k] = bi;
+        }
+        for j in 0..n {
+            let yj = y[j];
+            let (a, e) = (self.lp[j], self.lp[j + 1]);
+            for (&r, &l) in self.li[a..e].iter().zip(&self.lx[a..e]) {
+                y[r] -= l * yj;
+            }
+        }
+        for j in (0..n).rev() {
+            let yj = y[j] * self.inv_pivot[j];
+            y[j] = yj;
+            let (a, d) = (self.up[j], self.up[j + 1] - 1);
+            for (&r, &u) in self.ui[a..d].iter().zip(&self.ux[a..d]) {
+                y[r] -= u * yj;
+            }
+        }
+        for (&col, &yk) in self.q.iter().zip(y.iter()) {
+            b[col] = yk;
+        }
+    }
+
+    /// Solve `Aᵀ x = b` in place.
+    fn solve_transpose(&self, b: &mut [f64], y: &mut [f64]) {
+        for k in 0..self.n {
+            y[k] = b[self.q[k]];
+        }
+        for j in 0..self.n {
+            let d = self.up[j + 1] - 1;
+            let mut s = y[j];
+            for p in self.up[j]..d {
+                s -= self.ux[p] * y[self.ui[p]];
+            }
+            y[j] = s * self.inv_pivot[j];
+        }
+        for j in (0..self.n).rev() {
+            let mut s = y[j];
+            for p in self.lp[j]..self.lp[j + 1] {
+                s -= self.lx[p] * y[self.li[p]];
+            }
+            y[j] = s;
+        }
+        for (i, bi) in b.iter_mut().enumerate() {
+            *bi = y[self.pinv[i]];
+        }
+    }
+}
+
+/// The circuit sparse LU as a diffsol linear solver for [`FaerSparseMat`].
+#[derive(Default)]
+pub struct CircuitLu {
+    a: Option<FaerSparseMat<f64>>,
+    f: Factors,
+    work: Work,
+    /// Dense scratch of the solves.
+    y: RefCell<Vec<f64>>,
+    /// Full factorizations and refactorizations so far.
+    pub counts: (usize, usize),
+}
+
+impl CircuitLu {
+    fn csc(a: &FaerSparseMat<f64>) -> Csc<'_> {
+        let m = &a.inner()[0];
+        let sym = m.symbolic();
+        Csc {
+            col_ptr: sym.col_ptr(),
+            row_idx: sym.row_idx(),
+            val: m.val(),
+        }
+    }
+
+    /// Factor the matrix now in `a`.
+    fn factor_current(&mut self) {
+        let Some(a) = self.a.as_ref() else { return };
+        let csc = Self::csc(a);
+        if self.f.valid {
+            self.work.x.resize(self.f.n, 0.0);
+            if self.f.refactor(&csc, &mut self.work.x) {
+                self.counts.1 += 1;
+                return;
+            }
+        }
+        self.counts.0 += 1;
+        // A singular matrix leaves the factors invalid; the solve reports it.
+        let _ = self.f.factor(&csc, &mut self.work);
+        self.work.x.iter_mut().for_each(|v| *v = 0.0);
+    }
+
+    fn solve_with(&self, b: &mut Vf, transpose: bool) -> Result<(), LaError> {
+        if !self.f.valid {
+            return Err(LaError::from(LinearSolverError::LuSolveFailed));
+        }
+        let mut y = self.y.borrow_mut();
+        y.resize(self.f.n, 0.0);
+        let b = b.slice_mut();
+        if transpose {
+            self.f.solve_transpose(b, &mut y);
+        } else {
+            self.f.solve(b, &mut y);
+        }
+        Ok(())
+    }
+}
+
+/// Approximate minimum degree order of `A + Aᵀ` (identity if it fails).
+fn amd_order(n: usize, a: &FaerSparseMat<f64>) -> Vec<usize> {
+    let sym = a.inner()[0].symbolic();
+    let nnz = sym.compute_nnz();
+    let mut perm = vec![0usize; n];
+    let mut perm_inv = vec![0usize; n];
+    let mut mem = MemBuffer::new(faer::sparse::linalg::amd::order_maybe_unsorted_scratch::<
+        usize,
+    >(n, nnz));
+    let ok = faer::sparse::linalg::amd::order_maybe_unsorted(
+        &mut perm,
+        &mut perm_inv,
+        sym,
+        Default::default(),
+        MemStack::new(&mut mem),
+    );
+    if ok.is_err() {
+        return (0..n).collect();
+    }
+    perm
+}
+
+impl LaLinearSolver<FaerSparseMat<f64>> for CircuitLu {
+    fn set_linearisation<
+        C: LinearOp<
+                V = Vf,
+                T = f64,
+                M = FaerSparseMat<f64>,
+                C = <FaerSparseMat<f64> as MatrixCommon>::C,
+            >,
+    >(
+        &mut self,
+        op: &C,
+    ) {
+        let Some(a) = self.a.as_mut() else { return };
+        op.matrix_inplace(a);
+        self.factor_current();
+    }
+
+    fn set_sparsity<
+        C: LinearOp<
+                V = Vf,
+                T = f64,
+                M = FaerSparseMat<f64>,
+                C = <FaerSparseMat<f64> as MatrixCommon>::C,
+            >,
+    >(
+        &mut self,
+        op: &C,
+    ) {
+        let n = op.nrows();
+        let a = FaerSparseMat::new_from_sparsity(n, op.ncols(), op.sparsity(), *op.context());
+        self.f = Factors {
+            n,
+            q: amd_order(n, &a),
+            ..Factors::default()
+        };
+        self.work = Work::default();
+        self.a = Some(a);
+    }
+
+    fn solve_in_place(&self, b: &mut Vf) -> Result<(), LaError> {
+        self.solve_with(b, false)
+    }
+
+    fn solve_transpose_in_place(&self, b: &mut Vf) -> Result<(), LaError> {
+        self.solve_with(b, true)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A dense matrix as compressed columns (every entry stored, zeros too).
+    fn csc_of(a: &[Vec<f64>]) -> (Vec<usize>, Vec<usize>, Vec<f64>) {
+        let n = a.len();
+        let (mut cp, mut ri, mut v) = (vec![0], vec![], vec![]);
+        for j in 0..n {
+            for (i, row) in a.iter().enumerate() {
+                if row[j] != 0.0 || i == j {
+                    ri.push(i);
+                    v.push(row[j]);
+                }
+            }
+            cp.push(ri.len());
+        }
+        (cp, ri, v)
+    }
+
+    fn check(a: &[Vec<f64>], q: Vec<usize>) {
+        let n = a.len();
+        let (cp, ri, v) = csc_of(a);
+        let csc = Csc {
+            col_ptr: &cp,
+            row_idx: &ri,
+            val: &v,
+        };
+        let mut f = Factors {
+            n,
+            q,
+            ..Factors::default()
+        };
+        let mut w = Work::default();
+        f.factor(&csc, &mut w).expect("nonsingular");
+        let x0: Vec<f64> = (0..n).map(|i| 1.0 + i as f64 * 0.5).collect();
+        let b: Vec<f64> = a
+            .iter()
+            .map(|row| row.iter().zip(&x0).map(|(a, x)| a * x).sum())
+            .collect();
+        let mut y = vec![0.0; n];
+        let mut x = b.clone();
+        f.solve(&mut x, &mut y);
+        for (u, v) in x.iter().zip(&x0) {
+            assert!((u - v).abs() < 1e-10, "{x:?} vs {x0:?}");
+        }
+        // Aᵀ x = c
+        let c: Vec<f64> = (0..n)
+            .map(|j| (0..n).map(|i| a[i][j] * x0[i]).sum())
+            .collect();
+        let mut xt = c.clone();
+        f.solve_transpose(&mut xt, &mut y);
+        for (u, v) in xt.iter().zip(&x0) {
+            assert!((u - v).abs() < 1e-10, "transpose: {xt:?} vs {x0:?}");
+        }
+        // The same pattern, other values: refactor gives the same solution.
+        let a2: Vec<Vec<f64>> = a
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                r.iter()
+                    .map(|&v| {
+                        if v != 0.0 {
+                            v * (1.0 + 0.1 * i as f64)
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let (_, _, v2) = csc_of(&a2);
+        let csc2 = Csc {
+            col_ptr: &cp,
+            row_idx: &ri,
+            val: &v2,
+        };
+        let mut xs = vec![0.0; n];
+        assert!(f.refactor(&csc2, &mut xs));
+        assert!(xs.iter().all(|&v| v == 0.0));
+        let b2: Vec<f64> = a2
+            .iter()
+            .map(|row| row.iter().zip(&x0).map(|(a, x)| a * x).sum())
+            .collect();
+        let mut x2 = b2.clone();
+        f.solve(&mut x2, &mut y);
+        for (u, v) in x2.iter().zip(&x0) {
+            assert!((u - v).abs() < 1e-10, "refactor: {x2:?} vs {x0:?}");
+        }
+    }
+
+    #[test]
+    fn solves_with_and_without_pivoting() {
+        // Diagonally dominant tridiagonal: natural pivots.
+        let n = 6;
+        let mut a = vec![vec![0.0; n]; n];
+        for i in 0..n {
+            a[i][i] = 4.0;
+            if i > 0 {
+                a[i][i - 1] = -1.0;
+                a[i - 1][i] = -2.0;
+            }
+        }
+        check(&a, (0..n).collect());
+        check(&a, vec![3, 1, 5, 0, 2, 4]);
+        // A zero diagonal forces an off-diagonal pivot (an MNA-like source row).
+        let b = vec![
+            vec![0.0, 1.0, 0.0, 2.0],
+            vec![1.0, 3.0, -1.0, 0.0],
+            vec![0.0, -1.0, 2.0, 0.0],
+            vec![5.0, 0.0, 0.0, 0.0],
+        ];
+        check(&b, (0..4).collect());
+        check(&b, vec![2, 0, 3, 1]);
+    }
+
+    #[test]
+    fn singular_matrix_is_an_error() {
+        let a = vec![vec![1.0, 2.0], vec![2.0, 4.0]];
+        let (cp, ri, v) = csc_of(&a);
+        let csc = Csc {
+            col_ptr: &cp,
+            row_idx: &ri,
+            val: &v,
+        };
+        let mut f = Factors {
+            n: 2,
+            q: vec![0, 1],
+            ..Factors::default()
+        };
+        assert!(f.factor(&csc, &mut Work::default()).is_err());
+        assert!(!f.valid);
+    }
+}
