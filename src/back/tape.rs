@@ -93,6 +93,11 @@ pub struct TapeBlock {
     /// Nothing outside the body reads what it computes but the tears: a
     /// converged Newton may move the tears last without re-running it.
     pub private: bool,
+    /// The residuals are affine in the tears with coefficients that are
+    /// constants of the tape: the Jacobian is factored once, at first use.
+    pub constant_jacobian: bool,
+    /// That factorization (LU and row order), once computed.
+    lu: std::cell::OnceCell<(Vec<f64>, Vec<usize>)>,
 }
 
 /// Why an evaluation failed.
@@ -370,6 +375,8 @@ impl Compiler<'_> {
                     junctions: Vec::new(),
                     touched: Vec::new(),
                     private: false,
+                    constant_jacobian: false,
+                    lu: std::cell::OnceCell::new(),
                 });
                 let kk = k as usize;
                 self.set_junctions(kk);
@@ -417,6 +424,8 @@ impl Compiler<'_> {
                     junctions: Vec::new(),
                     touched: Vec::new(),
                     private: false,
+                    constant_jacobian: false,
+                    lu: std::cell::OnceCell::new(),
                 });
                 let kk = k as usize;
                 self.set_junctions(kk);
@@ -620,6 +629,7 @@ pub fn compile(
         &[&code, &out_code],
         &[&deriv_regs, &out_regs],
     );
+    set_constant_jacobians(&mut c.blocks, &[&code, &out_code], &state_regs);
     let n_in_f = count(&in_f);
     let n_at_outputs = count(&at_out);
     Tape {
@@ -774,21 +784,35 @@ impl Tape {
                     // the implicit function theorem: J dt = -(dR/dx) dx.
                     let b = &self.blocks[k as usize];
                     let n = b.tears.len();
-                    let mut w = Work::take(n, 0);
-                    w.saved.extend(b.touched.iter().map(|&x| dr[x as usize]));
+                    let mut w = Work::take(n, if b.constant_jacobian { r.len() } else { 0 });
                     self.solve_block(k as usize, r, t)?;
-                    self.block_jacobian(b, r, dr, t, &mut w.jac)?;
-                    for (&x, &v) in b.touched.iter().zip(&w.saved) {
-                        dr[x as usize] = v;
-                    }
-                    for &x in &b.tears {
-                        dr[x as usize] = 0.0;
-                    }
-                    self.run_tangent(&b.body, r, dr, t)?;
-                    w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
-                    if lu_factor(n, &mut w.jac, &mut w.perm) {
-                        lu_solve(n, &w.jac, &w.perm, &mut w.res, &mut w.tmp);
+                    let solved = if b.constant_jacobian {
+                        for &x in &b.tears {
+                            dr[x as usize] = 0.0;
+                        }
+                        self.run_tangent(&b.body, r, dr, t)?;
+                        w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
+                        let (jac, perm) = self.constant_lu(b, r, t, &mut w)?;
+                        lu_solve(n, jac, perm, &mut w.res, &mut w.tmp);
+                        true
                     } else {
+                        w.saved.extend(b.touched.iter().map(|&x| dr[x as usize]));
+                        self.block_jacobian(b, r, dr, t, &mut w.jac)?;
+                        for (&x, &v) in b.touched.iter().zip(&w.saved) {
+                            dr[x as usize] = v;
+                        }
+                        for &x in &b.tears {
+                            dr[x as usize] = 0.0;
+                        }
+                        self.run_tangent(&b.body, r, dr, t)?;
+                        w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
+                        let ok = lu_factor(n, &mut w.jac, &mut w.perm);
+                        if ok {
+                            lu_solve(n, &w.jac, &w.perm, &mut w.res, &mut w.tmp);
+                        }
+                        ok
+                    };
+                    if !solved {
                         return Err(EvalError::Singular {
                             block: b.index,
                             elements: b.elements.clone(),
@@ -841,7 +865,13 @@ impl Tape {
         let b = &self.blocks[k];
         let mut w = Work::take(b.tears.len(), r.len());
         w.start.extend(b.tears.iter().map(|&x| r[x as usize]));
-        let result = self.newton_iterate(b, r, t, &mut w);
+        let result = if b.constant_jacobian {
+            self.solve_affine(b, r, t, &mut w)
+        } else if b.tears.len() == 1 {
+            self.newton_scalar(b, r, t, &mut w)
+        } else {
+            self.newton_iterate(b, r, t, &mut w)
+        };
         if result.is_err() {
             for (j, &x) in b.tears.iter().enumerate() {
                 r[x as usize] = w.start[j];
@@ -849,6 +879,169 @@ impl Tape {
         }
         w.give();
         result
+    }
+
+    /// The factored constant Jacobian of `b`, computed at the first call
+    /// that finds it finite and regular (a failure is not remembered: the
+    /// registers it was computed from may have held a failed trial point).
+    fn constant_lu<'t>(
+        &self,
+        b: &'t TapeBlock,
+        r: &mut [f64],
+        t: f64,
+        w: &mut Work,
+    ) -> Result<&'t (Vec<f64>, Vec<usize>), EvalError> {
+        if let Some(lu) = b.lu.get() {
+            return Ok(lu);
+        }
+        let n = b.tears.len();
+        self.block_jacobian(b, r, &mut w.dr, t, &mut w.jac)?;
+        let mut perm = vec![0; n];
+        let mut jac = w.jac.clone();
+        if jac.iter().all(|v| v.is_finite()) && lu_factor(n, &mut jac, &mut perm) {
+            Ok(b.lu.get_or_init(|| (jac, perm)))
+        } else {
+            Err(EvalError::Singular {
+                block: b.index,
+                elements: b.elements.clone(),
+                t,
+            })
+        }
+    }
+
+    /// A block whose residuals are affine in the tears with a constant
+    /// Jacobian: one correction from the current tears solves it.
+    fn solve_affine(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        t: f64,
+        w: &mut Work,
+    ) -> Result<(), EvalError> {
+        let n = b.tears.len();
+        let (jac, perm) = self.constant_lu(b, r, t, w)?;
+        self.run(&b.body, r, t)?;
+        for (j, &x) in b.residuals.iter().enumerate() {
+            w.step[j] = r[x as usize];
+        }
+        if w.step.iter().all(|v| *v == 0.0) {
+            return Ok(());
+        }
+        lu_solve(n, jac, perm, &mut w.step, &mut w.tmp);
+        if w.step.iter().any(|v| !v.is_finite()) {
+            return Err(EvalError::Singular {
+                block: b.index,
+                elements: b.elements.clone(),
+                t,
+            });
+        }
+        for (j, &x) in b.tears.iter().enumerate() {
+            r[x as usize] -= w.step[j];
+        }
+        if b.private {
+            Ok(())
+        } else {
+            self.run(&b.body, r, t)
+        }
+    }
+
+    /// Newton on a one-tear block: each iteration is one tangent run of the
+    /// body, which gives the residual and its slope together. The step is
+    /// damped by the same natural monotonicity test as [`Self::newton_iterate`]
+    /// (checked with the residual the next iteration computes anyway) and
+    /// junction tears are limited as ngspice limits them.
+    fn newton_scalar(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        t: f64,
+        w: &mut Work,
+    ) -> Result<(), EvalError> {
+        let (x, res) = (b.tears[0] as usize, b.residuals[0] as usize);
+        let vt = b.junctions.first().map(|&(_, vt)| vt as usize);
+        let singular = || EvalError::Singular {
+            block: b.index,
+            elements: b.elements.clone(),
+            t,
+        };
+        let finish = |r: &mut [f64], value: f64| {
+            r[x] = value;
+            if b.private {
+                Ok(())
+            } else {
+                self.run(&b.body, r, t)
+            }
+        };
+        // The last full step: start, correction, slope, scaled size, damping.
+        let mut last: Option<(f64, f64, f64, f64, f64)> = None;
+        for _ in 0..400 {
+            for &z in &b.touched {
+                w.dr[z as usize] = 0.0;
+            }
+            w.dr[x] = 1.0;
+            self.run_tangent(&b.body, r, &mut w.dr, t)?;
+            let (fx, slope, xv) = (r[res], w.dr[res], r[x]);
+            if let Some((x0, step0, slope0, full0, lambda)) = last {
+                let simplified = (fx / slope0).abs() / (1.0 + x0.abs());
+                let accepted = (simplified.is_finite()
+                    && simplified <= (1.0 - lambda / 4.0) * full0)
+                    || simplified == 0.0;
+                if !accepted {
+                    let lambda = lambda * 0.5;
+                    if lambda < 1e-10 {
+                        if full0 <= 1e-9 {
+                            return Ok(());
+                        }
+                        return Err(EvalError::NoConvergence {
+                            block: b.index,
+                            elements: b.elements.clone(),
+                            residual: fx.abs(),
+                            t,
+                        });
+                    }
+                    r[x] = x0 - lambda * step0;
+                    last = Some((x0, step0, slope0, full0, lambda));
+                    continue;
+                }
+            }
+            if fx == 0.0 {
+                return Ok(());
+            }
+            let step = fx / slope;
+            let full = step.abs() / (1.0 + xv.abs());
+            if !full.is_finite() {
+                return Err(singular());
+            }
+            if full <= 1e-13 {
+                return finish(r, xv - step);
+            }
+            if let Some((_, _, _, full0, 1.0)) = last
+                && full <= 1e-10
+                && full <= 1e-2 * full0
+            {
+                // Quadratic convergence: what this step leaves is below rounding.
+                return finish(r, xv - step);
+            }
+            if let Some(vt) = vt {
+                let vt = r[vt].abs();
+                if vt > 0.0 {
+                    let limited = pnjlim(xv - step, xv, vt);
+                    if limited != xv - step {
+                        r[x] = limited;
+                        last = None;
+                        continue;
+                    }
+                }
+            }
+            r[x] = xv - step;
+            last = Some((xv, step, slope, full, 1.0));
+        }
+        Err(EvalError::NoConvergence {
+            block: b.index,
+            elements: b.elements.clone(),
+            residual: r[res].abs(),
+            t,
+        })
     }
 
     /// Damped Newton with the natural monotonicity test (Deuflhard): a step
@@ -1195,6 +1388,73 @@ fn set_private(blocks: &mut [TapeBlock], programs: &[&[Instr]], direct: &[&[u32]
             let d = dest(ins);
             d == NONE || b.tears.contains(&d) || reader.get(&d).is_none_or(|by| *by == Some(k))
         });
+    }
+}
+
+/// Mark the blocks whose Jacobian is constant: every path from a tear to a
+/// residual goes through negations, sums and products (or quotients) with
+/// registers no code writes (constants and parameters).
+fn set_constant_jacobians(blocks: &mut [TapeBlock], programs: &[&[Instr]], states: &[u32]) {
+    let mut written: std::collections::HashSet<u32> = states.iter().copied().collect();
+    for ins in programs
+        .iter()
+        .flat_map(|c| c.iter())
+        .chain(blocks.iter().flat_map(|b| b.body.iter()))
+    {
+        written.insert(dest(ins));
+    }
+    written.extend(blocks.iter().flat_map(|b| b.tears.iter().copied()));
+    for b in blocks.iter_mut() {
+        let mut varies: std::collections::HashSet<u32> = b.tears.iter().copied().collect();
+        let mut constant = true;
+        for ins in &b.body {
+            let (a, other) = match *ins {
+                Instr::Neg { a, .. } => (varies.contains(&a), None),
+                Instr::Add { a, b, .. } | Instr::Sub { a, b, .. } => {
+                    (varies.contains(&a) || varies.contains(&b), None)
+                }
+                Instr::Mul { a, b, .. } => match (varies.contains(&a), varies.contains(&b)) {
+                    (true, false) => (true, Some(b)),
+                    (false, true) => (true, Some(a)),
+                    (false, false) => (false, None),
+                    (true, true) => {
+                        constant = false;
+                        break;
+                    }
+                },
+                Instr::Div { a, b, .. } => {
+                    if varies.contains(&b) {
+                        constant = false;
+                        break;
+                    }
+                    (varies.contains(&a), Some(b))
+                }
+                Instr::Pow { a, b, .. } => (varies.contains(&a) || varies.contains(&b), None),
+                Instr::Call { a, .. } | Instr::Device { a, .. } => (varies.contains(&a), None),
+                Instr::Src { .. } | Instr::Time { .. } => (false, None),
+                Instr::Block { .. } => {
+                    constant = false;
+                    break;
+                }
+            };
+            if !a {
+                continue;
+            }
+            let linear_op = matches!(
+                ins,
+                Instr::Neg { .. }
+                    | Instr::Add { .. }
+                    | Instr::Sub { .. }
+                    | Instr::Mul { .. }
+                    | Instr::Div { .. }
+            );
+            if !linear_op || other.is_some_and(|o| written.contains(&o)) {
+                constant = false;
+                break;
+            }
+            varies.insert(dest(ins));
+        }
+        b.constant_jacobian = constant && !b.tears.is_empty();
     }
 }
 
