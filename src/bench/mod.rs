@@ -39,7 +39,7 @@ pub struct Options {
 impl Default for Options {
     fn default() -> Self {
         Options {
-            tolerances: vec![1e-3, 1e-4, 1e-5, 1e-6, 1e-7],
+            tolerances: vec![1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7],
             methods: vec![Method::Bdf, Method::TrBdf2, Method::Esdirk34],
             repeats: 3,
             ngspice: true,
