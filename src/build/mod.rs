@@ -309,6 +309,7 @@ impl Builder<'_> {
             m: m.m,
             fc: m.fc,
             tt: m.tt,
+            fwd: crate::ir::DiodeParams::forward_constants(m.vj, m.m, m.fc),
         };
         let charge = params.has_charge();
         let k = self.sys.diodes.len() as u32;

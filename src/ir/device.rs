@@ -17,6 +17,9 @@ pub struct DiodeParams {
     pub m: f64,
     pub fc: f64,
     pub tt: f64,
+    /// ngspice's `F1` and `F2` of the depletion charge above `fc·vj`, from
+    /// [`DiodeParams::forward_constants`] (two `powf` per charge otherwise).
+    pub fwd: [f64; 2],
 }
 
 /// Which function of the diode.
@@ -37,6 +40,14 @@ pub struct DeviceFn {
 }
 
 impl DiodeParams {
+    /// `F1 = vj (1 - (1 - fc)^(1 - m)) / (1 - m)` and `F2 = (1 - fc)^(1 + m)`.
+    pub fn forward_constants(vj: f64, m: f64, fc: f64) -> [f64; 2] {
+        [
+            vj * (1.0 - (1.0 - fc).powf(1.0 - m)) / (1.0 - m),
+            (1.0 - fc).powf(1.0 + m),
+        ]
+    }
+
     /// ngspice's breakdown voltage matched to the current `ibv` at `bv`
     /// (diotemp.c), given IS and the thermal voltage.
     pub fn match_breakdown(bv: f64, ibv: f64, is: f64, vt: f64) -> f64 {
@@ -109,8 +120,7 @@ impl DiodeParams {
             q[1] += cjo * sarg;
             q[2] += cjo * m / vj * sarg / arg;
         } else {
-            let f1 = vj * (1.0 - (1.0 - fc).powf(1.0 - m)) / (1.0 - m);
-            let f2 = (1.0 - fc).powf(1.0 + m);
+            let [f1, f2] = self.fwd;
             let f3 = 1.0 - fc * (1.0 + m);
             let czof2 = cjo / f2;
             q[0] +=
@@ -158,6 +168,7 @@ mod tests {
             m: 0.4,
             fc: 0.5,
             tt: 1e-9,
+            fwd: DiodeParams::forward_constants(0.7, 0.4, 0.5),
         }
     }
 
