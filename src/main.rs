@@ -557,7 +557,12 @@ fn cmd_bench(a: BenchArgs) -> Result<ExitCode, String> {
     } else {
         Vec::new()
     };
-    let total = a.netlists.len() * bench::measurements(&opts) + sizes.len();
+    let total = a
+        .netlists
+        .iter()
+        .map(|n| bench::measurements(&opts, n))
+        .sum::<usize>()
+        + sizes.len();
     let bar = if std::io::stderr().is_terminal() {
         indicatif::ProgressBar::new(total as u64)
     } else {

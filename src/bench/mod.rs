@@ -140,18 +140,40 @@ fn sorted_from(path: &Path) -> Result<(Sorted, f64, f64), BenchError> {
     Ok((sorted, front, t1.elapsed().as_secs_f64()))
 }
 
-/// The stored-energy expression of a netlist: `* kausal-bench:
-/// energy=0.5e-6*v(tank)^2+0.5e-3*i(vs)^2` (a sum of `coef*signal^2`).
-pub fn energy_terms(text: &str) -> Option<Vec<(f64, String)>> {
-    let spec = text.lines().find_map(|l| {
+/// The value of `key=` in a netlist's `* kausal-bench: key=value ...` comment.
+fn bench_hint(text: &str, key: &str) -> Option<String> {
+    text.lines().find_map(|l| {
         l.trim_start()
             .strip_prefix('*')?
             .trim_start()
             .strip_prefix("kausal-bench:")?
             .split_whitespace()
-            .find_map(|kv| kv.strip_prefix("energy="))
+            .find_map(|kv| kv.strip_prefix(key)?.strip_prefix('='))
             .map(str::to_string)
-    })?;
+    })
+}
+
+/// Solvers a netlist asks to be benchmarked with besides the chosen ones:
+/// `* kausal-bench: solvers=tsit5` on a circuit known not to be stiff (an
+/// explicit method would crawl through a stiff one, so it is never a default).
+pub fn extra_solvers(text: &str) -> Vec<Method> {
+    bench_hint(text, "solvers")
+        .map(|list| {
+            list.split(',')
+                .filter_map(|name| {
+                    [Method::Bdf, Method::TrBdf2, Method::Esdirk34, Method::Tsit5]
+                        .into_iter()
+                        .find(|&m| method_name(m).eq_ignore_ascii_case(name))
+                })
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// The stored-energy expression of a netlist: `* kausal-bench:
+/// energy=0.5e-6*v(tank)^2+0.5e-3*i(vs)^2` (a sum of `coef*signal^2`).
+pub fn energy_terms(text: &str) -> Option<Vec<(f64, String)>> {
+    let spec = bench_hint(text, "energy")?;
     spec.split('+')
         .map(|term| {
             let (coef, sig) = term.split_once('*')?;
@@ -335,8 +357,14 @@ pub fn bench_circuit(
     let drift = |names: &[String], data: &[Vec<f64>]| {
         energy.as_ref().and_then(|e| energy_drift(e, names, data))
     };
+    let mut methods = opts.methods.clone();
+    for m in extra_solvers(&text) {
+        if !methods.contains(&m) {
+            methods.push(m);
+        }
+    }
     let mut points = Vec::new();
-    for &m in &opts.methods {
+    for &m in &methods {
         for &tol in &opts.tolerances {
             let so = sim::Options {
                 method: Some(m),
@@ -503,9 +531,15 @@ fn failed_point(solver: String, tol: Option<f64>, why: String) -> Point {
     }
 }
 
-/// How many measurements [`bench_circuit`] makes (for a progress bar).
-pub fn measurements(opts: &Options) -> usize {
-    let k = opts.methods.len() * opts.tolerances.len() + 1;
+/// How many measurements [`bench_circuit`] makes on `netlist` (for a
+/// progress bar).
+pub fn measurements(opts: &Options, netlist: &Path) -> usize {
+    let text = std::fs::read_to_string(netlist).unwrap_or_default();
+    let extra = extra_solvers(&text)
+        .into_iter()
+        .filter(|m| !opts.methods.contains(m))
+        .count();
+    let k = (opts.methods.len() + extra) * opts.tolerances.len() + 1;
     if opts.ngspice {
         k + 2 + 2 * opts.tolerances.len()
     } else {
