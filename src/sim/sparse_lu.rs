@@ -33,7 +33,7 @@ const PIVOT_TOL: f64 = 1e-3;
 
 /// A refactorization keeps the old pivot while it is at least this fraction
 /// of the largest entry below it; otherwise the matrix is factored afresh.
-const REFACTOR_TOL: f64 = 1e-8;
+const REFACTOR_TOL: f64 = 1e-6;
 
 const NONE: usize = usize::MAX;
 
@@ -571,6 +571,37 @@ mod tests {
         ];
         check(&b, (0..4).collect());
         check(&b, vec![2, 0, 3, 1]);
+    }
+
+    #[test]
+    fn refactor_refuses_a_vanished_pivot() {
+        let a1 = vec![vec![1.0, 1.0], vec![1.0, 2.0]];
+        let a2 = vec![vec![1e-12, 1.0], vec![1.0, 2.0]];
+        let (cp, ri, v1) = csc_of(&a1);
+        let (_, _, v2) = csc_of(&a2);
+        let csc = |v| Csc {
+            col_ptr: &cp,
+            row_idx: &ri,
+            val: v,
+        };
+        let mut f = Factors {
+            n: 2,
+            q: vec![0, 1],
+            ..Factors::default()
+        };
+        let mut w = Work::default();
+        f.factor(&csc(&v1), &mut w).unwrap();
+        let mut x = vec![0.0; 2];
+        assert!(!f.refactor(&csc(&v2), &mut x), "the kept pivot is 1e-12");
+        assert!(x.iter().all(|&v| v == 0.0));
+        f.factor(&csc(&v2), &mut w).unwrap();
+        // x = (1, 1): b = (1 + 1e-12, 3).
+        let mut b = vec![1.0 + 1e-12, 3.0];
+        f.solve(&mut b, &mut x);
+        assert!(
+            (b[0] - 1.0).abs() < 1e-12 && (b[1] - 1.0).abs() < 1e-12,
+            "{b:?}"
+        );
     }
 
     #[test]
