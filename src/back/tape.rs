@@ -1024,6 +1024,12 @@ impl Tape {
             }
             if let Some(vt) = vt {
                 let vt = r[vt].abs();
+                // A junction's residual curves like exp(x/vt): Newton's error
+                // after this step is about step²/(2 vt). Below rounding, the
+                // step is the last one.
+                if vt > 0.0 && step * step <= 2e-13 * vt * (1.0 + xv.abs()) {
+                    return finish(r, xv - step);
+                }
                 if vt > 0.0 {
                     let limited = pnjlim(xv - step, xv, vt);
                     if limited != xv - step {
