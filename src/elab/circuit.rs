@@ -81,10 +81,10 @@ pub enum ElementKind {
         k: f64,
     },
     VSource {
-        wave: Waveform,
+        wave: Box<Waveform>,
     },
     ISource {
-        wave: Waveform,
+        wave: Box<Waveform>,
     },
     /// E: nodes are out+, out-, ctrl+, ctrl-.
     Vcvs {
@@ -105,7 +105,7 @@ pub enum ElementKind {
         ctrl: ElemId,
     },
     Diode {
-        model: DiodeModel,
+        model: Box<DiodeModel>,
         area: f64,
     },
 }

@@ -35,6 +35,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         errors: Vec::new(),
         node_map: FxHashMap::with_capacity_and_hasher(n, Default::default()),
         elem_map: FxHashMap::with_capacity_and_hasher(n, Default::default()),
+        key_buf: String::new(),
         pending: Vec::new(),
         model_cache: HashMap::new(),
         tstep: 1.0,
@@ -108,6 +109,8 @@ struct Elab {
     errors: Vec<ElabError>,
     node_map: FxHashMap<String, NodeId>,
     elem_map: FxHashMap<String, (ElemId, Span)>,
+    /// Scratch for case-folded names.
+    key_buf: String,
     pending: Vec<Pending>,
     model_cache: HashMap<(u32, u32, String), DiodeModel>,
     tstep: f64,
@@ -253,29 +256,35 @@ impl Elab {
     }
 
     fn node(&mut self, name: &ast::Name<'_>, scope: &Scope<'_, '_>) -> NodeId {
-        let key = name.key();
-        if key == "0" || key == "gnd" {
+        if name.is("0") || name.is("gnd") {
             return GROUND;
         }
-        if let Some(&n) = scope.ports.get(&key) {
-            return n;
+        // The case-folded hierarchical name, built in a reused buffer: a
+        // lookup of a known node allocates nothing.
+        let mut full = std::mem::take(&mut self.key_buf);
+        full.clear();
+        if !scope.ports.is_empty() {
+            full.push_str(name.text);
+            full.make_ascii_lowercase();
+            if let Some(&n) = scope.ports.get(full.as_str()) {
+                self.key_buf = full;
+                return n;
+            }
+            full.clear();
         }
-        // At top level the key is the name: no second string per lookup.
-        let full = if scope.prefix.is_empty() {
-            key
-        } else {
-            let mut full = scope.prefix.to_ascii_lowercase();
-            full.push_str(&key);
-            full
-        };
-        if let Some(&n) = self.node_map.get(&full) {
+        full.push_str(&scope.prefix);
+        full.push_str(name.text);
+        full.make_ascii_lowercase();
+        if let Some(&n) = self.node_map.get(full.as_str()) {
+            self.key_buf = full;
             return n;
         }
         let id = self.circuit.nodes.push(Node {
             name: full.clone(),
             span: name.span,
         });
-        self.node_map.insert(full, id);
+        self.node_map.insert(full.clone(), id);
+        self.key_buf = full;
         id
     }
 
@@ -433,9 +442,13 @@ impl Elab {
                     },
                 };
                 if letter == 'V' {
-                    ElementKind::VSource { wave }
+                    ElementKind::VSource {
+                        wave: Box::new(wave),
+                    }
                 } else {
-                    ElementKind::ISource { wave }
+                    ElementKind::ISource {
+                        wave: Box::new(wave),
+                    }
                 }
             }
             ElementBody::VoltageControlled { gain } => {
@@ -472,7 +485,10 @@ impl Elab {
                     });
                 }
                 let model = self.diode_model(model, name, scope)?;
-                ElementKind::Diode { model, area }
+                ElementKind::Diode {
+                    model: Box::new(model),
+                    area,
+                }
             }
             ElementBody::Instance { .. } => unreachable!("instances are expanded before"),
         })

@@ -82,8 +82,8 @@ pub fn lex_file<'a>(
     errors: &mut Vec<ParseError>,
 ) -> LexedFile<'a> {
     let text = sources.file(file).text.as_str();
-    // A line of a netlist holds a handful of tokens.
-    let mut tokens: Vec<Token<'a>> = Vec::with_capacity(text.len() / 6);
+    // Element lines run about three bytes per token (`R1 n0 n1 1k`).
+    let mut tokens: Vec<Token<'a>> = Vec::with_capacity(text.len() / 3);
     let mut ranges: Vec<(u32, u32, bool)> = Vec::with_capacity(text.len() / 24);
     let mut title = None;
     let mut offset = 0usize;

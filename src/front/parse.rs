@@ -440,7 +440,7 @@ impl<'a> Parser<'a> {
         };
         let mut c = Cursor::new(toks);
         c.next();
-        let mut nodes = Vec::new();
+        let mut nodes = Vec::with_capacity(toks.len().saturating_sub(2));
         if letter == 'X' {
             // Words up to the first `name=` or `params:`; the last is the subcircuit.
             while let Some(t) = c.peek() {
