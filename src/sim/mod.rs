@@ -298,7 +298,7 @@ fn breakpoints(sys: &EquationSystem, t0: f64, t1: f64, tmax: Option<f64>) -> (Ve
 
 /// The initial states: `uic` (element `ic=` and `.ic` values) or the DC
 /// operating point (capacitors open, inductors shorted: `f(0, y) = 0`).
-fn initial_state<M: Matrix<T = f64>, LS: LinearSolver<M>>(
+fn initial_state<M: Matrix<T = f64>>(
     sorted: &Sorted,
     ode: &CircuitOde<M>,
     t0: f64,
@@ -339,9 +339,13 @@ where
                 from_ic[k] = true;
             }
             ElementKind::Capacitor { ic: None, .. } => {
-                let (a, b) = (ic_node(el.nodes[0]), ic_node(el.nodes[1]));
-                if a.is_some() || b.is_some() {
-                    y[k] = a.unwrap_or(0.0) - b.unwrap_or(0.0);
+                // Held when `.ic` names one terminal and the other is named
+                // too or is ground (ground alone holds nothing).
+                let named = |node| node != GROUND && c.ics.iter().any(|i| i.node == node);
+                if (named(el.nodes[0]) || named(el.nodes[1]))
+                    && let (Some(a), Some(b)) = (ic_node(el.nodes[0]), ic_node(el.nodes[1]))
+                {
+                    y[k] = a - b;
                     from_ic[k] = true;
                 }
             }
@@ -352,7 +356,7 @@ where
         return Ok(y);
     }
     tape.dc.set(true);
-    let r = dc_point::<M, LS>(c, ode, t0, y, &from_ic);
+    let r = dc_point::<M>(c, ode, t0, y, &from_ic);
     tape.dc.set(false);
     r
 }
@@ -361,9 +365,9 @@ where
 const DC_SINGULAR: &str = "the DC Jacobian is singular: a node or loop has no DC path (a capacitor-only node, an inductor loop); use `.tran ... uic`";
 
 /// DC operating point by damped Newton on f(t0, y) = 0 in DC mode, with the
-/// states that `.ic` fixes held: the integrator's sparse LU of the coloured
-/// Jacobian for large circuits without `.ic`, else a dense solve.
-fn dc_point<M: Matrix<T = f64>, LS: LinearSolver<M>>(
+/// states that `.ic` fixes held: the sparse LU of the coloured Jacobian above
+/// `DENSE_STATES` states, else a dense solve.
+fn dc_point<M: Matrix<T = f64>>(
     c: &Circuit,
     ode: &CircuitOde<M>,
     t0: f64,
@@ -394,31 +398,32 @@ where
     let singular = || SimError::DcFailed {
         message: DC_SINGULAR.into(),
     };
-    if n > DENSE_STATES && !fix.iter().any(|&f| f) {
+    if n > DENSE_STATES {
+        // The coloured sparse Jacobian; rows of states fixed by `.ic` become
+        // identity rows (their residual is zero, so they do not move).
+        use diffsol::NonLinearOpJacobian;
         let op = ode.rhs();
         let ctx = ode.context().clone();
-        let mut ls = LS::default();
-        LinearSolver::set_problem(&mut ls, &op);
+        let mut jm: Option<M> = None;
         return dc_newton(y, f, norm, &resid, |y, f| {
             let yv = M::V::from_vec(y.to_vec(), ctx.clone());
-            LinearSolver::set_linearisation(&mut ls, &op, &yv, t0);
-            let mut sv = M::V::from_vec(f.to_vec(), ctx.clone());
-            let solved = ls.solve_in_place(&mut sv);
+            let jm = jm.get_or_insert_with(|| op.jacobian(&yv, t0));
+            op.jacobian_inplace(&yv, t0, jm);
             if let Some(error) = ode.error.borrow_mut().take() {
                 return Err(SimError::Eval { error });
             }
-            let step = sv.slice().to_vec();
-            if solved.is_err() || step.iter().any(|s| !s.is_finite()) {
+            let (at, vals) = jm.triplet_iter();
+            let mut entries: Vec<(usize, usize, f64)> = at
+                .zip(vals)
+                .filter(|&((i, _), _)| !fix[i])
+                .map(|((i, j), v)| (i, j, v))
+                .collect();
+            entries.extend((0..n).filter(|&k| fix[k]).map(|k| (k, k, 1.0)));
+            let step = sparse_lu::solve_triplets(n, entries, f).ok_or_else(singular)?;
+            if step.iter().any(|s| !s.is_finite()) {
                 return Err(singular());
             }
             Ok(step)
-        });
-    }
-    if n > 4000 {
-        return Err(SimError::DcFailed {
-            message: format!(
-                "the DC solve of {n} states with `.ic` values is dense; use `.tran ... uic` with initial conditions"
-            ),
         });
     }
     let mut jac = vec![0.0; n * n];
@@ -641,7 +646,7 @@ where
 {
     let t0 = 0.0;
     let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; tape.states.len()], sparse);
-    let y0 = initial_state::<M, LS>(sorted, &ode, t0)?;
+    let y0 = initial_state::<M>(sorted, &ode, t0)?;
     *ode.y0.borrow_mut() = y0;
     let c = &sorted.elaborated.circuit;
     let rtol = opts.rtol.unwrap_or_else(|| {

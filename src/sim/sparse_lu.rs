@@ -387,9 +387,53 @@ impl CircuitLu {
     }
 }
 
+/// Solve the `n`×`n` system given by `(row, column, value)` entries
+/// (repeated positions add up): one factorization with pivoting. `None` when
+/// it is singular.
+pub fn solve_triplets(
+    n: usize,
+    mut entries: Vec<(usize, usize, f64)>,
+    b: &[f64],
+) -> Option<Vec<f64>> {
+    entries.sort_unstable_by_key(|&(i, j, _)| (j, i));
+    let (mut col_ptr, mut row_idx, mut val) = (vec![0usize; n + 1], Vec::new(), Vec::new());
+    let mut last = None;
+    for (i, j, v) in entries {
+        if last == Some((i, j)) {
+            *val.last_mut().expect("an entry") += v;
+            continue;
+        }
+        last = Some((i, j));
+        row_idx.push(i);
+        val.push(v);
+        col_ptr[j + 1] += 1;
+    }
+    for j in 0..n {
+        col_ptr[j + 1] += col_ptr[j];
+    }
+    let sym = faer::sparse::SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
+    let mut f = Factors {
+        n,
+        q: amd_order_of(n, sym),
+        ..Factors::default()
+    };
+    let csc = Csc {
+        col_ptr: &col_ptr,
+        row_idx: &row_idx,
+        val: &val,
+    };
+    f.factor(&csc, &mut Work::default()).ok()?;
+    let mut x = b.to_vec();
+    f.solve(&mut x, &mut vec![0.0; n]);
+    Some(x)
+}
+
 /// Approximate minimum degree order of `A + Aᵀ` (identity if it fails).
 fn amd_order(n: usize, a: &FaerSparseMat<f64>) -> Vec<usize> {
-    let sym = a.inner()[0].symbolic();
+    amd_order_of(n, a.inner()[0].symbolic())
+}
+
+fn amd_order_of(n: usize, sym: faer::sparse::SymbolicSparseColMatRef<'_, usize>) -> Vec<usize> {
     let nnz = sym.compute_nnz();
     let mut perm = vec![0usize; n];
     let mut perm_inv = vec![0usize; n];

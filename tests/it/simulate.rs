@@ -194,7 +194,8 @@ fn csv_and_raw_output_follow_ngspice_names() {
 
 /// A DC start of a circuit large enough for the sparse integrator (more than
 /// `sim::DENSE_STATES` states) solves the operating point with the sparse LU:
-/// a resistive divider along an RC ladder.
+/// a resistive divider along an RC ladder; with `.ic` holding the first node,
+/// the divider starts there.
 #[test]
 fn a_large_circuit_starts_from_its_dc_operating_point() {
     // Beyond the dense solve's reach too (it stopped at 4000 states).
@@ -203,7 +204,19 @@ fn a_large_circuit_starts_from_its_dc_operating_point() {
     for k in 1..=n {
         text.push_str(&format!("R{k} n{} n{k} 1k\nC{k} n{k} 0 1n\n", k - 1));
     }
-    text.push_str(&format!("Rl n{n} 0 1Meg\n.tran 10u 20u\n.end\n"));
+    text.push_str(&format!("Rl n{n} 0 1Meg\n"));
+    let with_ic = format!("{text}.ic v(n1)=0.5\n.tran 10u 20u\n.end\n");
+    let current = 0.5 / ((n - 1) as f64 * 1e3 + 1e6);
+    for (node, k) in [("n1", 1.0), (&*format!("n{n}"), n as f64)] {
+        let (_, y) = run(&with_ic, &format!("v({node})"), None, 1e-7);
+        let exact = 0.5 - (k - 1.0) * 1e3 * current;
+        assert!(
+            (y[0] - exact).abs() <= 1e-9,
+            "with .ic: v({node}) = {} at t = 0, expected {exact}",
+            y[0]
+        );
+    }
+    text.push_str(".tran 10u 20u\n.end\n");
     // Every section drops 1k * I, I = 1 V / (n * 1k + 1M).
     let current = 1.0 / (n as f64 * 1e3 + 1e6);
     for (node, k) in [("n1", 1.0), (&*format!("n{n}"), n as f64)] {
