@@ -339,14 +339,14 @@ pub struct CircuitLu {
     work: Work,
     /// Dense scratch of the solves.
     y: RefCell<Vec<f64>>,
-    /// Full factorizations and refactorizations so far.
-    pub counts: (usize, usize),
 }
 
 impl CircuitLu {
     fn csc(a: &FaerSparseMat<f64>) -> Csc<'_> {
         let m = &a.inner()[0];
         let sym = m.symbolic();
+        // diffsol builds its matrices compact: no per-column lengths.
+        debug_assert!(sym.col_nnz().is_none());
         Csc {
             col_ptr: sym.col_ptr(),
             row_idx: sym.row_idx(),
@@ -361,11 +361,9 @@ impl CircuitLu {
         if self.f.valid {
             self.work.x.resize(self.f.n, 0.0);
             if self.f.refactor(&csc, &mut self.work.x) {
-                self.counts.1 += 1;
                 return;
             }
         }
-        self.counts.0 += 1;
         // A singular matrix leaves the factors invalid; the solve reports it.
         let _ = self.f.factor(&csc, &mut self.work);
         self.work.x.iter_mut().for_each(|v| *v = 0.0);
