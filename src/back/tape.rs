@@ -100,6 +100,25 @@ pub struct TapeBlock {
     lu: std::cell::OnceCell<(Vec<f64>, Vec<usize>)>,
 }
 
+impl TapeBlock {
+    fn singular(&self, t: f64) -> EvalError {
+        EvalError::Singular {
+            block: self.index,
+            elements: self.elements.clone(),
+            t,
+        }
+    }
+
+    fn no_convergence(&self, residual: f64, t: f64) -> EvalError {
+        EvalError::NoConvergence {
+            block: self.index,
+            elements: self.elements.clone(),
+            residual,
+            t,
+        }
+    }
+}
+
 /// Why an evaluation failed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum EvalError {
@@ -813,11 +832,7 @@ impl Tape {
                         ok
                     };
                     if !solved {
-                        return Err(EvalError::Singular {
-                            block: b.index,
-                            elements: b.elements.clone(),
-                            t,
-                        });
+                        return Err(b.singular(t));
                     }
                     for (j, &x) in b.tears.iter().enumerate() {
                         dr[x as usize] = w.res[j];
@@ -901,11 +916,7 @@ impl Tape {
         if jac.iter().all(|v| v.is_finite()) && lu_factor(n, &mut jac, &mut perm) {
             Ok(b.lu.get_or_init(|| (jac, perm)))
         } else {
-            Err(EvalError::Singular {
-                block: b.index,
-                elements: b.elements.clone(),
-                t,
-            })
+            Err(b.singular(t))
         }
     }
 
@@ -929,11 +940,7 @@ impl Tape {
         }
         lu_solve(n, jac, perm, &mut w.step, &mut w.tmp);
         if w.step.iter().any(|v| !v.is_finite()) {
-            return Err(EvalError::Singular {
-                block: b.index,
-                elements: b.elements.clone(),
-                t,
-            });
+            return Err(b.singular(t));
         }
         for (j, &x) in b.tears.iter().enumerate() {
             r[x as usize] -= w.step[j];
@@ -959,11 +966,6 @@ impl Tape {
     ) -> Result<(), EvalError> {
         let (x, res) = (b.tears[0] as usize, b.residuals[0] as usize);
         let vt = b.junctions.first().map(|&(_, vt)| vt as usize);
-        let singular = || EvalError::Singular {
-            block: b.index,
-            elements: b.elements.clone(),
-            t,
-        };
         let finish = |r: &mut [f64], value: f64| {
             r[x] = value;
             if b.private {
@@ -992,12 +994,7 @@ impl Tape {
                         if full0 <= 1e-9 {
                             return Ok(());
                         }
-                        return Err(EvalError::NoConvergence {
-                            block: b.index,
-                            elements: b.elements.clone(),
-                            residual: fx.abs(),
-                            t,
-                        });
+                        return Err(b.no_convergence(fx.abs(), t));
                     }
                     r[x] = x0 - lambda * step0;
                     last = Some((x0, step0, slope0, full0, lambda));
@@ -1010,7 +1007,7 @@ impl Tape {
             let step = fx / slope;
             let full = step.abs() / (1.0 + xv.abs());
             if !full.is_finite() {
-                return Err(singular());
+                return Err(b.singular(t));
             }
             if full <= 1e-13 {
                 return finish(r, xv - step);
@@ -1042,12 +1039,7 @@ impl Tape {
             r[x] = xv - step;
             last = Some((xv, step, slope, full, 1.0));
         }
-        Err(EvalError::NoConvergence {
-            block: b.index,
-            elements: b.elements.clone(),
-            residual: r[res].abs(),
-            t,
-        })
+        Err(b.no_convergence(r[res].abs(), t))
     }
 
     /// Damped Newton with the natural monotonicity test (Deuflhard): a step
@@ -1063,20 +1055,13 @@ impl Tape {
         w: &mut Work,
     ) -> Result<(), EvalError> {
         let n = b.tears.len();
-        let singular = || EvalError::Singular {
-            block: b.index,
-            elements: b.elements.clone(),
-            t,
-        };
-        let no_convergence = |r: &[f64]| EvalError::NoConvergence {
-            block: b.index,
-            elements: b.elements.clone(),
-            residual: b
+        let no_convergence = |r: &[f64]| {
+            let residual = b
                 .residuals
                 .iter()
                 .map(|&x| r[x as usize].abs())
-                .fold(0.0, f64::max),
-            t,
+                .fold(0.0, f64::max);
+            b.no_convergence(residual, t)
         };
         let scaled = |d: &[f64], x: &[f64]| -> f64 {
             d.iter()
@@ -1093,7 +1078,7 @@ impl Tape {
         for _ in 0..200 {
             self.block_jacobian(b, r, &mut w.dr, t, &mut w.jac)?;
             if !lu_factor(n, &mut w.jac, &mut w.perm) {
-                return Err(singular());
+                return Err(b.singular(t));
             }
             for (j, &x) in b.residuals.iter().enumerate() {
                 w.step[j] = r[x as usize];
@@ -1107,7 +1092,7 @@ impl Tape {
             }
             let full = scaled(&w.step, &w.x0);
             if !full.is_finite() {
-                return Err(singular());
+                return Err(b.singular(t));
             }
             if full <= 1e-13 {
                 // Converged to rounding: take the last correction and stop.
