@@ -17,7 +17,7 @@ use std::collections::HashMap;
 
 use crate::elab::{Circuit, ElemId, ElementKind, GROUND, NodeId};
 use crate::ir::{
-    EquationSystem, ExprId, Name, Origin, OriginKind, SourceFn, VarId, VarKind, Waveform,
+    EquationSystem, ExprId, Name, Origin, OriginKind, SourceFn, VarId, VarKind, Waveform, joined,
 };
 
 /// Thermal voltage kT/q at ngspice's default 27 °C.
@@ -127,13 +127,13 @@ impl Builder<'_> {
             }
             let origin = self.elem_origin(id);
             let u = self.sys.add_var(
-                format!("u_{}", e.name),
+                joined(&["u_", &e.name]),
                 VarKind::BranchVoltage,
                 origin.clone(),
             );
             let i = self
                 .sys
-                .add_var(format!("i_{}", e.name), VarKind::BranchCurrent, origin);
+                .add_var(joined(&["i_", &e.name]), VarKind::BranchCurrent, origin);
             match e.kind {
                 ElementKind::Capacitor { .. } => {
                     self.sys.add_state(u);
@@ -156,7 +156,7 @@ impl Builder<'_> {
                 continue;
             }
             let v = self.sys.add_var(
-                format!("v({})", n.name),
+                joined(&["v(", &n.name, ")"]),
                 VarKind::Potential,
                 Origin {
                     kind: OriginKind::Node {

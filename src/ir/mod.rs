@@ -18,6 +18,6 @@ pub use entity::{EntityId, IdVec};
 pub use expr::{Expr, ExprArena, ExprId, Func, bits};
 pub use system::{
     EqId, Equation, EquationSystem, Name, Origin, OriginKind, Param, ParamId, SourceFn, SourceId,
-    Var, VarId, VarKind, VarRole, Waveform,
+    Var, VarId, VarKind, VarRole, Waveform, joined,
 };
 pub use verify::{VerifyError, verify};
