@@ -7,6 +7,8 @@ use kausal::pipeline::{self, SortOptions};
 use std::process::Command;
 
 fn compile(c: &mut Criterion) {
+    // As the CLI runs (see `io::no_huge_pages`).
+    kausal::io::no_huge_pages();
     let n = 10_000usize;
     let text = kausal::generate::rc_ladder(n);
     let s = pipeline::sort_text("ladder.cir", text, &SortOptions::default())

@@ -9,6 +9,8 @@ use kausal::pipeline::{self, SortOptions};
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 fn eval(c: &mut Criterion) {
+    // As the CLI runs (see `io::no_huge_pages`).
+    kausal::io::no_huge_pages();
     let n = 100_000usize;
     let text = kausal::generate::rc_ladder(n);
     let s = pipeline::sort_text("ladder.cir", text, &SortOptions::default())

@@ -11,6 +11,8 @@ use std::path::Path;
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 fn front_to_equations(c: &mut Criterion) {
+    // As the CLI runs (see `io::no_huge_pages`).
+    kausal::io::no_huge_pages();
     let mut g = c.benchmark_group("parse+build rc_ladder");
     g.sample_size(10);
     for n in [1_000usize, 10_000, 100_000] {

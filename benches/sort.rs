@@ -21,6 +21,8 @@ fn system(text: String) -> EquationSystem {
 }
 
 fn ladders(c: &mut Criterion) {
+    // As the CLI runs (see `io::no_huge_pages`).
+    kausal::io::no_huge_pages();
     let mut g = c.benchmark_group("sort rc_ladder");
     g.sample_size(10);
     // Five equations per section.
@@ -42,6 +44,8 @@ fn ladders(c: &mut Criterion) {
 }
 
 fn meshes(c: &mut Criterion) {
+    // As the CLI runs (see `io::no_huge_pages`).
+    kausal::io::no_huge_pages();
     let mut g = c.benchmark_group("sort rc_mesh");
     g.sample_size(10);
     for side in [10usize, 30, 100, 300] {

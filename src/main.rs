@@ -185,6 +185,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    kausal::io::no_huge_pages();
     let cli = Cli::parse();
     match run(cli) {
         Ok(code) => code,
