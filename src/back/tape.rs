@@ -803,36 +803,28 @@ impl Tape {
                     // the implicit function theorem: J dt = -(dR/dx) dx.
                     let b = &self.blocks[k as usize];
                     let n = b.tears.len();
-                    let mut w = Work::take(n, if b.constant_jacobian { r.len() } else { 0 });
+                    let mut w = Work::take(n, r.len());
                     self.solve_block(k as usize, r, t)?;
-                    let solved = if b.constant_jacobian {
-                        for &x in &b.tears {
-                            dr[x as usize] = 0.0;
-                        }
-                        self.run_tangent(&b.body, r, dr, t)?;
-                        w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
-                        let (jac, perm) = self.constant_lu(b, r, t, &mut w)?;
-                        lu_solve(n, jac, perm, &mut w.res, &mut w.tmp);
-                        true
-                    } else {
+                    if !b.constant_jacobian {
                         w.saved.extend(b.touched.iter().map(|&x| dr[x as usize]));
                         self.block_jacobian(b, r, dr, t, &mut w.jac)?;
                         for (&x, &v) in b.touched.iter().zip(&w.saved) {
                             dr[x as usize] = v;
                         }
-                        for &x in &b.tears {
-                            dr[x as usize] = 0.0;
+                        if !lu_factor(n, &mut w.jac, &mut w.perm) {
+                            return Err(b.singular(t));
                         }
-                        self.run_tangent(&b.body, r, dr, t)?;
-                        w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
-                        let ok = lu_factor(n, &mut w.jac, &mut w.perm);
-                        if ok {
-                            lu_solve(n, &w.jac, &w.perm, &mut w.res, &mut w.tmp);
-                        }
-                        ok
-                    };
-                    if !solved {
-                        return Err(b.singular(t));
+                    }
+                    for &x in &b.tears {
+                        dr[x as usize] = 0.0;
+                    }
+                    self.run_tangent(&b.body, r, dr, t)?;
+                    w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
+                    if b.constant_jacobian {
+                        let (jac, perm) = self.constant_lu(b, r, t, &mut w)?;
+                        lu_solve(n, jac, perm, &mut w.res, &mut w.tmp);
+                    } else {
+                        lu_solve(n, &w.jac, &w.perm, &mut w.res, &mut w.tmp);
                     }
                     for (j, &x) in b.tears.iter().enumerate() {
                         dr[x as usize] = w.res[j];
@@ -896,6 +888,16 @@ impl Tape {
         result
     }
 
+    /// After the last correction of `b`'s tears: bring its body up to date
+    /// unless nothing outside reads it (`private`).
+    fn settle(&self, b: &TapeBlock, r: &mut [f64], t: f64) -> Result<(), EvalError> {
+        if b.private {
+            Ok(())
+        } else {
+            self.run(&b.body, r, t)
+        }
+    }
+
     /// The factored constant Jacobian of `b`, computed at the first call
     /// that finds it finite and regular (a failure is not remembered: the
     /// registers it was computed from may have held a failed trial point).
@@ -945,11 +947,7 @@ impl Tape {
         for (j, &x) in b.tears.iter().enumerate() {
             r[x as usize] -= w.step[j];
         }
-        if b.private {
-            Ok(())
-        } else {
-            self.run(&b.body, r, t)
-        }
+        self.settle(b, r, t)
     }
 
     /// Newton on a one-tear block: each iteration is one tangent run of the
@@ -968,11 +966,7 @@ impl Tape {
         let vt = b.junctions.first().map(|&(_, vt)| vt as usize);
         let finish = |r: &mut [f64], value: f64| {
             r[x] = value;
-            if b.private {
-                Ok(())
-            } else {
-                self.run(&b.body, r, t)
-            }
+            self.settle(b, r, t)
         };
         // The last full step: start, correction, slope, scaled size, damping.
         let mut last: Option<(f64, f64, f64, f64, f64)> = None;
@@ -1097,11 +1091,7 @@ impl Tape {
             if full <= 1e-13 {
                 // Converged to rounding: take the last correction and stop.
                 set(r, &w.x0, &w.step, 1.0);
-                return if b.private {
-                    Ok(())
-                } else {
-                    self.run(&b.body, r, t)
-                };
+                return self.settle(b, r, t);
             }
             // Junction limiting (ngspice's pnjlim) on tears inside an exp().
             // A limited step is taken as it is, as SPICE does.
@@ -1154,11 +1144,7 @@ impl Tape {
                 for (j, &x) in b.tears.iter().enumerate() {
                     r[x as usize] -= w.bar[j];
                 }
-                return if b.private {
-                    Ok(())
-                } else {
-                    self.run(&b.body, r, t)
-                };
+                return self.settle(b, r, t);
             }
             // Otherwise go on: the next correction (at most 1e-13) is applied
             // at the top, so the solution is as exact as f64 allows; the
@@ -1397,55 +1383,36 @@ fn set_constant_jacobians(blocks: &mut [TapeBlock], programs: &[&[Instr]], state
     written.extend(blocks.iter().flat_map(|b| b.tears.iter().copied()));
     for b in blocks.iter_mut() {
         let mut varies: std::collections::HashSet<u32> = b.tears.iter().copied().collect();
-        let mut constant = true;
+        let mut constant = !b.tears.is_empty();
         for ins in &b.body {
-            let (a, other) = match *ins {
-                Instr::Neg { a, .. } => (varies.contains(&a), None),
-                Instr::Add { a, b, .. } | Instr::Sub { a, b, .. } => {
-                    (varies.contains(&a) || varies.contains(&b), None)
-                }
-                Instr::Mul { a, b, .. } => match (varies.contains(&a), varies.contains(&b)) {
-                    (true, false) => (true, Some(b)),
-                    (false, true) => (true, Some(a)),
-                    (false, false) => (false, None),
-                    (true, true) => {
-                        constant = false;
-                        break;
-                    }
+            let v = |x: u32| varies.contains(&x);
+            let coefficient = |x: u32| !written.contains(&x);
+            // Whether the result moves with the tears, and whether its
+            // derivative with respect to them is still a constant.
+            let (moves, stays_affine) = match *ins {
+                Instr::Neg { a, .. } => (v(a), true),
+                Instr::Add { a, b, .. } | Instr::Sub { a, b, .. } => (v(a) || v(b), true),
+                Instr::Mul { a, b, .. } => match (v(a), v(b)) {
+                    (true, true) => (true, false),
+                    (true, false) => (true, coefficient(b)),
+                    (false, true) => (true, coefficient(a)),
+                    (false, false) => (false, true),
                 },
-                Instr::Div { a, b, .. } => {
-                    if varies.contains(&b) {
-                        constant = false;
-                        break;
-                    }
-                    (varies.contains(&a), Some(b))
-                }
-                Instr::Pow { a, b, .. } => (varies.contains(&a) || varies.contains(&b), None),
-                Instr::Call { a, .. } | Instr::Device { a, .. } => (varies.contains(&a), None),
-                Instr::Src { .. } | Instr::Time { .. } => (false, None),
-                Instr::Block { .. } => {
-                    constant = false;
-                    break;
-                }
+                Instr::Div { a, b, .. } => (v(a) || v(b), !v(b) && (!v(a) || coefficient(b))),
+                Instr::Pow { a, b, .. } => (v(a) || v(b), !(v(a) || v(b))),
+                Instr::Call { a, .. } | Instr::Device { a, .. } => (v(a), !v(a)),
+                Instr::Src { .. } | Instr::Time { .. } => (false, true),
+                Instr::Block { .. } => (true, false),
             };
-            if !a {
-                continue;
-            }
-            let linear_op = matches!(
-                ins,
-                Instr::Neg { .. }
-                    | Instr::Add { .. }
-                    | Instr::Sub { .. }
-                    | Instr::Mul { .. }
-                    | Instr::Div { .. }
-            );
-            if !linear_op || other.is_some_and(|o| written.contains(&o)) {
+            if !stays_affine {
                 constant = false;
                 break;
             }
-            varies.insert(dest(ins));
+            if moves {
+                varies.insert(dest(ins));
+            }
         }
-        b.constant_jacobian = constant && !b.tears.is_empty();
+        b.constant_jacobian = constant;
     }
 }
 

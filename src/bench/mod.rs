@@ -170,6 +170,17 @@ pub fn extra_solvers(text: &str) -> Vec<Method> {
         .unwrap_or_default()
 }
 
+/// The chosen solvers, then those the netlist asks for besides.
+fn methods_for(opts: &Options, text: &str) -> Vec<Method> {
+    let mut methods = opts.methods.clone();
+    for m in extra_solvers(text) {
+        if !methods.contains(&m) {
+            methods.push(m);
+        }
+    }
+    methods
+}
+
 /// The stored-energy expression of a netlist: `* kausal-bench:
 /// energy=0.5e-6*v(tank)^2+0.5e-3*i(vs)^2` (a sum of `coef*signal^2`).
 pub fn energy_terms(text: &str) -> Option<Vec<(f64, String)>> {
@@ -357,14 +368,8 @@ pub fn bench_circuit(
     let drift = |names: &[String], data: &[Vec<f64>]| {
         energy.as_ref().and_then(|e| energy_drift(e, names, data))
     };
-    let mut methods = opts.methods.clone();
-    for m in extra_solvers(&text) {
-        if !methods.contains(&m) {
-            methods.push(m);
-        }
-    }
     let mut points = Vec::new();
-    for &m in &methods {
+    for m in methods_for(opts, &text) {
         for &tol in &opts.tolerances {
             let so = sim::Options {
                 method: Some(m),
@@ -535,11 +540,7 @@ fn failed_point(solver: String, tol: Option<f64>, why: String) -> Point {
 /// progress bar).
 pub fn measurements(opts: &Options, netlist: &Path) -> usize {
     let text = std::fs::read_to_string(netlist).unwrap_or_default();
-    let extra = extra_solvers(&text)
-        .into_iter()
-        .filter(|m| !opts.methods.contains(m))
-        .count();
-    let k = (opts.methods.len() + extra) * opts.tolerances.len() + 1;
+    let k = methods_for(opts, &text).len() * opts.tolerances.len() + 1;
     if opts.ngspice {
         k + 2 + 2 * opts.tolerances.len()
     } else {

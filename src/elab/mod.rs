@@ -259,32 +259,42 @@ impl Elab {
         if name.is("0") || name.is("gnd") {
             return GROUND;
         }
-        // The case-folded hierarchical name, built in a reused buffer: a
-        // lookup of a known node allocates nothing.
-        let mut full = std::mem::take(&mut self.key_buf);
-        full.clear();
+        // The case-folded name is built in a reused buffer: a lookup of a
+        // known node allocates nothing.
+        let mut key = std::mem::take(&mut self.key_buf);
+        let id = self.node_keyed(name, scope, &mut key);
+        self.key_buf = key;
+        id
+    }
+
+    /// A port of the enclosing subcircuit, else the node of the hierarchical
+    /// name (created on first use); `key` is scratch.
+    fn node_keyed(
+        &mut self,
+        name: &ast::Name<'_>,
+        scope: &Scope<'_, '_>,
+        key: &mut String,
+    ) -> NodeId {
         if !scope.ports.is_empty() {
-            full.push_str(name.text);
-            full.make_ascii_lowercase();
-            if let Some(&n) = scope.ports.get(full.as_str()) {
-                self.key_buf = full;
+            key.clear();
+            key.push_str(name.text);
+            key.make_ascii_lowercase();
+            if let Some(&n) = scope.ports.get(key.as_str()) {
                 return n;
             }
-            full.clear();
         }
-        full.push_str(&scope.prefix);
-        full.push_str(name.text);
-        full.make_ascii_lowercase();
-        if let Some(&n) = self.node_map.get(full.as_str()) {
-            self.key_buf = full;
+        key.clear();
+        key.push_str(&scope.prefix);
+        key.push_str(name.text);
+        key.make_ascii_lowercase();
+        if let Some(&n) = self.node_map.get(key.as_str()) {
             return n;
         }
         let id = self.circuit.nodes.push(Node {
-            name: full.clone(),
+            name: key.clone(),
             span: name.span,
         });
-        self.node_map.insert(full.clone(), id);
-        self.key_buf = full;
+        self.node_map.insert(key.clone(), id);
         id
     }
 

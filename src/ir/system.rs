@@ -388,6 +388,9 @@ pub struct EquationSystem {
     /// `Var`s reads 100 MB); kept by the methods that change roles and
     /// aliases, checked by `ir::verify`.
     unknown: Vec<bool>,
+    /// Buffers of `push_incidence` (one equation's variables, a DAG walk's
+    /// stack), kept so that adding an equation allocates nothing.
+    incidence_scratch: (Vec<VarId>, Vec<ExprId>),
 }
 
 impl EquationSystem {
@@ -472,10 +475,11 @@ impl EquationSystem {
         if self.incidence_start.is_empty() {
             self.incidence_start.push(0);
         }
-        let (mut vars, mut stack) = (Vec::new(), Vec::new());
+        let (mut vars, mut stack) = std::mem::take(&mut self.incidence_scratch);
         self.eq_vars(eq, &mut vars, &mut stack);
         self.incidence.extend_from_slice(&vars);
         self.incidence_start.push(self.incidence.len() as u32);
+        self.incidence_scratch = (vars, stack);
     }
 
     /// Recompute the incidence after equations were replaced in place.

@@ -404,11 +404,10 @@ where
         use diffsol::NonLinearOpJacobian;
         let op = ode.rhs();
         let ctx = ode.context().clone();
-        let mut jm: Option<M> = None;
+        let mut jm = M::new_from_sparsity(n, n, op.jacobian_sparsity(), ctx.clone());
         return dc_newton(y, f, norm, &resid, |y, f| {
             let yv = M::V::from_vec(y.to_vec(), ctx.clone());
-            let jm = jm.get_or_insert_with(|| op.jacobian(&yv, t0));
-            op.jacobian_inplace(&yv, t0, jm);
+            op.jacobian_inplace(&yv, t0, &mut jm);
             if let Some(error) = ode.error.borrow_mut().take() {
                 return Err(SimError::Eval { error });
             }
@@ -903,10 +902,7 @@ where
             insert_step(&mut rec, reason, &y)?;
         }
         if reason >= t_end || k + 1 >= stops.len() {
-            let s = solver.get_statistics();
-            stats.steps += s.number_of_steps;
-            stats.rejected += s.number_of_error_test_failures;
-            stats.lu_factorizations += s.number_of_linear_solver_setups;
+            add_solver_stats(stats, &solver);
             break;
         }
         if is_hard {
@@ -917,6 +913,19 @@ where
         k += 1;
     }
     Ok(rec)
+}
+
+/// Add the counters of one solver's life (up to a restart or the end).
+fn add_solver_stats<'p, M, S>(stats: &mut Stats, solver: &S)
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    let s = solver.get_statistics();
+    stats.steps += s.number_of_steps;
+    stats.rejected += s.number_of_error_test_failures;
+    stats.lu_factorizations += s.number_of_linear_solver_setups;
 }
 
 /// A new solver from `solver`'s state at `t`: fresh history (order 1),
@@ -934,10 +943,7 @@ where
     M::V: HostVec,
     S: OdeSolverMethod<'p, CircuitOde<M>>,
 {
-    let s = solver.get_statistics();
-    stats.steps += s.number_of_steps;
-    stats.rejected += s.number_of_error_test_failures;
-    stats.lu_factorizations += s.number_of_linear_solver_setups;
+    add_solver_stats(stats, &solver);
     let mut common = solver.into_state().into_common();
     common.t = t;
     let y = common.y.slice().to_vec();

@@ -38,6 +38,7 @@ const REFACTOR_TOL: f64 = 1e-6;
 const NONE: usize = usize::MAX;
 
 type Vf = <FaerSparseMat<f64> as MatrixCommon>::V;
+type Ctx = <FaerSparseMat<f64> as MatrixCommon>::C;
 
 /// The factors `P A Q = L U`: `L` unit lower triangular, `U` upper
 /// triangular, both by columns in pivot order.
@@ -52,13 +53,13 @@ struct Factors {
     lp: Vec<usize>,
     li: Vec<usize>,
     lx: Vec<f64>,
-    /// `U` by columns: off-diagonal entries (rows in step numbering, in an
-    /// order where each entry's dependencies come first), then the pivot.
+    /// Strictly upper part of `U` by columns (rows in step numbering, in an
+    /// order where each entry's dependencies come first).
     up: Vec<usize>,
     ui: Vec<usize>,
     ux: Vec<f64>,
-    /// `1 / U(k,k)`: the solves multiply (a division's latency would chain
-    /// through the whole backward sweep).
+    /// `1 / U(k,k)`, the only copy of the pivots: the solves multiply (a
+    /// division's latency would chain through the whole backward sweep).
     inv_pivot: Vec<f64>,
     valid: bool,
 }
@@ -81,8 +82,8 @@ impl Csc<'_> {
 #[derive(Default)]
 struct Work {
     x: Vec<f64>,
-    /// Depth-first search: the reach (topological order at its top), the
-    /// stack of rows and of positions within their `L` columns, and marks.
+    /// Depth-first search: the reach (in topological order), the stack of
+    /// rows and of positions within their `L` columns, and marks.
     reach: Vec<usize>,
     stack: Vec<usize>,
     pos: Vec<usize>,
@@ -156,8 +157,6 @@ impl Factors {
                     self.ux.push(w.x[i]);
                 }
             }
-            self.ui.push(k);
-            self.ux.push(pivot);
             self.up.push(self.ui.len());
             self.inv_pivot.push(1.0 / pivot);
             self.pinv[ipiv] = k;
@@ -246,8 +245,7 @@ impl Factors {
             for (&i, &v) in rows.iter().zip(vals) {
                 x[self.pinv[i]] += v;
             }
-            let (u0, u1) = (self.up[k], self.up[k + 1] - 1);
-            for p in u0..u1 {
+            for p in self.up[k]..self.up[k + 1] {
                 let j = self.ui[p];
                 let xj = x[j];
                 x[j] = 0.0;
@@ -263,7 +261,6 @@ impl Factors {
                 big = big.max(x[self.li[p]].abs());
             }
             let ok = pivot.is_finite() && pivot != 0.0 && pivot.abs() >= REFACTOR_TOL * big;
-            self.ux[u1] = pivot;
             self.inv_pivot[k] = 1.0 / pivot;
             for p in self.lp[k]..self.lp[k + 1] {
                 let r = self.li[p];
@@ -295,8 +292,8 @@ impl Factors {
         for j in (0..n).rev() {
             let yj = y[j] * self.inv_pivot[j];
             y[j] = yj;
-            let (a, d) = (self.up[j], self.up[j + 1] - 1);
-            for (&r, &u) in self.ui[a..d].iter().zip(&self.ux[a..d]) {
+            let (a, e) = (self.up[j], self.up[j + 1]);
+            for (&r, &u) in self.ui[a..e].iter().zip(&self.ux[a..e]) {
                 y[r] -= u * yj;
             }
         }
@@ -311,9 +308,8 @@ impl Factors {
             y[k] = b[self.q[k]];
         }
         for j in 0..self.n {
-            let d = self.up[j + 1] - 1;
             let mut s = y[j];
-            for p in self.up[j]..d {
+            for p in self.up[j]..self.up[j + 1] {
                 s -= self.ux[p] * y[self.ui[p]];
             }
             y[j] = s * self.inv_pivot[j];
@@ -452,14 +448,7 @@ fn amd_order_of(n: usize, sym: faer::sparse::SymbolicSparseColMatRef<'_, usize>)
 }
 
 impl LaLinearSolver<FaerSparseMat<f64>> for CircuitLu {
-    fn set_linearisation<
-        C: LinearOp<
-                V = Vf,
-                T = f64,
-                M = FaerSparseMat<f64>,
-                C = <FaerSparseMat<f64> as MatrixCommon>::C,
-            >,
-    >(
+    fn set_linearisation<C: LinearOp<V = Vf, T = f64, M = FaerSparseMat<f64>, C = Ctx>>(
         &mut self,
         op: &C,
     ) {
@@ -468,14 +457,7 @@ impl LaLinearSolver<FaerSparseMat<f64>> for CircuitLu {
         self.factor_current();
     }
 
-    fn set_sparsity<
-        C: LinearOp<
-                V = Vf,
-                T = f64,
-                M = FaerSparseMat<f64>,
-                C = <FaerSparseMat<f64> as MatrixCommon>::C,
-            >,
-    >(
+    fn set_sparsity<C: LinearOp<V = Vf, T = f64, M = FaerSparseMat<f64>, C = Ctx>>(
         &mut self,
         op: &C,
     ) {
