@@ -119,6 +119,29 @@ impl TapeBlock {
     }
 }
 
+/// What the tangent runs of one point share: each block's factored
+/// Jacobian, so that the columns of a Jacobian solve the blocks once.
+#[derive(Debug, Default)]
+pub struct TangentCache {
+    /// The registers hold the last tangent run (set by [`Tape::jac_mul`]);
+    /// whoever else writes them, or moves to another point, clears this.
+    pub valid: bool,
+    lus: Vec<Option<(Vec<f64>, Vec<usize>)>>,
+}
+
+impl TangentCache {
+    fn keep(&mut self, k: usize, n_blocks: usize, jac: &[f64], perm: &[usize]) {
+        if self.lus.len() < n_blocks {
+            self.lus.resize(n_blocks, None);
+        }
+        let slot = self.lus[k].get_or_insert_with(Default::default);
+        slot.0.clear();
+        slot.0.extend_from_slice(jac);
+        slot.1.clear();
+        slot.1.extend_from_slice(perm);
+    }
+}
+
 /// Why an evaluation failed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum EvalError {
@@ -740,6 +763,7 @@ impl Tape {
         r: &mut [f64],
         dr: &mut [f64],
         t: f64,
+        mut cache: Option<&mut TangentCache>,
     ) -> Result<(), EvalError> {
         for ins in code {
             match *ins {
@@ -801,27 +825,49 @@ impl Tape {
                 Instr::Block { k } => {
                     // Value first (Newton), then the tangent of the solution by
                     // the implicit function theorem: J dt = -(dR/dx) dx.
-                    let b = &self.blocks[k as usize];
+                    let k = k as usize;
+                    let b = &self.blocks[k];
                     let n = b.tears.len();
                     let mut w = Work::take(n, r.len());
-                    self.solve_block(k as usize, r, t)?;
-                    if !b.constant_jacobian {
-                        w.saved.extend(b.touched.iter().map(|&x| dr[x as usize]));
-                        self.block_jacobian(b, r, dr, t, &mut w.jac)?;
-                        for (&x, &v) in b.touched.iter().zip(&w.saved) {
-                            dr[x as usize] = v;
+                    // Another column at the point of the last run: the block
+                    // is solved and its Jacobian factored already.
+                    let kept = match cache.as_deref() {
+                        Some(c) if c.valid => c.lus.get(k).is_some_and(|l| l.is_some()),
+                        _ => false,
+                    };
+                    if !kept {
+                        self.solve_block(k, r, t)?;
+                        if !b.constant_jacobian {
+                            w.saved.extend(b.touched.iter().map(|&x| dr[x as usize]));
+                            self.block_jacobian(b, r, dr, t, &mut w.jac)?;
+                            for (&x, &v) in b.touched.iter().zip(&w.saved) {
+                                dr[x as usize] = v;
+                            }
+                            if !lu_factor(n, &mut w.jac, &mut w.perm) {
+                                return Err(b.singular(t));
+                            }
                         }
-                        if !lu_factor(n, &mut w.jac, &mut w.perm) {
-                            return Err(b.singular(t));
+                        if let Some(c) = cache.as_deref_mut() {
+                            // A constant Jacobian has its own factorization.
+                            let (jac, perm) = if b.constant_jacobian {
+                                (&[][..], &[][..])
+                            } else {
+                                (&w.jac[..], &w.perm[..])
+                            };
+                            c.keep(k, self.blocks.len(), jac, perm);
                         }
                     }
                     for &x in &b.tears {
                         dr[x as usize] = 0.0;
                     }
-                    self.run_tangent(&b.body, r, dr, t)?;
+                    self.run_tangent(&b.body, r, dr, t, None)?;
                     w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
                     if b.constant_jacobian {
                         let (jac, perm) = self.constant_lu(b, r, t, &mut w)?;
+                        lu_solve(n, jac, perm, &mut w.res, &mut w.tmp);
+                    } else if kept {
+                        let c = cache.as_deref().expect("kept implies a cache");
+                        let (jac, perm) = c.lus[k].as_ref().expect("kept");
                         lu_solve(n, jac, perm, &mut w.res, &mut w.tmp);
                     } else {
                         lu_solve(n, &w.jac, &w.perm, &mut w.res, &mut w.tmp);
@@ -830,7 +876,7 @@ impl Tape {
                         dr[x as usize] = w.res[j];
                     }
                     w.give();
-                    self.run_tangent(&b.body, r, dr, t)?;
+                    self.run_tangent(&b.body, r, dr, t, None)?;
                 }
             }
         }
@@ -857,7 +903,7 @@ impl Tape {
                 dr[x as usize] = 0.0;
             }
             dr[b.tears[j] as usize] = 1.0;
-            self.run_tangent(&b.body, r, dr, t)?;
+            self.run_tangent(&b.body, r, dr, t, None)?;
             for (i, &res) in b.residuals.iter().enumerate() {
                 jac[i * n + j] = dr[res as usize];
             }
@@ -975,7 +1021,7 @@ impl Tape {
                 w.dr[z as usize] = 0.0;
             }
             w.dr[x] = 1.0;
-            self.run_tangent(&b.body, r, &mut w.dr, t)?;
+            self.run_tangent(&b.body, r, &mut w.dr, t, None)?;
             let (fx, slope, xv) = (r[res], w.dr[res], r[x]);
             if let Some((x0, step0, slope0, full0, lambda)) = last {
                 let simplified = (fx / slope0).abs() / (1.0 + x0.abs());
@@ -1171,7 +1217,9 @@ impl Tape {
         Ok(())
     }
 
-    /// `J(t, y) v`, by forward-mode tangents. `dregs` is scratch.
+    /// `J(t, y) v`, by forward-mode tangents. `dregs` is scratch. With a
+    /// valid `cache` (the registers hold the last run at this same point),
+    /// blocks are not solved again and their factored Jacobians are reused.
     pub fn jac_mul(
         &self,
         regs: &mut [f64],
@@ -1180,13 +1228,19 @@ impl Tape {
         y: &[f64],
         v: &[f64],
         jv: &mut [f64],
+        cache: Option<&mut TangentCache>,
     ) -> Result<(), EvalError> {
         dregs.iter_mut().for_each(|x| *x = 0.0);
         for (k, &s) in self.state_regs.iter().enumerate() {
             regs[s as usize] = y[k];
             dregs[s as usize] = v[k];
         }
-        self.run_tangent(&self.code, regs, dregs, t)?;
+        let mut cache = cache;
+        let r = self.run_tangent(&self.code, regs, dregs, t, cache.as_deref_mut());
+        if let Some(c) = cache {
+            c.valid = r.is_ok();
+        }
+        r?;
         for (k, &d) in self.deriv_regs.iter().enumerate() {
             jv[k] = dregs[d as usize];
         }

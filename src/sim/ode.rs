@@ -13,7 +13,7 @@ use diffsol::{
 
 use diffsol_la::matrix::sparsity::MatrixSparsity;
 
-use crate::back::tape::{EvalError, Tape};
+use crate::back::tape::{EvalError, TangentCache, Tape};
 
 /// Vectors whose storage is one host slice.
 pub trait HostVec: Vector<T = f64> {
@@ -64,6 +64,10 @@ where
     /// The first evaluation error, kept for the report (diffsol only sees NaN).
     pub error: RefCell<Option<EvalError>>,
     counts: Cell<EvalCounts>,
+    /// The point of the last `J v` (the registers hold its solution while
+    /// `tangents.valid`): the next column there reuses the solved blocks.
+    jv_point: RefCell<(f64, Vec<f64>)>,
+    tangents: RefCell<TangentCache>,
 }
 
 impl<M: Matrix<T = f64>> CircuitOde<M>
@@ -96,6 +100,8 @@ where
             ctx,
             error: RefCell::new(None),
             counts: Cell::new(EvalCounts::default()),
+            jv_point: RefCell::new((f64::NAN, Vec::new())),
+            tangents: RefCell::new(TangentCache::default()),
         }
     }
 
@@ -118,16 +124,19 @@ where
 
     /// `f(t, y)` into `dy` outside the solver (initial conditions, checks).
     pub fn eval(&self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<(), EvalError> {
+        self.tangents.borrow_mut().valid = false;
         self.tape.rhs(&mut self.regs.borrow_mut(), t, y, dy)
     }
 
     /// The outputs at `(t, y)`.
     pub fn outputs(&self, t: f64, y: &[f64], out: &mut [f64]) -> Result<(), EvalError> {
+        self.tangents.borrow_mut().valid = false;
         self.tape.outputs(&mut self.regs.borrow_mut(), t, y, out)
     }
 
     /// `J v` outside the solver.
     pub fn jv(&self, t: f64, y: &[f64], v: &[f64], out: &mut [f64]) -> Result<(), EvalError> {
+        self.tangents.borrow_mut().valid = false;
         self.tape.jac_mul(
             &mut self.regs.borrow_mut(),
             &mut self.dregs.borrow_mut(),
@@ -135,6 +144,29 @@ where
             y,
             v,
             out,
+            None,
+        )
+    }
+
+    /// `J v` inside the solver: consecutive calls at one point (the columns
+    /// of a Jacobian) solve the blocks once.
+    fn jv_kept(&self, t: f64, y: &[f64], v: &[f64], out: &mut [f64]) -> Result<(), EvalError> {
+        let mut cache = self.tangents.borrow_mut();
+        let mut point = self.jv_point.borrow_mut();
+        if !(cache.valid && point.0 == t && point.1 == y) {
+            cache.valid = false;
+            point.0 = t;
+            point.1.clear();
+            point.1.extend_from_slice(y);
+        }
+        self.tape.jac_mul(
+            &mut self.regs.borrow_mut(),
+            &mut self.dregs.borrow_mut(),
+            t,
+            y,
+            v,
+            out,
+            Some(&mut cache),
         )
     }
 
@@ -193,6 +225,7 @@ where
 {
     fn call_inplace(&self, x: &M::V, t: f64, y: &mut M::V) {
         self.eqn.bump(|c| c.rhs += 1);
+        self.eqn.tangents.borrow_mut().valid = false;
         let r = self
             .eqn
             .tape
@@ -210,14 +243,7 @@ where
 {
     fn jac_mul_inplace(&self, x: &M::V, t: f64, v: &M::V, y: &mut M::V) {
         self.eqn.bump(|c| c.jac_mul += 1);
-        let r = self.eqn.tape.jac_mul(
-            &mut self.eqn.regs.borrow_mut(),
-            &mut self.eqn.dregs.borrow_mut(),
-            t,
-            x.slice(),
-            v.slice(),
-            y.slice_mut(),
-        );
+        let r = self.eqn.jv_kept(t, x.slice(), v.slice(), y.slice_mut());
         if let Err(e) = r {
             self.eqn.fail(e);
             y.slice_mut().iter_mut().for_each(|v| *v = f64::NAN);

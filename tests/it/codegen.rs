@@ -215,12 +215,41 @@ fn evaluator_jacobian_matches_finite_differences() {
             })
             .collect();
         let time = 1.3e-3;
-        for j in 0..n {
+        let unit = |j: usize| {
             let mut v = vec![0.0; n];
             v[j] = 1.0;
-            let mut jv = vec![0.0; n];
-            t.jac_mul(&mut regs, &mut dregs, time, &y, &v, &mut jv)
+            v
+        };
+        // The columns of one Jacobian, blocks solved once and kept.
+        let mut cache = tape::TangentCache::default();
+        let kept: Vec<Vec<f64>> = (0..n)
+            .map(|j| {
+                let mut jv = vec![0.0; n];
+                t.jac_mul(
+                    &mut regs,
+                    &mut dregs,
+                    time,
+                    &y,
+                    &unit(j),
+                    &mut jv,
+                    Some(&mut cache),
+                )
                 .unwrap();
+                jv
+            })
+            .collect();
+        for j in 0..n {
+            let mut jv = vec![0.0; n];
+            t.jac_mul(&mut regs, &mut dregs, time, &y, &unit(j), &mut jv, None)
+                .unwrap();
+            for i in 0..n {
+                assert!(
+                    (kept[j][i] - jv[i]).abs() <= 1e-12 * jv[i].abs().max(1e-300),
+                    "{file}: J[{i}][{j}] = {} with kept blocks, {} solved afresh",
+                    kept[j][i],
+                    jv[i]
+                );
+            }
             let h = 1e-6 * y[j].abs().max(1e-12);
             let (mut yp, mut ym) = (y.clone(), y.clone());
             yp[j] += h;
