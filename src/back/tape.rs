@@ -1220,6 +1220,7 @@ impl Tape {
     /// `J(t, y) v`, by forward-mode tangents. `dregs` is scratch. With a
     /// valid `cache` (the registers hold the last run at this same point),
     /// blocks are not solved again and their factored Jacobians are reused.
+    #[allow(clippy::too_many_arguments)]
     pub fn jac_mul(
         &self,
         regs: &mut [f64],
