@@ -548,6 +548,7 @@ fn cmd_bench(a: BenchArgs) -> Result<ExitCode, String> {
         methods: a.solvers,
         repeats: a.repeats,
         ngspice: !a.no_ngspice,
+        exe: std::env::current_exe().ok(),
         ..Default::default()
     };
     let sizes: Vec<usize> = if a.scaling {

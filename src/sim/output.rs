@@ -6,7 +6,8 @@ use std::fmt::Write;
 use super::Waveforms;
 
 /// CSV with a `time,<vector>...` header, one row per time point, numbers in
-/// Rust's shortest round-trip form.
+/// their shortest round-trip form (zmij: a tenth of `format!`'s time, which
+/// was a sixth of a small circuit's whole run).
 pub fn csv(w: &Waveforms) -> String {
     let mut out = String::with_capacity(w.time.len() * (w.names.len() + 1) * 12);
     out.push_str("time");
@@ -15,11 +16,13 @@ pub fn csv(w: &Waveforms) -> String {
         out.push_str(n);
     }
     out.push('\n');
-    for (k, t) in w.time.iter().enumerate() {
-        let _ = write!(out, "{t:e}");
+    let mut buf = zmij::Buffer::new();
+    for (k, &t) in w.time.iter().enumerate() {
+        out.push_str(buf.format(t));
         for col in &w.data {
+            out.push(',');
             // `+ 0.0` prints -0 as 0.
-            let _ = write!(out, ",{:e}", col[k] + 0.0);
+            out.push_str(buf.format(col[k] + 0.0));
         }
         out.push('\n');
     }

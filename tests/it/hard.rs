@@ -159,3 +159,33 @@ fn bench_errors_decrease_with_tolerance() {
         }
     }
 }
+
+/// The whole job is timed as a `kausal sim` process: the bench runs the
+/// executable it is given (a missing one fails the point, naming it), and
+/// the process writes the CSV a user would get.
+#[test]
+fn bench_whole_job_is_a_kausal_process() {
+    let base = bench::Options {
+        tolerances: vec![1e-4],
+        methods: vec![Method::Bdf],
+        repeats: 1,
+        ngspice: false,
+        ..Default::default()
+    };
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("netlists/rc_lowpass_step.cir");
+    let real = bench::Options {
+        exe: Some(env!("CARGO_BIN_EXE_kausal").into()),
+        ..base.clone()
+    };
+    let b = bench::bench_circuit(&path, &real, &|_| {}).expect("benchmarks");
+    let p = &b.points[0];
+    assert!(p.failed.is_none(), "{:?}", p.failed);
+    assert!(p.total_seconds > 0.0 && p.total_seconds.is_finite(), "{p:?}");
+    let missing = bench::Options {
+        exe: Some(PathBuf::from("/nonexistent/no-such-kausal")),
+        ..base
+    };
+    let b = bench::bench_circuit(&path, &missing, &|_| {}).expect("benchmarks");
+    let why = b.points[0].failed.as_deref().unwrap_or_default();
+    assert!(why.contains("no-such-kausal"), "{why}");
+}
