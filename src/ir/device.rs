@@ -131,6 +131,21 @@ impl DiodeParams {
         q
     }
 
+    /// A bound on `|Q‴(v)| / (6 Q′(v))`: each part of the charge has its own
+    /// ratio (`1/vte²` for the exponentials, at most `20/(3 vte)²` for the
+    /// smooth reverse current, `m (m+1) / (vj - v)²` for the depletion charge
+    /// below `fc·vj`, none above), and the sum's ratio is a weighted mean.
+    pub fn third_derivative_bound(&self, v: f64) -> f64 {
+        let exp = 2.5 / (self.vte * self.vte);
+        let dep = if self.cjo != 0.0 && v < self.fc * self.vj {
+            let d = self.vj - v;
+            self.m * (self.m + 1.0) / (d * d)
+        } else {
+            0.0
+        };
+        exp.max(dep) / 6.0
+    }
+
     /// `f^(order)(v)`; orders above 2 are not needed by any pass (NaN).
     pub fn eval(&self, part: DiodePart, order: u8, v: f64) -> f64 {
         self.eval_with_slope(part, order, v).0
@@ -186,6 +201,29 @@ mod tests {
                         "{part:?} order {order} at {v}: {fd} vs {an}"
                     );
                 }
+            }
+        }
+    }
+
+    /// `third_derivative_bound` bounds `|Q‴| / (6 Q′)` (by differences of
+    /// `Q″`) from deep reverse bias to strong forward bias.
+    #[test]
+    fn third_derivative_bound_holds() {
+        let mut p = d();
+        for (cjo, gmin) in [(2e-12, 1e-12), (0.0, 0.0)] {
+            (p.cjo, p.gmin) = (cjo, gmin);
+            let mut v: f64 = -9.0;
+            while v < 0.9 {
+                let h = 1e-6 * (1.0 + v.abs());
+                let [_, c, _] = p.charge(v);
+                let q3 = (p.charge(v + h)[2] - p.charge(v - h)[2]) / (2.0 * h);
+                let ratio = (q3 / (6.0 * c)).abs();
+                assert!(
+                    ratio <= 1.05 * p.third_derivative_bound(v),
+                    "cjo {cjo} v {v}: |Q'''/6Q'| = {ratio:e} > {:e}",
+                    p.third_derivative_bound(v)
+                );
+                v += 0.0137;
             }
         }
     }

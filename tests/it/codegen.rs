@@ -198,6 +198,13 @@ fn evaluator_jacobian_matches_finite_differences() {
             .filter(|b| !b.constant_jacobian && b.tears.len() == 1)
             .count();
         assert_eq!((n_affine, n_scalar), (affine, scalar), "{file}: blocks");
+        // Every scalar block here is a junction-charge inversion (Halley).
+        let n_charge = t
+            .blocks
+            .iter()
+            .filter(|b| b.charge_inverse.is_some())
+            .count();
+        assert_eq!(n_charge, scalar, "{file}: charge inversions");
         let n = t.states.len();
         let mut regs = t.registers();
         let mut dregs = vec![0.0; t.n_regs];
@@ -215,6 +222,23 @@ fn evaluator_jacobian_matches_finite_differences() {
             })
             .collect();
         let time = 1.3e-3;
+        // The inversions hold to rounding after an evaluation, from the
+        // cold start and again warm.
+        for _ in 0..2 {
+            let mut f = vec![0.0; n];
+            t.rhs(&mut regs, time, &y, &mut f).unwrap();
+            for b in &t.blocks {
+                if let Some(ci) = b.charge_inverse {
+                    let x = regs[b.tears[0] as usize];
+                    let q = regs[ci.target as usize];
+                    let [qx, c, _] = t.diodes[ci.diode as usize].charge(x);
+                    assert!(
+                        (qx - q).abs() <= 1e-12 * c * (1.0 + x.abs()),
+                        "{file}: Q({x}) = {qx}, wanted {q}"
+                    );
+                }
+            }
+        }
         let unit = |j: usize| {
             let mut v = vec![0.0; n];
             v[j] = 1.0;

@@ -180,7 +180,10 @@ fn bench_whole_job_is_a_kausal_process() {
     let b = bench::bench_circuit(&path, &real, &|_| {}).expect("benchmarks");
     let p = &b.points[0];
     assert!(p.failed.is_none(), "{:?}", p.failed);
-    assert!(p.total_seconds > 0.0 && p.total_seconds.is_finite(), "{p:?}");
+    assert!(
+        p.total_seconds > 0.0 && p.total_seconds.is_finite(),
+        "{p:?}"
+    );
     let missing = bench::Options {
         exe: Some(PathBuf::from("/nonexistent/no-such-kausal")),
         ..base
