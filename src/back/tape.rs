@@ -931,14 +931,15 @@ impl Tape {
     /// retry.
     fn solve_block(&self, k: usize, r: &mut [f64], t: f64) -> Result<(), EvalError> {
         let b = &self.blocks[k];
+        if let Some(ci) = b.charge_inverse
+            && self.invert_charge(b, ci, r)
+        {
+            return self.settle(b, r, t);
+        }
         let mut w = Work::take(b.tears.len(), r.len());
         w.start.extend(b.tears.iter().map(|&x| r[x as usize]));
         let result = if b.constant_jacobian {
             self.solve_affine(b, r, t, &mut w)
-        } else if let Some(ci) = b.charge_inverse
-            && self.invert_charge(b, ci, r)
-        {
-            Ok(())
         } else if b.tears.len() == 1 {
             self.newton_scalar(b, r, t, &mut w)
         } else {
