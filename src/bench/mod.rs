@@ -104,6 +104,9 @@ pub struct CircuitBench {
     pub reference: String,
     /// Largest difference between the reference and ngspice's tight run.
     pub reference_check: Option<f64>,
+    /// With an exact reference: largest difference between it and kausal's
+    /// tight run (a wrong formula shows here).
+    pub exact_check: Option<f64>,
     pub points: Vec<Point>,
     pub verdict: Option<Verdict>,
     /// Solvers whose error did not decrease as the tolerance tightened
@@ -156,6 +159,97 @@ fn bench_hint(text: &str, key: &str) -> Option<String> {
             .find_map(|kv| kv.strip_prefix(key)?.strip_prefix('='))
             .map(str::to_string)
     })
+}
+
+/// An analytic solution stated by the netlist, one `* kausal-exact: NAME =
+/// EXPR` line per definition, in order. `EXPR` is a parameter expression in
+/// `t` and the names defined above it; `NAME` is an output vector (`v(out)`,
+/// `i(v1)`: compared) or a helper.
+#[derive(Clone, Debug)]
+pub struct Exact {
+    defs: Vec<(String, crate::front::expr::PExpr)>,
+}
+
+impl Exact {
+    /// The netlist's exact solution, if it states one; a malformed line is
+    /// an error naming its line and column.
+    pub fn from_netlist(text: &str) -> Result<Option<Exact>, String> {
+        let mut defs = Vec::new();
+        for (k, line) in text.lines().enumerate() {
+            let Some(rest) = line
+                .trim_start()
+                .strip_prefix('*')
+                .map(str::trim_start)
+                .and_then(|l| l.strip_prefix("kausal-exact:"))
+            else {
+                continue;
+            };
+            let at = |col: usize, why: &str| format!("line {}, column {}: {why}", k + 1, col + 1);
+            let start = line.len() - rest.len();
+            let Some((name, expr)) = rest.split_once('=') else {
+                return Err(at(start, "expected `NAME = EXPR`"));
+            };
+            let name = name.trim().to_ascii_lowercase();
+            if name.is_empty() {
+                return Err(at(start, "missing name before `=`"));
+            }
+            let expr_start = start + name.len() + 1;
+            let parsed = crate::front::expr::parse_expr(expr.trim()).map_err(|off| {
+                let lead = expr.len() - expr.trim_start().len();
+                at(expr_start + lead + off, "cannot parse this expression")
+            })?;
+            defs.push((name, parsed));
+        }
+        if defs.is_empty() {
+            return Ok(None);
+        }
+        let exact = Exact { defs };
+        if exact.signals().is_empty() {
+            return Err("kausal-exact lines define no output vector (`v(..)` or `i(..)`)".into());
+        }
+        Ok(Some(exact))
+    }
+
+    fn is_signal(name: &str) -> bool {
+        (name.starts_with("v(") || name.starts_with("i(")) && name.ends_with(')')
+    }
+
+    /// The output vectors it defines.
+    pub fn signals(&self) -> Vec<String> {
+        self.defs
+            .iter()
+            .filter(|(n, _)| Self::is_signal(n))
+            .map(|(n, _)| n.clone())
+            .collect()
+    }
+
+    /// The signals at `times`.
+    pub fn at(&self, times: &[f64]) -> Result<Waveforms, String> {
+        let names = self.signals();
+        let mut data = vec![Vec::with_capacity(times.len()); names.len()];
+        let mut env: Vec<(&str, f64)> = Vec::with_capacity(self.defs.len() + 1);
+        for &t in times {
+            env.clear();
+            env.push(("t", t));
+            let mut col = 0;
+            for (name, e) in &self.defs {
+                let v = e
+                    .eval(&|n| env.iter().rev().find(|(m, _)| *m == n).map(|p| p.1))
+                    .map_err(|err| format!("exact {name} at t = {t:e}: {err:?}"))?;
+                env.push((name, v));
+                if Self::is_signal(name) {
+                    data[col].push(v);
+                    col += 1;
+                }
+            }
+        }
+        Ok(Waveforms {
+            names,
+            time: times.to_vec(),
+            data,
+            ..Default::default()
+        })
+    }
 }
 
 /// Solvers a netlist asks to be benchmarked with besides the chosen ones:
@@ -408,7 +502,33 @@ pub fn bench_circuit(
         .into_iter()
         .map(|o| o.0)
         .collect();
-    let reference = reference_at(&sorted, &probes, opts.ref_rtol, None)?;
+    let exact = Exact::from_netlist(&text)
+        .map_err(|e| BenchError::Pipeline(format!("{}: {e}", path.display())))?;
+    let tight = reference_at(&sorted, &probes, opts.ref_rtol, None)?;
+    // The reference: the exact solution where the netlist states one (then
+    // kausal's tight run is checked against it), else kausal's tight run.
+    let (reference, exact_check) = match &exact {
+        Some(x) => {
+            let r = x.at(&tight.time).map_err(BenchError::Pipeline)?;
+            let check = max_error(
+                &r.names,
+                &r.time,
+                &r.data,
+                &tight.names,
+                &tight.time,
+                &tight.data,
+            );
+            (r, Some(check.0))
+        }
+        None => (tight, None),
+    };
+    let reference_on = |times: Vec<f64>| -> Result<Waveforms, String> {
+        match &exact {
+            Some(x) => x.at(&times),
+            None => reference_at(&sorted, &probes, opts.ref_rtol, Some(times))
+                .map_err(|e| e.to_string()),
+        }
+    };
     tick("reference");
     let drift = |names: &[String], data: &[Vec<f64>]| {
         energy.as_ref().and_then(|e| energy_drift(e, names, data))
@@ -468,7 +588,7 @@ pub fn bench_circuit(
         );
         if let Ok((raw, _, _, _)) = run_ngspice(path, &tight, 1) {
             let times = clean_times(&raw.time, tstop);
-            if let Ok(r) = reference_at(&sorted, &probes, opts.ref_rtol, Some(times)) {
+            if let Ok(r) = reference_on(times) {
                 reference_check =
                     Some(max_error(&r.names, &r.time, &r.data, &raw.names, &raw.time, &raw.data).0);
             }
@@ -489,7 +609,7 @@ pub fn bench_circuit(
             match run_ngspice(path, &line, opts.repeats) {
                 Ok((raw, solve, total, steps)) => {
                     let times = clean_times(&raw.time, tstop);
-                    let r = match reference_at(&sorted, &probes, opts.ref_rtol, Some(times)) {
+                    let r = match reference_on(times) {
                         Ok(r) => r,
                         Err(e) => {
                             points.push(failed_point(
@@ -567,8 +687,17 @@ pub fn bench_circuit(
         equations: sorted.system().eqs.len(),
         front_seconds: front,
         sort_seconds: sort,
-        reference: format!("kausal bdf, rtol {:e}", opts.ref_rtol),
+        reference: match (&exact, exact_check) {
+            (Some(x), Some(c)) => format!(
+                "exact ({}), kausal bdf rtol {:e} within {} of it",
+                x.signals().join(", "),
+                opts.ref_rtol,
+                sci(c)
+            ),
+            _ => format!("kausal bdf, rtol {:e}", opts.ref_rtol),
+        },
         reference_check,
+        exact_check,
         points,
         verdict,
         non_monotone,

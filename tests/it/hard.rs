@@ -192,3 +192,47 @@ fn bench_whole_job_is_a_kausal_process() {
     let why = b.points[0].failed.as_deref().unwrap_or_default();
     assert!(why.contains("no-such-kausal"), "{why}");
 }
+
+/// The analytic solutions the netlists state (`* kausal-exact:`) are the
+/// benchmark's reference there; kausal at rtol 1e-11 agrees with each.
+#[test]
+fn exact_references_agree_with_kausal() {
+    let opts = bench::Options {
+        tolerances: vec![1e-4],
+        methods: vec![Method::Bdf],
+        repeats: 1,
+        ngspice: false,
+        ..Default::default()
+    };
+    let base = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("netlists");
+    for (name, bound) in [
+        ("rc_lowpass_step.cir", 1e-8),
+        ("rlc_series_underdamped.cir", 1e-8),
+        ("cv_loop.cir", 1e-7),
+        ("li_cutset.cir", 1e-12),
+        ("hard/lc_tank_1000_periods.cir", 2e-5),
+    ] {
+        let b = bench::bench_circuit(&base.join(name), &opts, &|_| {}).expect("benchmarks");
+        assert!(b.reference.starts_with("exact"), "{name}: {}", b.reference);
+        let check = b.exact_check.expect("an exact reference");
+        assert!(
+            check <= bound,
+            "{name}: kausal is {check:e} from the exact solution"
+        );
+    }
+}
+
+/// A malformed `kausal-exact` line is an error naming its line and column.
+#[test]
+fn malformed_exact_line_is_located() {
+    let text = "title\n* kausal-exact: v(out) = 1 - exp(-t/\n";
+    let e = bench::Exact::from_netlist(text).unwrap_err();
+    assert!(e.starts_with("line 2, column "), "{e}");
+    let e = bench::Exact::from_netlist("t\n* kausal-exact: x = 2*t\n").unwrap_err();
+    assert!(e.contains("no output vector"), "{e}");
+    assert!(
+        bench::Exact::from_netlist("t\n* a comment\n")
+            .unwrap()
+            .is_none()
+    );
+}
