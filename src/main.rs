@@ -233,6 +233,71 @@ fn report_failure(f: &Failed) -> ExitCode {
 }
 
 /// Write command output to a file (atomically) or standard output.
+/// Simulate, writing CSV rows as they come: into a file committed by the
+/// caller (renamed over `out` only once the run succeeded) or to standard
+/// output (a closed pipe, `| head`, ends the writing, not the run).
+fn stream_csv(
+    sorted: &kausal::pipeline::Sorted,
+    opts: &sim::Options,
+    out: Option<&PathBuf>,
+) -> Result<(sim::Waveforms, Option<kausal::io::AtomicFile>), sim::SimError> {
+    let names: Vec<String> = sim::outputs(sorted, &opts.probes)?
+        .into_iter()
+        .map(|o| o.0)
+        .collect();
+    let write_err = |path: &std::path::Path, e: std::io::Error| sim::SimError::Write {
+        message: format!("`{}`: {e}", path.display()),
+    };
+    let mut line = String::new();
+    sim::output::csv_header(&mut line, &names);
+    match out {
+        Some(path) => {
+            let mut file = kausal::io::AtomicFile::create(path).map_err(|e| write_err(path, e))?;
+            file.write_all(line.as_bytes())
+                .map_err(|e| write_err(path, e))?;
+            let mut sink = |t: f64, v: &[f64]| {
+                line.clear();
+                sim::output::csv_row(&mut line, t, v);
+                file.write_all(line.as_bytes())
+            };
+            let mut w = sim::simulate_to(sorted, opts, &mut sink)?;
+            w.names = names;
+            Ok((w, Some(file)))
+        }
+        None => {
+            let mut stdout = std::io::BufWriter::with_capacity(1 << 16, std::io::stdout().lock());
+            let mut open = true;
+            let mut put = |stdout: &mut std::io::BufWriter<_>, text: &str| -> std::io::Result<()> {
+                if !open {
+                    return Ok(());
+                }
+                match stdout.write_all(text.as_bytes()) {
+                    Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {
+                        open = false;
+                        Ok(())
+                    }
+                    r => r,
+                }
+            };
+            put(&mut stdout, &line).map_err(|e| write_err(std::path::Path::new("-"), e))?;
+            let mut sink = |t: f64, v: &[f64]| {
+                line.clear();
+                sim::output::csv_row(&mut line, t, v);
+                put(&mut stdout, &line)
+            };
+            let mut w = sim::simulate_to(sorted, opts, &mut sink)?;
+            match stdout.flush() {
+                Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+                    return Err(write_err(std::path::Path::new("-"), e));
+                }
+                _ => {}
+            }
+            w.names = names;
+            Ok((w, None))
+        }
+    }
+}
+
 fn emit(out: Option<&PathBuf>, text: &str) -> Result<(), String> {
     match out {
         Some(path) => kausal::io::write_atomic(path, text.as_bytes())
@@ -409,11 +474,17 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                     .then_some(progress as fn(f64)),
                 times: None,
             };
-            let result = sim::simulate(&sorted, &sim_opts);
+            // Without a raw file (whose header counts the points), the CSV
+            // is streamed as it is computed: memory stays bounded by the
+            // circuit, however long the run or many the saved vectors.
+            let result = match &raw {
+                Some(_) => sim::simulate(&sorted, &sim_opts).map(|w| (w, None)),
+                None => stream_csv(&sorted, &sim_opts, out.as_ref()).map(|(w, f)| (w, Some(f))),
+            };
             if let Some(bar) = PROGRESS.get() {
                 bar.finish_and_clear();
             }
-            let w = match result {
+            let (w, streamed) = match result {
                 Ok(w) => w,
                 Err(e) => {
                     print_diags(&sorted.elaborated.sources, &[e.to_diagnostic()]);
@@ -421,12 +492,25 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                 }
             };
             // The files first: a closed stderr cannot lose them.
-            if let Some(path) = &raw {
-                let text = sim::output::raw_ascii(&w, &sorted.elaborated.circuit.title);
-                kausal::io::write_atomic(path, text.as_bytes())
-                    .map_err(|e| format!("cannot write `{}`: {e}", path.display()))?;
+            match streamed {
+                Some(Some(file)) => file.commit().map_err(|e| {
+                    format!(
+                        "cannot write `{}`: {e}",
+                        out.as_ref()
+                            .map_or(std::path::Path::new("-"), |p| p.as_path())
+                            .display()
+                    )
+                })?,
+                Some(None) => {}
+                None => {
+                    if let Some(path) = &raw {
+                        let text = sim::output::raw_ascii(&w, &sorted.elaborated.circuit.title);
+                        kausal::io::write_atomic(path, text.as_bytes())
+                            .map_err(|e| format!("cannot write `{}`: {e}", path.display()))?;
+                    }
+                    emit(out.as_ref(), &sim::output::csv(&w))?;
+                }
             }
-            emit(out.as_ref(), &sim::output::csv(&w))?;
             let s = &w.stats;
             eprintln!(
                 "{} states, {:?}: {} steps ({} rejected), {} f-evaluations, {} J·v, {} Jacobians, {} LU factorizations, {} restarts{}; {:.3} s",

@@ -117,6 +117,8 @@ pub enum SimError {
     Solver { t: f64, message: String },
     #[error("no DC operating point: {message}")]
     DcFailed { message: String },
+    #[error("cannot write the waveforms: {message}")]
+    Write { message: String },
 }
 
 impl crate::diag::ToDiagnostic for SimError {
@@ -143,6 +145,7 @@ impl crate::diag::ToDiagnostic for SimError {
             SimError::DcFailed { .. } => {
                 ("K0406", "give initial conditions and use `.tran ... uic`")
             }
+            SimError::Write { .. } => ("K0407", "check the output path and free space"),
         };
         crate::diag::Diagnostic::error(code, self.to_string()).with_help(help)
     }
@@ -496,6 +499,25 @@ fn dc_newton(
 
 /// Prepare and run a simulation of a sorted circuit.
 pub fn simulate(sorted: &Sorted, opts: &Options) -> Result<Waveforms, SimError> {
+    simulate_rows(sorted, opts, None)
+}
+
+/// [`simulate`], handing each output row to `sink` as it is computed instead
+/// of keeping it: memory stays bounded by the circuit, not the run. The
+/// returned waveforms then hold the names and statistics only.
+pub fn simulate_to(
+    sorted: &Sorted,
+    opts: &Options,
+    sink: RowSink<'_>,
+) -> Result<Waveforms, SimError> {
+    simulate_rows(sorted, opts, Some(sink))
+}
+
+fn simulate_rows(
+    sorted: &Sorted,
+    opts: &Options,
+    sink: Option<RowSink<'_>>,
+) -> Result<Waveforms, SimError> {
     let start = Instant::now();
     let c = &sorted.elaborated.circuit;
     let tran = c.tran.clone().ok_or(SimError::NoTran)?;
@@ -511,7 +533,7 @@ pub fn simulate(sorted: &Sorted, opts: &Options) -> Result<Waveforms, SimError> 
     let n = tape.states.len();
     let method = opts.method.unwrap_or(Method::Bdf);
     let mut w = if n == 0 {
-        algebraic(sys, tape.clone(), &tran, opts)?
+        algebraic(sys, tape.clone(), &tran, opts, sink)?
     } else if n <= DENSE_STATES {
         run::<NalgebraMat<f64>, NalgebraLU<f64>>(
             sorted,
@@ -521,6 +543,7 @@ pub fn simulate(sorted: &Sorted, opts: &Options) -> Result<Waveforms, SimError> 
             opts,
             method,
             false,
+            sink,
         )?
     } else {
         run::<FaerSparseMat<f64>, sparse_lu::CircuitLu>(
@@ -531,6 +554,7 @@ pub fn simulate(sorted: &Sorted, opts: &Options) -> Result<Waveforms, SimError> 
             opts,
             method,
             true,
+            sink,
         )?
     };
     w.names = outs.into_iter().map(|o| o.0).collect();
@@ -550,6 +574,7 @@ fn algebraic(
     tape: Rc<Tape>,
     tran: &crate::elab::Tran,
     opts: &Options,
+    sink: Option<RowSink<'_>>,
 ) -> Result<Waveforms, SimError> {
     let mut times = opts.times.clone().unwrap_or_else(|| grid(tran));
     if opts.all_steps {
@@ -560,7 +585,7 @@ fn algebraic(
     }
     let mut regs = tape.registers();
     let mut out = vec![0.0; tape.out_regs.len()];
-    let mut data = vec![Vec::with_capacity(times.len()); out.len()];
+    let mut rows = Rows::new(out.len(), sink);
     let mut stats = Stats::default();
     for (k, &t) in times.iter().enumerate() {
         // The first point is the DC operating point unless `uic`.
@@ -569,16 +594,9 @@ fn algebraic(
         tape.dc.set(false);
         r.map_err(|error| SimError::Eval { error })?;
         stats.rhs_evals += 1;
-        for (col, &v) in data.iter_mut().zip(&out) {
-            col.push(v);
-        }
+        rows.push(t, &out)?;
     }
-    Ok(Waveforms {
-        names: Vec::new(),
-        time: times,
-        data,
-        stats,
-    })
+    Ok(rows.into_waveforms(stats))
 }
 
 /// Output times of `.tran tstep tstop tstart`.
@@ -595,22 +613,68 @@ fn grid(tran: &crate::elab::Tran) -> Vec<f64> {
     g
 }
 
-struct Recorder<'a, M: Matrix<T = f64>>
+/// Where output rows go as they are computed (time, one value per output).
+pub type RowSink<'s> = &'s mut dyn FnMut(f64, &[f64]) -> std::io::Result<()>;
+
+/// The output rows of a run: kept (columns) or handed to a sink.
+struct Rows<'s> {
+    time: Vec<f64>,
+    data: Vec<Vec<f64>>,
+    sink: Option<RowSink<'s>>,
+    last: Option<f64>,
+}
+
+impl<'s> Rows<'s> {
+    fn new(n_out: usize, sink: Option<RowSink<'s>>) -> Rows<'s> {
+        Rows {
+            time: Vec::new(),
+            data: vec![Vec::new(); n_out],
+            sink,
+            last: None,
+        }
+    }
+
+    fn push(&mut self, t: f64, out: &[f64]) -> Result<(), SimError> {
+        self.last = Some(t);
+        match &mut self.sink {
+            Some(sink) => sink(t, out).map_err(|e| SimError::Write {
+                message: e.to_string(),
+            }),
+            None => {
+                self.time.push(t);
+                for (col, &v) in self.data.iter_mut().zip(out) {
+                    col.push(v);
+                }
+                Ok(())
+            }
+        }
+    }
+
+    fn into_waveforms(self, stats: Stats) -> Waveforms {
+        Waveforms {
+            names: Vec::new(),
+            time: self.time,
+            data: self.data,
+            stats,
+        }
+    }
+}
+
+struct Recorder<'a, 's, M: Matrix<T = f64>>
 where
     M::V: HostVec,
 {
     ode: &'a CircuitOde<M>,
     grid: Vec<f64>,
     next: usize,
-    time: Vec<f64>,
-    data: Vec<Vec<f64>>,
+    rows: Rows<'s>,
     out: Vec<f64>,
     /// The first point is the DC operating point (no `uic`): it is output in
     /// DC mode, as ngspice reports its operating point at t = 0.
     dc_start: bool,
 }
 
-impl<M: Matrix<T = f64>> Recorder<'_, M>
+impl<M: Matrix<T = f64>> Recorder<'_, '_, M>
 where
     M::V: HostVec,
 {
@@ -618,11 +682,7 @@ where
         self.ode
             .outputs(t, y, &mut self.out)
             .map_err(|error| SimError::Eval { error })?;
-        self.time.push(t);
-        for (col, &v) in self.data.iter_mut().zip(&self.out) {
-            col.push(v);
-        }
-        Ok(())
+        self.rows.push(t, &self.out)
     }
 }
 
@@ -635,6 +695,7 @@ fn run<M, LS>(
     opts: &Options,
     method: Method,
     sparse: bool,
+    sink: Option<RowSink<'_>>,
 ) -> Result<Waveforms, SimError>
 where
     M: Matrix<T = f64> + diffsol::DefaultSolver,
@@ -684,8 +745,7 @@ where
         ode: &problem.eqn,
         grid: times,
         next: 0,
-        time: Vec::new(),
-        data: vec![Vec::new(); tape.out_regs.len()],
+        rows: Rows::new(tape.out_regs.len(), sink),
         out: vec![0.0; tape.out_regs.len()],
         dc_start: !tran.uic,
     };
@@ -756,12 +816,7 @@ where
     stats.rhs_evals = counts.rhs;
     stats.jac_mul_evals = counts.jac_mul;
     stats.jacobians = counts.jacobians;
-    Ok(Waveforms {
-        names: Vec::new(),
-        time: rec.time,
-        data: rec.data,
-        stats,
-    })
+    Ok(rec.rows.into_waveforms(stats))
 }
 
 fn solver_err(t: f64, e: diffsol::DiffsolError) -> SimError {
@@ -775,17 +830,17 @@ fn solver_err(t: f64, e: diffsol::DiffsolError) -> SimError {
 /// the hard ones) and recording the grid points (and every step with
 /// `--all-steps`).
 #[allow(clippy::too_many_arguments)]
-fn drive<'p, M, S>(
+fn drive<'p, 's, M, S>(
     problem: &'p OdeSolverProblem<CircuitOde<M>>,
     mut solver: S,
     make: impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, S::State) -> Result<S, diffsol::DiffsolError>,
-    mut rec: Recorder<'p, M>,
+    mut rec: Recorder<'p, 's, M>,
     hard: &[f64],
     soft: &[f64],
     opts: &Options,
     stats: &mut Stats,
     order: usize,
-) -> Result<Recorder<'p, M>, SimError>
+) -> Result<Recorder<'p, 's, M>, SimError>
 where
     M: Matrix<T = f64>,
     M::V: HostVec,
@@ -897,7 +952,7 @@ where
         // BDF stops within a few ulps of the stop time: the grid point there
         // takes the state (interpolation would be asked to extrapolate).
         emit_grid(&solver, &mut rec, reason, true)?;
-        if opts.all_steps && reason >= tstart && rec.time.last() != Some(&reason) {
+        if opts.all_steps && reason >= tstart && rec.rows.last != Some(reason) {
             let y = solver.state().y.slice().to_vec();
             insert_step(&mut rec, reason, &y)?;
         }
@@ -963,7 +1018,7 @@ where
 /// Record the grid points up to `t` (inclusive when `at_stop`).
 fn emit_grid<'p, M, S>(
     solver: &S,
-    rec: &mut Recorder<'p, M>,
+    rec: &mut Recorder<'p, '_, M>,
     t: f64,
     at_stop: bool,
 ) -> Result<(), SimError>
@@ -997,12 +1052,12 @@ where
 }
 
 /// Insert an accepted step into the recorded (sorted) series.
-fn insert_step<M>(rec: &mut Recorder<'_, M>, t: f64, y: &[f64]) -> Result<(), SimError>
+fn insert_step<M>(rec: &mut Recorder<'_, '_, M>, t: f64, y: &[f64]) -> Result<(), SimError>
 where
     M: Matrix<T = f64>,
     M::V: HostVec,
 {
-    if rec.time.last().is_some_and(|&l| l >= t) {
+    if rec.rows.last.is_some_and(|l| l >= t) {
         return Ok(());
     }
     rec.record(t, y)

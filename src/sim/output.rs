@@ -10,23 +10,36 @@ use super::Waveforms;
 /// was a sixth of a small circuit's whole run).
 pub fn csv(w: &Waveforms) -> String {
     let mut out = String::with_capacity(w.time.len() * (w.names.len() + 1) * 12);
+    csv_header(&mut out, &w.names);
+    let mut row = Vec::with_capacity(w.data.len());
+    for (k, &t) in w.time.iter().enumerate() {
+        row.clear();
+        row.extend(w.data.iter().map(|col| col[k]));
+        csv_row(&mut out, t, &row);
+    }
+    out
+}
+
+/// The CSV header line: `time,<name>...`.
+pub fn csv_header(out: &mut String, names: &[String]) {
     out.push_str("time");
-    for n in &w.names {
+    for n in names {
         out.push(',');
         out.push_str(n);
     }
     out.push('\n');
+}
+
+/// One CSV row, appended to `out`.
+pub fn csv_row(out: &mut String, t: f64, values: &[f64]) {
     let mut buf = zmij::Buffer::new();
-    for (k, &t) in w.time.iter().enumerate() {
-        out.push_str(buf.format(t));
-        for col in &w.data {
-            out.push(',');
-            // `+ 0.0` prints -0 as 0.
-            out.push_str(buf.format(col[k] + 0.0));
-        }
-        out.push('\n');
+    out.push_str(buf.format(t));
+    for &v in values {
+        out.push(',');
+        // `+ 0.0` prints -0 as 0.
+        out.push_str(buf.format(v + 0.0));
     }
-    out
+    out.push('\n');
 }
 
 /// ngspice's ASCII raw file (`Plotname: Transient Analysis`).

@@ -229,3 +229,58 @@ fn a_large_circuit_starts_from_its_dc_operating_point() {
         );
     }
 }
+
+/// The CSV is streamed while the run goes: a run that fails half-way leaves
+/// the old file as it was and no temporary file beside it; a run that
+/// succeeds writes what the in-memory path (taken with `--raw`) writes.
+#[test]
+fn streamed_csv_is_whole_or_absent() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    // A negative resistor: rows stream until v explodes near t = 1 ms.
+    let net = dir.path().join("unstable.cir");
+    std::fs::write(
+        &net,
+        "unstable\nR1 a 0 -1\nC1 a 0 1u ic=1\n.tran 1u 1 uic\n.end\n",
+    )
+    .unwrap();
+    let out = dir.path().join("out.csv");
+    std::fs::write(&out, "old\n").unwrap();
+    let r = run(&["sim", net.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert!(!r.status.success());
+    assert_eq!(std::fs::read_to_string(&out).unwrap(), "old\n");
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert_eq!(left.len(), 2, "only the netlist and the old file: {left:?}");
+    // Streamed to a file, to standard output, and kept (with --raw): equal.
+    let bridge = root().join("netlists/diode_bridge.cir");
+    let b = bridge.to_str().unwrap();
+    let f1 = dir.path().join("a.csv");
+    let f2 = dir.path().join("b.csv");
+    let raw = dir.path().join("b.raw");
+    assert!(
+        run(&["sim", b, "--all-steps", "-o", f1.to_str().unwrap()])
+            .status
+            .success()
+    );
+    let piped = run(&["sim", b, "--all-steps"]);
+    assert!(piped.status.success());
+    let kept = run(&[
+        "sim",
+        b,
+        "--all-steps",
+        "-o",
+        f2.to_str().unwrap(),
+        "--raw",
+        raw.to_str().unwrap(),
+    ]);
+    assert!(kept.status.success());
+    let a = std::fs::read(&f1).unwrap();
+    assert!(a.len() > 100_000);
+    assert_eq!(a, piped.stdout);
+    assert_eq!(a, std::fs::read(&f2).unwrap());
+}
