@@ -73,6 +73,11 @@ impl AtomicFile {
         })
     }
 
+    /// The path it will be renamed over.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     /// Flush and rename over the path.
     pub fn commit(self) -> std::io::Result<()> {
         let tmp = self.tmp.into_inner().map_err(|e| e.into_error())?;

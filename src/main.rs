@@ -232,7 +232,16 @@ fn report_failure(f: &Failed) -> ExitCode {
     ExitCode::FAILURE
 }
 
-/// Write command output to a file (atomically) or standard output.
+/// Where `kausal sim` put its CSV.
+enum Csv {
+    /// Streamed into a temporary file, renamed over `-o` by committing it.
+    File(kausal::io::AtomicFile),
+    /// Streamed to standard output.
+    Stdout,
+    /// Kept in memory (with `--raw`), written at the end.
+    Kept,
+}
+
 /// Simulate, writing CSV rows as they come: into a file committed by the
 /// caller (renamed over `out` only once the run succeeded) or to standard
 /// output (a closed pipe, `| head`, ends the writing, not the run).
@@ -298,6 +307,7 @@ fn stream_csv(
     }
 }
 
+/// Write command output to a file (atomically) or standard output.
 fn emit(out: Option<&PathBuf>, text: &str) -> Result<(), String> {
     match out {
         Some(path) => kausal::io::write_atomic(path, text.as_bytes())
@@ -478,13 +488,14 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             // is streamed as it is computed: memory stays bounded by the
             // circuit, however long the run or many the saved vectors.
             let result = match &raw {
-                Some(_) => sim::simulate(&sorted, &sim_opts).map(|w| (w, None)),
-                None => stream_csv(&sorted, &sim_opts, out.as_ref()).map(|(w, f)| (w, Some(f))),
+                Some(_) => sim::simulate(&sorted, &sim_opts).map(|w| (w, Csv::Kept)),
+                None => stream_csv(&sorted, &sim_opts, out.as_ref())
+                    .map(|(w, f)| (w, f.map_or(Csv::Stdout, Csv::File))),
             };
             if let Some(bar) = PROGRESS.get() {
                 bar.finish_and_clear();
             }
-            let (w, streamed) = match result {
+            let (w, csv) = match result {
                 Ok(w) => w,
                 Err(e) => {
                     print_diags(&sorted.elaborated.sources, &[e.to_diagnostic()]);
@@ -492,17 +503,14 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                 }
             };
             // The files first: a closed stderr cannot lose them.
-            match streamed {
-                Some(Some(file)) => file.commit().map_err(|e| {
-                    format!(
-                        "cannot write `{}`: {e}",
-                        out.as_ref()
-                            .map_or(std::path::Path::new("-"), |p| p.as_path())
-                            .display()
-                    )
-                })?,
-                Some(None) => {}
-                None => {
+            match csv {
+                Csv::File(file) => {
+                    let path = file.path().to_path_buf();
+                    file.commit()
+                        .map_err(|e| format!("cannot write `{}`: {e}", path.display()))?;
+                }
+                Csv::Stdout => {}
+                Csv::Kept => {
                     if let Some(path) = &raw {
                         let text = sim::output::raw_ascii(&w, &sorted.elaborated.circuit.title);
                         kausal::io::write_atomic(path, text.as_bytes())
