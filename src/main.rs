@@ -519,6 +519,7 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                     emit(out.as_ref(), &sim::output::csv(&w))?;
                 }
             }
+            print_diags(&sorted.elaborated.sources, &w.warnings);
             let s = &w.stats;
             eprintln!(
                 "{} states, {:?}: {} steps ({} rejected), {} f-evaluations, {} J·v, {} Jacobians, {} LU factorizations, {} restarts{}; {:.3} s",

@@ -94,6 +94,8 @@ pub struct Waveforms {
     /// One column per name.
     pub data: Vec<Vec<f64>>,
     pub stats: Stats,
+    /// What the run could not do as asked (an `.ic` it could not hold).
+    pub warnings: Vec<crate::diag::Diagnostic>,
 }
 
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -305,7 +307,7 @@ fn initial_state<M: Matrix<T = f64>>(
     sorted: &Sorted,
     ode: &CircuitOde<M>,
     t0: f64,
-) -> Result<Vec<f64>, SimError>
+) -> Result<(Vec<f64>, Vec<crate::diag::Diagnostic>), SimError>
 where
     M::V: HostVec,
 {
@@ -322,6 +324,7 @@ where
     };
     let mut y = vec![0.0; n];
     let mut from_ic = vec![false; n];
+    let mut held_ics = vec![false; c.ics.len()];
     // The element of each variable, once (not a search per state).
     let mut owner: std::collections::HashMap<VarId, usize> = std::collections::HashMap::new();
     for (e, ev) in sorted.built.elem_vars.iter().enumerate() {
@@ -350,18 +353,41 @@ where
                 {
                     y[k] = a - b;
                     from_ic[k] = true;
+                    for (held, i) in held_ics.iter_mut().zip(&c.ics) {
+                        *held |= el.nodes.contains(&i.node);
+                    }
                 }
             }
             _ => {}
         }
     }
     if uic {
-        return Ok(y);
+        return Ok((y, Vec::new()));
     }
+    // ngspice holds every `.ic` node during the operating point; kausal holds
+    // the capacitors it joins to ground or another `.ic` node. Say so when
+    // that leaves one out, rather than ignore it.
+    let warnings = c
+        .ics
+        .iter()
+        .zip(&held_ics)
+        .filter(|(_, held)| !**held)
+        .map(|(i, _)| {
+            let name = &c.nodes[i.node].name;
+            crate::diag::Diagnostic::warning(
+                "K0408",
+                format!(
+                    "`.ic v({name})` is not held in the DC operating point: no capacitor joins `{name}` to ground or to another `.ic` node"
+                ),
+            )
+            .with_label(i.span, "the node takes its DC value instead")
+            .with_help("put the initial condition on a capacitor (`ic=`), or use `.tran ... uic`")
+        })
+        .collect();
     tape.dc.set(true);
     let r = dc_point::<M>(c, ode, t0, y, &from_ic);
     tape.dc.set(false);
-    r
+    Ok((r?, warnings))
 }
 
 /// Why a DC Newton step could not be computed.
@@ -656,6 +682,7 @@ impl<'s> Rows<'s> {
             time: self.time,
             data: self.data,
             stats,
+            warnings: Vec::new(),
         }
     }
 }
@@ -706,7 +733,7 @@ where
 {
     let t0 = 0.0;
     let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; tape.states.len()], sparse);
-    let y0 = initial_state::<M>(sorted, &ode, t0)?;
+    let (y0, warnings) = initial_state::<M>(sorted, &ode, t0)?;
     *ode.y0.borrow_mut() = y0;
     let c = &sorted.elaborated.circuit;
     let rtol = opts.rtol.unwrap_or_else(|| {
@@ -816,7 +843,9 @@ where
     stats.rhs_evals = counts.rhs;
     stats.jac_mul_evals = counts.jac_mul;
     stats.jacobians = counts.jacobians;
-    Ok(rec.rows.into_waveforms(stats))
+    let mut w = rec.rows.into_waveforms(stats);
+    w.warnings = warnings;
+    Ok(w)
 }
 
 fn solver_err(t: f64, e: diffsol::DiffsolError) -> SimError {

@@ -284,3 +284,21 @@ fn streamed_csv_is_whole_or_absent() {
     assert_eq!(a, piped.stdout);
     assert_eq!(a, std::fs::read(&f2).unwrap());
 }
+
+/// An `.ic` kausal cannot hold in the operating point (no capacitor joins
+/// its node to ground or another `.ic` node) is reported, naming the node;
+/// the held one is not; with `uic` nothing is reported.
+#[test]
+fn unheld_ic_is_reported() {
+    let text = "ic on a free node\nV1 a 0 1\nR1 a b 1k\nR2 b c 1k\nC1 c 0 1u\n.ic v(b)=0.2 v(c)=0.1\n.tran 10u 1m\n.end\n";
+    let w = sim::simulate(&sort_text(text), &sim::Options::default()).unwrap();
+    assert_eq!(w.warnings.len(), 1, "{:?}", w.warnings);
+    let msg = &w.warnings[0].message;
+    assert!(msg.contains("`.ic v(b)`") && !msg.contains("v(c)"), "{msg}");
+    // v(c) is held at 0.1 V at t = 0; v(b) is the divider's 0.55 V.
+    let c = w.names.iter().position(|n| n == "v(c)").unwrap();
+    assert!((w.data[c][0] - 0.1).abs() < 1e-12, "{}", w.data[c][0]);
+    let uic = text.replace(".tran 10u 1m", ".tran 10u 1m uic");
+    let w = sim::simulate(&sort_text(&uic), &sim::Options::default()).unwrap();
+    assert!(w.warnings.is_empty(), "{:?}", w.warnings);
+}
