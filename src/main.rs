@@ -254,56 +254,80 @@ fn stream_csv(
         .into_iter()
         .map(|o| o.0)
         .collect();
-    let write_err = |path: &std::path::Path, e: std::io::Error| sim::SimError::Write {
-        message: format!("`{}`: {e}", path.display()),
+    let shown = out.map_or(std::path::Path::new("-"), |p| p.as_path());
+    let write_err = |e: std::io::Error| sim::SimError::Write {
+        message: format!("`{}`: {e}", shown.display()),
     };
-    let mut line = String::new();
-    sim::output::csv_header(&mut line, &names);
+    // One row writer for both destinations.
+    let run = |w: &mut dyn Write| -> Result<sim::Waveforms, sim::SimError> {
+        let mut line = String::new();
+        sim::output::csv_header(&mut line, &names);
+        w.write_all(line.as_bytes()).map_err(write_err)?;
+        let mut sink = |t: f64, v: &[f64]| {
+            line.clear();
+            sim::output::csv_row(&mut line, t, v);
+            w.write_all(line.as_bytes())
+        };
+        let mut wf = sim::simulate_to(sorted, opts, &mut sink)?;
+        w.flush().map_err(write_err)?;
+        wf.names = names.clone();
+        Ok(wf)
+    };
     match out {
         Some(path) => {
-            let mut file = kausal::io::AtomicFile::create(path).map_err(|e| write_err(path, e))?;
-            file.write_all(line.as_bytes())
-                .map_err(|e| write_err(path, e))?;
-            let mut sink = |t: f64, v: &[f64]| {
-                line.clear();
-                sim::output::csv_row(&mut line, t, v);
-                file.write_all(line.as_bytes())
-            };
-            let mut w = sim::simulate_to(sorted, opts, &mut sink)?;
-            w.names = names;
+            let mut file = kausal::io::AtomicFile::create(path).map_err(write_err)?;
+            let w = run(&mut file)?;
             Ok((w, Some(file)))
         }
         None => {
-            let mut stdout = std::io::BufWriter::with_capacity(1 << 16, std::io::stdout().lock());
-            let mut open = true;
-            let mut put = |stdout: &mut std::io::BufWriter<_>, text: &str| -> std::io::Result<()> {
-                if !open {
-                    return Ok(());
-                }
-                match stdout.write_all(text.as_bytes()) {
-                    Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {
-                        open = false;
-                        Ok(())
-                    }
-                    r => r,
-                }
-            };
-            put(&mut stdout, &line).map_err(|e| write_err(std::path::Path::new("-"), e))?;
-            let mut sink = |t: f64, v: &[f64]| {
-                line.clear();
-                sim::output::csv_row(&mut line, t, v);
-                put(&mut stdout, &line)
-            };
-            let mut w = sim::simulate_to(sorted, opts, &mut sink)?;
-            match stdout.flush() {
-                Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
-                    return Err(write_err(std::path::Path::new("-"), e));
-                }
-                _ => {}
-            }
-            w.names = names;
-            Ok((w, None))
+            let stdout = std::io::BufWriter::with_capacity(1 << 16, std::io::stdout().lock());
+            Ok((
+                run(&mut PipeOk {
+                    inner: stdout,
+                    open: true,
+                })?,
+                None,
+            ))
         }
+    }
+}
+
+/// Standard output for streamed rows: once the reader has gone (`| head`),
+/// further writes are dropped, not errors; the run finishes.
+struct PipeOk<W: Write> {
+    inner: W,
+    open: bool,
+}
+
+impl<W: Write> PipeOk<W> {
+    fn guard(&mut self, r: std::io::Result<()>) -> std::io::Result<()> {
+        match r {
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {
+                self.open = false;
+                Ok(())
+            }
+            r => r,
+        }
+    }
+}
+
+impl<W: Write> Write for PipeOk<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.write_all(buf).map(|_| buf.len())
+    }
+    fn write_all(&mut self, buf: &[u8]) -> std::io::Result<()> {
+        if !self.open {
+            return Ok(());
+        }
+        let r = self.inner.write_all(buf);
+        self.guard(r)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        if !self.open {
+            return Ok(());
+        }
+        let r = self.inner.flush();
+        self.guard(r)
     }
 }
 
