@@ -206,9 +206,11 @@ pub enum Stmt<'a> {
         vectors: Vec<OutVec<'a>>,
         span: Span,
     },
-    /// `.include "path"`, with the included file's statements.
+    /// `.include "path"`, with the included file's statements; or
+    /// `.lib "path" SECTION`, with the statements of that section of the file.
     Include {
         path: &'a str,
+        section: Option<&'a str>,
         span: Span,
         body: Vec<Stmt<'a>>,
     },

@@ -57,6 +57,14 @@ pub enum ParseError {
     },
     #[error("`{path}` includes itself")]
     IncludeCycle { span: Span, path: String },
+    #[error("`{path}` has no library section `{section}`")]
+    LibSectionNotFound {
+        span: Span,
+        path: String,
+        section: String,
+    },
+    #[error("library section `.lib {section}` has no matching `.endl`")]
+    UnclosedLib { span: Span, section: String },
     #[error("expected {expected}")]
     Expected { span: Span, expected: String },
     #[error("`{name}` is skipped: kausal runs transient analysis only")]
@@ -89,6 +97,8 @@ impl ParseError {
             | UnsupportedSource { span, .. }
             | IncludeNotFound { span, .. }
             | IncludeCycle { span, .. }
+            | LibSectionNotFound { span, .. }
+            | UnclosedLib { span, .. }
             | Expected { span, .. }
             | SkippedAnalysis { span, .. }
             | SkippedControl { span }
@@ -122,10 +132,12 @@ impl ParseError {
             StrayEnds { .. } => ("K0111", "no open subcircuit", "remove it, or add the `.subckt` line it closes".into()),
             UnclosedControl { .. } => ("K0112", "opened here", "end the block with `.endc`".into()),
             UnknownDirective { .. } => ("K0113", "unknown directive", "check the spelling against the ngspice manual".into()),
-            UnsupportedDirective { .. } => ("K0114", "not supported", "remove it; kausal reads .param, .subckt, .model, .include, .ic, .tran, .options, .print, .save, .probe".into()),
+            UnsupportedDirective { .. } => ("K0114", "not supported", "remove it; kausal reads .param, .subckt, .model, .include, .lib, .ic, .tran, .options, .print, .save, .probe".into()),
             UnsupportedSource { .. } => ("K0115", "not supported", "use DC, PULSE, SIN, PWL or EXP".into()),
             IncludeNotFound { .. } => ("K0116", "included here", "include paths are relative to the including file".into()),
-            IncludeCycle { .. } => ("K0117", "included again here", "remove the circular `.include`".into()),
+            IncludeCycle { .. } => ("K0117", "included again here", "remove the circular `.include` or `.lib`".into()),
+            LibSectionNotFound { .. } => ("K0119", "no such section", "sections are opened by `.lib NAME` and closed by `.endl` in the library file".into()),
+            UnclosedLib { .. } => ("K0120", "opened here", "close the section with `.endl`".into()),
             Expected { .. } => ("K0118", "here", "see the ngspice manual for the statement's syntax".into()),
             SkippedAnalysis { .. } => ("K0190", "skipped", "only `.tran` analyses are run".into()),
             SkippedControl { .. } => ("K0191", "skipped", "use `.tran`, `.print` and `.options` instead of a control script".into()),

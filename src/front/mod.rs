@@ -61,30 +61,35 @@ fn load_includes(
     // some line could be one.
     let may_include = sources.file(file).text.lines().any(|l| {
         let l = l.trim_start().as_bytes();
-        l.len() >= 4 && l[..4].eq_ignore_ascii_case(b".inc")
+        l.len() >= 4
+            && (l[..4].eq_ignore_ascii_case(b".inc") || l[..4].eq_ignore_ascii_case(b".lib"))
     });
     if !may_include {
         return;
     }
-    let includes: Vec<(String, Span)> = {
+    // `.include PATH` and `.lib PATH SECTION` (`.lib NAME` opens a section).
+    let includes: Vec<(String, Span, bool)> = {
         let mut scratch = Vec::new();
         let lexed = lex::lex_file(sources, file, is_root, &mut scratch);
         lexed
             .lines()
             .iter()
-            .filter(|l| l.tokens[0].is_word(".include") || l.tokens[0].is_word(".inc"))
             .filter_map(|l| {
-                l.tokens
-                    .get(1)
-                    .map(|t| (t.text.trim_matches('"').to_string(), t.span))
+                let lib = l.tokens[0].is_word(".lib") && l.tokens.len() >= 3;
+                let include = l.tokens[0].is_word(".include") || l.tokens[0].is_word(".inc");
+                (lib || include)
+                    .then_some(l.tokens.get(1)?)
+                    .map(|t| (t.text.trim_matches('"').to_string(), t.span, lib))
             })
             .collect()
     };
     let from = sources.file(file).path.clone();
-    for (path, span) in includes {
+    for (path, span, lib) in includes {
         let resolved = resolve_include(&from, &path);
         if let Some(existing) = sources.find_path(&resolved) {
-            if stack.contains(&existing) {
+            // A library's sections may use each other (the parser checks
+            // that no section uses itself).
+            if stack.contains(&existing) && !lib {
                 errors.push(ParseError::IncludeCycle { span, path });
             }
             continue;

@@ -11,6 +11,9 @@ pub(super) struct Parser<'a> {
     pub sources: &'a SourceMap,
     pub errors: Vec<ParseError>,
     include_stack: Vec<FileId>,
+    /// The library sections being read (file, lower-case name): a section
+    /// may use another of its own file, but not itself.
+    lib_stack: Vec<(FileId, String)>,
 }
 
 /// Why a block of lines ended.
@@ -26,6 +29,7 @@ impl<'a> Parser<'a> {
             sources,
             errors: Vec::new(),
             include_stack: Vec::new(),
+            lib_stack: Vec::new(),
         }
     }
 
@@ -90,6 +94,29 @@ impl<'a> Parser<'a> {
                             out.push(Stmt::Subckt(Box::new(s)));
                         }
                     }
+                    "lib" if line.tokens.len() == 2 => {
+                        // A section's definition: read only where a
+                        // `.lib FILE SECTION` asks for it.
+                        let start = line.span();
+                        let section = line.tokens[1].text.to_string();
+                        match lines[*idx..]
+                            .iter()
+                            .position(|l| l.tokens[0].is_word(".endl"))
+                        {
+                            Some(k) => *idx += k + 1,
+                            None => {
+                                *idx = lines.len();
+                                self.errors.push(ParseError::UnclosedLib {
+                                    span: start,
+                                    section,
+                                });
+                            }
+                        }
+                    }
+                    "endl" => self.errors.push(ParseError::Unexpected {
+                        span: first.span,
+                        what: "`.endl` without `.lib SECTION`".into(),
+                    }),
                     "control" => {
                         let start = first.span;
                         let mut closed = false;
@@ -356,10 +383,12 @@ impl<'a> Parser<'a> {
                 self.include_stack.pop();
                 Some(Stmt::Include {
                     path,
+                    section: None,
                     span: t.span,
                     body,
                 })
             }
+            "lib" => self.lib_section(toks, span),
             "ac" | "op" | "dc" | "noise" | "tf" | "four" | "disto" | "pz" | "sens" | "sp"
             | "meas" | "measure" | "fft" => {
                 self.errors.push(ParseError::SkippedAnalysis {
@@ -375,7 +404,7 @@ impl<'a> Parser<'a> {
                 });
                 None
             }
-            "func" | "lib" | "endl" | "if" | "else" | "endif" | "model_lib" => {
+            "func" | "if" | "else" | "endif" | "model_lib" => {
                 self.errors.push(ParseError::UnsupportedDirective {
                     span: toks[0].span,
                     name: toks[0].text.to_string(),
@@ -397,6 +426,77 @@ impl<'a> Parser<'a> {
                 None
             }
         }
+    }
+
+    /// `.lib FILE SECTION`: the statements between `.lib SECTION` and `.endl`
+    /// in FILE (loaded beside the includes), parsed in place.
+    fn lib_section(&mut self, toks: &[Token<'a>], span: Span) -> Option<Stmt<'a>> {
+        let (Some(t), Some(sect)) = (toks.get(1), toks.get(2)) else {
+            self.errors.push(ParseError::Expected {
+                span,
+                expected: "a file and a section name after `.lib`".into(),
+            });
+            return None;
+        };
+        let path = include_path(t);
+        let from = self.sources.file(t.span.file);
+        let resolved = resolve_include(&from.path, path);
+        // The loader reported why it could not read it.
+        let file = self.sources.find_path(&resolved)?;
+        let key = (file, sect.text.to_ascii_lowercase());
+        if self.lib_stack.contains(&key) {
+            self.errors.push(ParseError::IncludeCycle {
+                span: sect.span,
+                path: format!("{path} {}", sect.text),
+            });
+            return None;
+        }
+        // Lex errors count inside the section only: the rest of a library
+        // is not read.
+        let mut lex_errors = Vec::new();
+        let lexed = lex_file(self.sources, file, false, &mut lex_errors);
+        let lines = lexed.lines();
+        let Some(open) = lines.iter().position(|l| {
+            l.tokens.len() == 2
+                && l.tokens[0].is_word(".lib")
+                && l.tokens[1].text.eq_ignore_ascii_case(sect.text)
+        }) else {
+            self.errors.push(ParseError::LibSectionNotFound {
+                span: sect.span,
+                path: path.to_string(),
+                section: sect.text.to_string(),
+            });
+            return None;
+        };
+        let close = lines[open + 1..]
+            .iter()
+            .position(|l| l.tokens[0].is_word(".endl"))
+            .map(|k| open + 1 + k);
+        let Some(close) = close else {
+            self.errors.push(ParseError::UnclosedLib {
+                span: lines[open].span(),
+                section: sect.text.to_string(),
+            });
+            return None;
+        };
+        let (lo, hi) = (lines[open].span().start, lines[close].span().start);
+        self.errors.extend(lex_errors.into_iter().filter(|e| {
+            let s = e.span();
+            s.file == file && s.start > lo && s.start < hi
+        }));
+        self.lib_stack.push(key);
+        let mut i = 0;
+        let (body, end) = self.block(&lines[open + 1..close], &mut i, false);
+        if let BlockEnd::Ends(span) = end {
+            self.errors.push(ParseError::StrayEnds { span });
+        }
+        self.lib_stack.pop();
+        Some(Stmt::Include {
+            path,
+            section: Some(sect.text),
+            span: t.span,
+            body,
+        })
     }
 
     fn element(&mut self, line: &LogicalLine<'_, 'a>) -> Option<Element<'a>> {

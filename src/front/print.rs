@@ -119,8 +119,19 @@ fn stmt(s: &Stmt<'_>, out: &mut String) {
             }
             out.push('\n');
         }
-        Stmt::Include { path, .. } => {
+        Stmt::Include {
+            path,
+            section: None,
+            ..
+        } => {
             let _ = writeln!(out, ".include \"{path}\"");
+        }
+        Stmt::Include {
+            path,
+            section: Some(section),
+            ..
+        } => {
+            let _ = writeln!(out, ".lib \"{path}\" {section}");
         }
     }
 }

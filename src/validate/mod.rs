@@ -69,8 +69,8 @@ pub struct RefTol {
     pub reltol: f64,
 }
 
-/// The netlist text for ngspice: `.include`s made absolute (it runs in a
-/// temporary directory), tolerances appended for a reference run.
+/// The netlist text for ngspice: `.include` and `.lib` paths made absolute
+/// (it runs in a temporary directory), tolerances appended for a reference run.
 fn prepare_netlist(path: &Path, text: &str, extra: Option<&str>) -> String {
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let mut out = String::with_capacity(text.len() + 200);
@@ -86,6 +86,15 @@ fn prepare_netlist(path: &Path, text: &str, extra: Option<&str>) -> String {
             let abs = std::fs::canonicalize(&abs).unwrap_or(abs);
             out.push_str(&format!(".include \"{}\"\n", abs.display()));
             continue;
+        }
+        if k > 0 && lower.starts_with(".lib") {
+            let parts: Vec<&str> = trimmed.split_whitespace().collect();
+            if let [_, p, section, ..] = parts[..] {
+                let abs = crate::front::resolve_include(&dir.join("x"), p.trim_matches('"'));
+                let abs = std::fs::canonicalize(&abs).unwrap_or(abs);
+                out.push_str(&format!(".lib \"{}\" {section}\n", abs.display()));
+                continue;
+            }
         }
         if k > 0 && lower.split_whitespace().next() == Some(".end") {
             end_seen = true;
