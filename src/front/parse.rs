@@ -362,13 +362,8 @@ impl<'a> Parser<'a> {
                     });
                     return None;
                 };
-                let path = include_path(t);
-                let from = self.sources.file(t.span.file);
-                let resolved = resolve_include(&from.path, path);
-                let Some(file) = self.sources.find_path(&resolved) else {
-                    // The loader reported why it could not read it.
-                    return None;
-                };
+                // The loader reported why it could not read a missing file.
+                let (path, file) = self.loaded(t)?;
                 if self.include_stack.contains(&file) {
                     // Reported by the loader as a cycle.
                     return None;
@@ -428,6 +423,14 @@ impl<'a> Parser<'a> {
         }
     }
 
+    /// The path a `.include` or `.lib` token names, and its file as loaded.
+    fn loaded(&self, t: &Token<'a>) -> Option<(&'a str, FileId)> {
+        let path = include_path(t);
+        let from = self.sources.file(t.span.file);
+        let resolved = resolve_include(&from.path, path);
+        Some((path, self.sources.find_path(&resolved)?))
+    }
+
     /// `.lib FILE SECTION`: the statements between `.lib SECTION` and `.endl`
     /// in FILE (loaded beside the includes), parsed in place.
     fn lib_section(&mut self, toks: &[Token<'a>], span: Span) -> Option<Stmt<'a>> {
@@ -438,11 +441,8 @@ impl<'a> Parser<'a> {
             });
             return None;
         };
-        let path = include_path(t);
-        let from = self.sources.file(t.span.file);
-        let resolved = resolve_include(&from.path, path);
-        // The loader reported why it could not read it.
-        let file = self.sources.find_path(&resolved)?;
+        // The loader reported why it could not read a missing file.
+        let (path, file) = self.loaded(t)?;
         let key = (file, sect.text.to_ascii_lowercase());
         if self.lib_stack.contains(&key) {
             self.errors.push(ParseError::IncludeCycle {
