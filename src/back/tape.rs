@@ -842,6 +842,33 @@ impl Tape {
                     // the implicit function theorem: J dt = -(dR/dx) dx.
                     let k = k as usize;
                     let b = &self.blocks[k];
+                    if let Some(ci) = b.charge_inverse {
+                        // Q(x) = target: dx = d(target)/Q′(x), no body runs.
+                        let (x, q, res, sign) = Self::charge_regs(b);
+                        let kept = match cache.as_deref() {
+                            Some(c) if c.valid => c.lus.get(k).and_then(|l| l.as_ref()),
+                            _ => None,
+                        };
+                        let slope = match kept {
+                            Some((jac, _)) => sign * jac[0],
+                            None => {
+                                self.solve_block(k, r, t)?;
+                                let [_, c, _] = self.diodes[ci.diode as usize].charge(r[x]);
+                                if let Some(cache) = cache.as_deref_mut() {
+                                    cache.keep(k, self.blocks.len(), &[sign * c], &[0]);
+                                }
+                                c
+                            }
+                        };
+                        if !(slope.is_finite() && slope != 0.0) {
+                            return Err(b.singular(t));
+                        }
+                        let dq = dr[ci.target as usize];
+                        dr[x] = dq / slope;
+                        dr[q] = dq;
+                        dr[res] = 0.0;
+                        continue;
+                    }
                     let n = b.tears.len();
                     let mut w = Work::take(n, r.len());
                     // Another column at the point of the last run: the block
@@ -896,6 +923,168 @@ impl Tape {
             }
         }
         Ok(())
+    }
+
+    /// Tangents of `code` in `m` directions at once: the tangent of register
+    /// `x` in direction `j` is `dr[x * m + j]`. Each instruction's value and
+    /// slope are computed once for all directions (a device's exponential
+    /// once, not once per column).
+    fn run_tangents(
+        &self,
+        code: &[Instr],
+        r: &mut [f64],
+        dr: &mut [f64],
+        m: usize,
+        t: f64,
+    ) -> Result<(), EvalError> {
+        // dr[d] = ka·dr[a] (+ kb·dr[b]) in every direction.
+        fn lin(dr: &mut [f64], m: usize, d: u32, a: (u32, f64), b: Option<(u32, f64)>) {
+            let (d, a0, ka) = (d as usize * m, a.0 as usize * m, a.1);
+            match b {
+                Some((b, kb)) => {
+                    let b0 = b as usize * m;
+                    for j in 0..m {
+                        dr[d + j] = ka * dr[a0 + j] + kb * dr[b0 + j];
+                    }
+                }
+                None => {
+                    for j in 0..m {
+                        dr[d + j] = ka * dr[a0 + j];
+                    }
+                }
+            }
+        }
+        for ins in code {
+            match *ins {
+                Instr::Neg { d, a } => {
+                    r[d as usize] = -r[a as usize];
+                    lin(dr, m, d, (a, -1.0), None);
+                }
+                Instr::Add { d, a, b } => {
+                    r[d as usize] = r[a as usize] + r[b as usize];
+                    lin(dr, m, d, (a, 1.0), Some((b, 1.0)));
+                }
+                Instr::Sub { d, a, b } => {
+                    r[d as usize] = r[a as usize] - r[b as usize];
+                    lin(dr, m, d, (a, 1.0), Some((b, -1.0)));
+                }
+                Instr::Mul { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    r[d as usize] = x * y;
+                    lin(dr, m, d, (a, y), Some((b, x)));
+                }
+                Instr::Div { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let q = x / y;
+                    r[d as usize] = q;
+                    lin(dr, m, d, (a, 1.0 / y), Some((b, -q / y)));
+                }
+                Instr::Pow { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let p = x.powf(y);
+                    r[d as usize] = p;
+                    let ka = y * x.powf(y - 1.0);
+                    let b0 = b as usize * m;
+                    if dr[b0..b0 + m].iter().all(|v| *v == 0.0) {
+                        lin(dr, m, d, (a, ka), None);
+                    } else {
+                        lin(dr, m, d, (a, ka), Some((b, p * x.ln())));
+                    }
+                }
+                Instr::Call { d, f, a } => {
+                    let x = r[a as usize];
+                    let fx = call(f, x);
+                    r[d as usize] = fx;
+                    lin(dr, m, d, (a, call_deriv(f, x, fx)), None);
+                }
+                Instr::Device { d, f, a } => {
+                    let p = &self.diodes[f.diode as usize];
+                    let (v, slope) = p.eval_with_slope(f.part, f.order, r[a as usize]);
+                    r[d as usize] = v;
+                    lin(dr, m, d, (a, slope), None);
+                }
+                Instr::Src { d, s, order } => {
+                    r[d as usize] = self.source(s, t, order);
+                    dr[d as usize * m..(d as usize + 1) * m].fill(0.0);
+                }
+                Instr::Time { d } => {
+                    r[d as usize] = t;
+                    dr[d as usize * m..(d as usize + 1) * m].fill(0.0);
+                }
+                Instr::Block { k } => {
+                    // The value (Newton), the block's Jacobian factored once,
+                    // then the implicit function theorem in each direction.
+                    let b = &self.blocks[k as usize];
+                    if let Some(ci) = b.charge_inverse {
+                        self.solve_block(k as usize, r, t)?;
+                        let (x, q, res, _) = Self::charge_regs(b);
+                        let [_, c, _] = self.diodes[ci.diode as usize].charge(r[x]);
+                        if !(c.is_finite() && c != 0.0) {
+                            return Err(b.singular(t));
+                        }
+                        let target = ci.target as usize * m;
+                        for j in 0..m {
+                            let dq = dr[target + j];
+                            dr[x * m + j] = dq / c;
+                            dr[q * m + j] = dq;
+                            dr[res * m + j] = 0.0;
+                        }
+                        continue;
+                    }
+                    let n = b.tears.len();
+                    let mut w = Work::take(n, r.len());
+                    self.solve_block(k as usize, r, t)?;
+                    let result = (|| {
+                        if !b.constant_jacobian {
+                            let mut scratch = std::mem::take(&mut w.dr);
+                            let got = self.block_jacobian(b, r, &mut scratch, t, &mut w.jac);
+                            w.dr = scratch;
+                            got?;
+                            if !lu_factor(n, &mut w.jac, &mut w.perm) {
+                                return Err(b.singular(t));
+                            }
+                        }
+                        for &x in &b.tears {
+                            dr[x as usize * m..(x as usize + 1) * m].fill(0.0);
+                        }
+                        self.run_tangents(&b.body, r, dr, m, t)?;
+                        let mut sol = vec![0.0; n * m];
+                        for j in 0..m {
+                            for (i, &res) in b.residuals.iter().enumerate() {
+                                w.step[i] = -dr[res as usize * m + j];
+                            }
+                            if b.constant_jacobian {
+                                let (jac, perm) = self.constant_lu(b, r, t, &mut w)?;
+                                lu_solve(n, jac, perm, &mut w.step, &mut w.tmp);
+                            } else {
+                                lu_solve(n, &w.jac, &w.perm, &mut w.step, &mut w.tmp);
+                            }
+                            for i in 0..n {
+                                sol[i * m + j] = w.step[i];
+                            }
+                        }
+                        for (i, &x) in b.tears.iter().enumerate() {
+                            dr[x as usize * m..(x as usize + 1) * m]
+                                .copy_from_slice(&sol[i * m..(i + 1) * m]);
+                        }
+                        self.run_tangents(&b.body, r, dr, m, t)
+                    })();
+                    w.give();
+                    result?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The registers of a charge-inversion block `0 = ±(target - Q(x))`:
+    /// (x, q = Q(x), residual), and the sign of `∂residual/∂x = ±Q′(x)`.
+    fn charge_regs(b: &TapeBlock) -> (usize, usize, usize, f64) {
+        let [Instr::Device { d: q, .. }, Instr::Sub { d: res, a: l, .. }] = b.body[..] else {
+            unreachable!("a charge inversion is [Device, Sub]")
+        };
+        let sign = if l == q { 1.0 } else { -1.0 };
+        (b.tears[0] as usize, q as usize, res as usize, sign)
     }
 
     /// ∂residuals/∂tears at the current point into `jac` (row-major n×n),
@@ -1312,6 +1501,37 @@ impl Tape {
         r?;
         for (k, &d) in self.deriv_regs.iter().enumerate() {
             jv[k] = dregs[d as usize];
+        }
+        Ok(())
+    }
+
+    /// Columns `cols` of `∂f/∂y` at `(t, y)` in one pass (row-major into
+    /// `jac`: `jac[i * cols.len() + j] = ∂f_i/∂y_cols[j]`), `f` into `dy`.
+    /// `dregs` is scratch.
+    #[allow(clippy::too_many_arguments)]
+    pub fn jacobian_columns(
+        &self,
+        regs: &mut [f64],
+        dregs: &mut Vec<f64>,
+        t: f64,
+        y: &[f64],
+        cols: &[usize],
+        jac: &mut [f64],
+        dy: &mut [f64],
+    ) -> Result<(), EvalError> {
+        let m = cols.len();
+        dregs.clear();
+        dregs.resize(self.n_regs * m, 0.0);
+        for (k, &s) in self.state_regs.iter().enumerate() {
+            regs[s as usize] = y[k];
+        }
+        for (j, &c) in cols.iter().enumerate() {
+            dregs[self.state_regs[c] as usize * m + j] = 1.0;
+        }
+        self.run_tangents(&self.code, regs, dregs, m, t)?;
+        for (i, &d) in self.deriv_regs.iter().enumerate() {
+            jac[i * m..(i + 1) * m].copy_from_slice(&dregs[d as usize * m..(d as usize + 1) * m]);
+            dy[i] = regs[d as usize];
         }
         Ok(())
     }

@@ -68,6 +68,12 @@ where
     /// `tangents.valid`): the next column there reuses the solved blocks.
     jv_point: RefCell<(f64, Vec<f64>)>,
     tangents: RefCell<TangentCache>,
+    /// Scratch of [`Tape::jacobian_columns`] (tangents in several directions).
+    mregs: RefCell<Vec<f64>>,
+    /// Registers of evaluations at output points: they keep their own warm
+    /// starts (the previous output point's, the nearest) and leave the
+    /// solver's alone.
+    side_regs: RefCell<Vec<f64>>,
 }
 
 impl<M: Matrix<T = f64>> CircuitOde<M>
@@ -91,6 +97,7 @@ where
         };
         CircuitOde {
             regs: RefCell::new(tape.registers()),
+            side_regs: RefCell::new(tape.registers()),
             dregs: RefCell::new(vec![0.0; tape.n_regs]),
             tape,
             y0: RefCell::new(y0),
@@ -102,6 +109,7 @@ where
             counts: Cell::new(EvalCounts::default()),
             jv_point: RefCell::new((f64::NAN, Vec::new())),
             tangents: RefCell::new(TangentCache::default()),
+            mregs: RefCell::new(Vec::new()),
         }
     }
 
@@ -145,6 +153,49 @@ where
             v,
             out,
             None,
+        )
+    }
+
+    /// Columns `cols` of the Jacobian at `(t, y)` in one tangent pass
+    /// (row-major, `cols.len()` wide), and `f` there into `dy`.
+    pub fn jacobian_columns(
+        &self,
+        t: f64,
+        y: &[f64],
+        cols: &[usize],
+        jac: &mut [f64],
+        dy: &mut [f64],
+    ) -> Result<(), EvalError> {
+        self.tangents.borrow_mut().valid = false;
+        self.tape.jacobian_columns(
+            &mut self.regs.borrow_mut(),
+            &mut self.mregs.borrow_mut(),
+            t,
+            y,
+            cols,
+            jac,
+            dy,
+        )
+    }
+
+    /// [`Self::jacobian_columns`] at an output point, on the output side's
+    /// own registers.
+    pub fn side_jacobian_columns(
+        &self,
+        t: f64,
+        y: &[f64],
+        cols: &[usize],
+        jac: &mut [f64],
+        dy: &mut [f64],
+    ) -> Result<(), EvalError> {
+        self.tape.jacobian_columns(
+            &mut self.side_regs.borrow_mut(),
+            &mut self.mregs.borrow_mut(),
+            t,
+            y,
+            cols,
+            jac,
+            dy,
         )
     }
 
@@ -254,7 +305,27 @@ where
         self.eqn.bump(|c| c.jacobians += 1);
         match self.eqn.coloring.as_ref() {
             Some(col) => col.jacobian_inplace(self, x, t, y),
-            None => self._default_jacobian_inplace(x, t, y),
+            None => {
+                // Dense: every column in one multi-direction tangent pass.
+                let n = self.eqn.tape.states.len();
+                let cols: Vec<usize> = (0..n).collect();
+                let mut jac = vec![0.0; n * n];
+                let mut f = vec![0.0; n];
+                let r = self
+                    .eqn
+                    .jacobian_columns(t, x.slice(), &cols, &mut jac, &mut f);
+                if let Err(e) = r {
+                    self.eqn.fail(e);
+                    jac.iter_mut().for_each(|v| *v = f64::NAN);
+                }
+                let mut col = M::V::zeros(n, self.eqn.ctx.clone());
+                for j in 0..n {
+                    for (i, c) in col.slice_mut().iter_mut().enumerate() {
+                        *c = jac[i * n + j];
+                    }
+                    y.set_column(j, &col);
+                }
+            }
         }
     }
 

@@ -262,6 +262,37 @@ fn evaluator_jacobian_matches_finite_differences() {
                 jv
             })
             .collect();
+        // All columns in one multi-direction pass, and f beside them.
+        let cols: Vec<usize> = (0..n).collect();
+        let (mut all, mut f_all, mut f) = (vec![0.0; n * n], vec![0.0; n], vec![0.0; n]);
+        let mut scratch = Vec::new();
+        t.jacobian_columns(
+            &mut regs,
+            &mut scratch,
+            time,
+            &y,
+            &cols,
+            &mut all,
+            &mut f_all,
+        )
+        .unwrap();
+        t.rhs(&mut regs, time, &y, &mut f).unwrap();
+        for (a, b) in f_all.iter().zip(&f) {
+            assert!(
+                (a - b).abs() <= 1e-12 * b.abs(),
+                "{file}: f = {a} beside the Jacobian, {b} alone"
+            );
+        }
+        for j in 0..n {
+            for i in 0..n {
+                assert!(
+                    (all[i * n + j] - kept[j][i]).abs() <= 1e-12 * kept[j][i].abs().max(1e-300),
+                    "{file}: J[{i}][{j}] = {} in one pass, {} by columns",
+                    all[i * n + j],
+                    kept[j][i]
+                );
+            }
+        }
         for j in 0..n {
             let mut jv = vec![0.0; n];
             t.jac_mul(&mut regs, &mut dregs, time, &y, &unit(j), &mut jv, None)
