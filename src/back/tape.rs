@@ -1914,7 +1914,7 @@ impl Work {
 
 /// LU-factorize the row-major `n`×`n` matrix `a` in place (partial
 /// pivoting, row order into `perm`); false if it is singular.
-fn lu_factor(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
+pub(crate) fn lu_factor(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
     for (k, p) in perm.iter_mut().enumerate() {
         *p = k;
     }
@@ -1945,7 +1945,7 @@ fn lu_factor(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
 }
 
 /// Solve with the factors of [`lu_factor`]; `tmp` is scratch of length `n`.
-fn lu_solve(n: usize, a: &[f64], perm: &[usize], b: &mut [f64], tmp: &mut [f64]) {
+pub(crate) fn lu_solve(n: usize, a: &[f64], perm: &[usize], b: &mut [f64], tmp: &mut [f64]) {
     for (x, &p) in tmp.iter_mut().zip(perm) {
         *x = b[p];
     }

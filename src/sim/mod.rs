@@ -705,6 +705,16 @@ where
     dc_start: bool,
     /// The junction-charge states (indices in `y`).
     charges: Vec<usize>,
+    /// The factored shifted Jacobian of the charges in the current step.
+    settle: Option<Settle>,
+}
+
+/// What [`Recorder::settle_charges`] keeps for the output points of a step.
+struct Settle {
+    /// The step: the solver's (time, step size).
+    step: (f64, f64),
+    /// `J_qq - σ I` factored (LU, row order); `None` when singular.
+    lu: Option<(Vec<f64>, Vec<usize>)>,
 }
 
 impl<M: Matrix<T = f64>> Recorder<'_, '_, M>
@@ -723,32 +733,52 @@ where
     /// tolerance, ~rtol·|q|) became a current error of rtol·|v|/RS, 3e-5 A
     /// on a reverse-biased 1N4001 at rtol 1e-7 where the true current is
     /// 1e-8 A. The interpolant's derivative carries no such amplification.
-    fn settle_charges(&mut self, t: f64, y: &mut [f64], dy: &[f64], h: f64) {
+    fn settle_charges(&mut self, t: f64, y: &mut [f64], dy: &[f64], step: (f64, f64)) {
         let m = self.charges.len();
+        let h = step.1;
         if m == 0 || h.is_nan() || h <= 0.0 {
             return;
         }
         let n = y.len();
-        let mut jac = vec![0.0; n * m];
         let mut f = vec![0.0; n];
-        // Where the side evaluation fails the point is output unsettled
-        // (its own evaluation then reports what failed).
-        if self
-            .ode
-            .side_jacobian_columns(t, y, &self.charges, &mut jac, &mut f)
-            .is_err()
-        {
+        // The shifted Jacobian is factored at the first output point of a
+        // step and kept for the step's other points (the correction is
+        // small: a nearby Jacobian takes nearly all of it). Where a side
+        // evaluation fails the point is output unsettled (its own
+        // evaluation then reports what failed).
+        if self.settle.as_ref().is_none_or(|s| s.step != step) {
+            let mut jac = vec![0.0; n * m];
+            if self
+                .ode
+                .side_jacobian_columns(t, y, &self.charges, &mut jac, &mut f)
+                .is_err()
+            {
+                self.settle = None;
+                return;
+            }
+            let sigma = 100.0 / h;
+            let mut a = vec![0.0; m * m];
+            for (r, &i) in self.charges.iter().enumerate() {
+                for c in 0..m {
+                    a[r * m + c] = jac[i * m + c] - if r == c { sigma } else { 0.0 };
+                }
+            }
+            let mut perm = vec![0; m];
+            let regular = a.iter().all(|v| v.is_finite()) && tape::lu_factor(m, &mut a, &mut perm);
+            self.settle = Some(Settle {
+                step,
+                lu: regular.then_some((a, perm)),
+            });
+        } else if self.ode.side_eval(t, y, &mut f).is_err() {
             return;
         }
-        let sigma = 100.0 / h;
-        let mut a = vec![0.0; m * m];
-        for (r, &i) in self.charges.iter().enumerate() {
-            for c in 0..m {
-                a[r * m + c] = jac[i * m + c] - if r == c { sigma } else { 0.0 };
-            }
-        }
+        let Some((lu, perm)) = self.settle.as_ref().and_then(|s| s.lu.as_ref()) else {
+            return;
+        };
         let mut d: Vec<f64> = self.charges.iter().map(|&k| f[k] - dy[k]).collect();
-        if tape::solve_dense(m, &mut a, &mut d) && d.iter().all(|d| d.is_finite()) {
+        let mut tmp = vec![0.0; m];
+        tape::lu_solve(m, lu, perm, &mut d, &mut tmp);
+        if d.iter().all(|d| d.is_finite()) {
             for (&k, dk) in self.charges.iter().zip(&d) {
                 y[k] -= dk;
             }
@@ -838,6 +868,7 @@ where
         out: vec![0.0; tape.out_regs.len()],
         dc_start: !tran.uic,
         charges,
+        settle: None,
     };
     // Soft stops (a step cap) are not used: diffsol's stop handling can
     // leave a sub-ulp step after them; error control keeps the accuracy.
@@ -1140,7 +1171,8 @@ where
         if !rec.charges.is_empty()
             && let Ok(dy) = solver.interpolate_dy(ty)
         {
-            rec.settle_charges(tg, &mut y, dy.slice(), solver.state().h.abs());
+            let st = solver.state();
+            rec.settle_charges(tg, &mut y, dy.slice(), (st.t, st.h.abs()));
         }
         rec.record(tg, &y)?;
         rec.next += 1;

@@ -178,6 +178,11 @@ where
         )
     }
 
+    /// `f(t, y)` at an output point, on the output side's own registers.
+    pub fn side_eval(&self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<(), EvalError> {
+        self.tape.rhs(&mut self.side_regs.borrow_mut(), t, y, dy)
+    }
+
     /// [`Self::jacobian_columns`] at an output point, on the output side's
     /// own registers.
     pub fn side_jacobian_columns(
