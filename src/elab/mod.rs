@@ -399,9 +399,13 @@ impl Elab {
             ElementBody::Passive { value, params } => {
                 let v = self.value(value, scope)?;
                 let mut ic = None;
+                // `m`: that many elements in parallel.
+                let mut m = 1.0;
                 for p in params {
                     if p.name.is("ic") && letter != 'R' {
                         ic = Some(self.value(&p.value, scope)?);
+                    } else if p.name.is("m") {
+                        m = self.multiplier(p, name, scope)?;
                     } else {
                         self.errors.push(ElabError::IgnoredElementParam {
                             span: p.name.span,
@@ -412,14 +416,14 @@ impl Elab {
                 }
                 match letter {
                     'R' => ElementKind::Resistor {
-                        r: nonzero(self, v, value.span(), "resistance")?,
+                        r: nonzero(self, v, value.span(), "resistance")? / m,
                     },
                     'C' => ElementKind::Capacitor {
-                        c: nonzero(self, v, value.span(), "capacitance")?,
+                        c: nonzero(self, v, value.span(), "capacitance")? * m,
                         ic,
                     },
                     _ => ElementKind::Inductor {
-                        l: nonzero(self, v, value.span(), "inductance")?,
+                        l: nonzero(self, v, value.span(), "inductance")? / m,
                         ic,
                     },
                 }
@@ -483,16 +487,21 @@ impl Elab {
                 area,
                 params,
             } => {
-                let area = match area {
+                let mut area = match area {
                     Some(a) => self.value(a, scope)?,
                     None => 1.0,
                 };
                 for p in params {
-                    self.errors.push(ElabError::IgnoredElementParam {
-                        span: p.name.span,
-                        name: p.name.text.to_string(),
-                        element: name.to_string(),
-                    });
+                    if p.name.is("m") {
+                        // `m` junctions in parallel: as `m` times the area.
+                        area *= self.multiplier(p, name, scope)?;
+                    } else {
+                        self.errors.push(ElabError::IgnoredElementParam {
+                            span: p.name.span,
+                            name: p.name.text.to_string(),
+                            element: name.to_string(),
+                        });
+                    }
                 }
                 let model = self.diode_model(model, name, scope)?;
                 ElementKind::Diode {
@@ -502,6 +511,27 @@ impl Elab {
             }
             ElementBody::Instance { .. } => unreachable!("instances are expanded before"),
         })
+    }
+
+    /// The value of an element's `m=` (parallel multiplier): positive and finite.
+    fn multiplier(
+        &mut self,
+        p: &ast::Assign<'_>,
+        element: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<f64> {
+        let m = self.value(&p.value, scope)?;
+        if m > 0.0 && m.is_finite() {
+            Some(m)
+        } else {
+            self.errors.push(ElabError::BadElementValue {
+                span: p.value.span(),
+                element: element.to_string(),
+                what: "multiplier m =",
+                value: m,
+            });
+            None
+        }
     }
 
     fn diode_model(
