@@ -201,6 +201,12 @@ pub struct Tape {
     /// DC mode: sources' time derivatives read as zero (the operating point,
     /// where capacitors are open and inductors shorted whatever the sources do).
     pub dc: std::cell::Cell<bool>,
+    /// Every independent source's value is multiplied by this (1 but while
+    /// the DC solve ramps the sources up): waveforms as they are evaluated,
+    /// DC values in their registers (see [`Tape::scale_sources`]).
+    pub source_scale: std::cell::Cell<f64>,
+    /// The registers of DC sources' values, and the values.
+    pub source_params: Vec<(u32, f64)>,
 }
 
 struct Compiler<'a> {
@@ -263,7 +269,14 @@ impl Compiler<'_> {
             Expr::Param(p) => {
                 let k = p.0 as usize;
                 if self.param_reg[k] == NONE {
-                    self.param_reg[k] = self.const_reg(self.sys.params[p].value);
+                    let param = &self.sys.params[p];
+                    // A source's value gets a register of its own (source
+                    // stepping scales it); other parameters share constants.
+                    self.param_reg[k] = if param.source {
+                        self.reg(param.value)
+                    } else {
+                        self.const_reg(param.value)
+                    };
                 }
                 return self.param_reg[k];
             }
@@ -689,6 +702,13 @@ pub fn compile(
     }
     let n_in_f = count(&in_f);
     let n_at_outputs = count(&at_out);
+    let source_params: Vec<(u32, f64)> = sys
+        .params
+        .iter()
+        .zip(&c.param_reg)
+        .filter(|((_, p), r)| p.source && **r != NONE)
+        .map(|((_, p), &r)| (r, p.value))
+        .collect();
     Tape {
         n_regs: c.n_regs as usize,
         state_regs,
@@ -707,6 +727,8 @@ pub fn compile(
         n_unused: sys.eqs.len() - n_in_f - n_at_outputs,
         reg_var: c.reg_var,
         dc: std::cell::Cell::new(false),
+        source_scale: std::cell::Cell::new(1.0),
+        source_params,
     }
 }
 
@@ -739,13 +761,22 @@ impl Tape {
         if order > 0 && self.dc.get() {
             0.0
         } else {
-            self.sources[s as usize].eval(t, order)
+            self.sources[s as usize].eval(t, order) * self.source_scale.get()
         }
     }
 
     /// Fresh registers (parameters and constants set).
     pub fn registers(&self) -> Vec<f64> {
         self.init.clone()
+    }
+
+    /// Scale every independent source by `s`: the waveforms (through
+    /// `source_scale`) and the DC values held in `regs`.
+    pub fn scale_sources(&self, regs: &mut [f64], s: f64) {
+        self.source_scale.set(s);
+        for &(r, v) in &self.source_params {
+            regs[r as usize] = v * s;
+        }
     }
 
     fn run(&self, code: &[Instr], r: &mut [f64], t: f64) -> Result<(), EvalError> {

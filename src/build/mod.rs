@@ -177,7 +177,10 @@ impl Builder<'_> {
 
     fn source_expr(&mut self, name: &str, wave: &Waveform) -> ExprId {
         match wave {
-            Waveform::Dc { value } => self.value_param(name, *value),
+            Waveform::Dc { value } => {
+                let p = self.sys.add_source_param(name.to_string(), *value);
+                self.sys.exprs.param(p)
+            }
             w => {
                 let s = self.sys.sources.push(SourceFn {
                     name: name.to_string(),

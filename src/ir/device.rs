@@ -99,7 +99,19 @@ impl DiodeParams {
             ]
         } else {
             let bv = self.bv.unwrap_or(f64::INFINITY);
-            let e = (-(bv + v) / vte).exp();
+            // Deep in breakdown the exponential continues linearly too (a
+            // DC Newton step to the full supply across a zener would
+            // otherwise overflow to infinity).
+            let x = -(bv + v);
+            if x > vlin {
+                let e = (vlin / vte).exp();
+                return [
+                    -is * e * (1.0 + (x - vlin) / vte) + g * v,
+                    is * e / vte + g,
+                    0.0,
+                ];
+            }
+            let e = (x / vte).exp();
             [-is * e + g * v, is * e / vte + g, -is * e / (vte * vte)]
         }
     }
@@ -161,6 +173,85 @@ impl DiodeParams {
         (get(order as usize), get(order as usize + 1))
     }
 
+    /// A Newton iterate of the junction voltage from `old` to `new`, limited as
+    /// ngspice limits it (dioload.c, DEVpnjlim): a forward step beyond the
+    /// critical voltage, or a step deeper into breakdown, advances by the
+    /// logarithm of what the exponential would have grown by.
+    pub fn limit(&self, new: f64, old: f64) -> f64 {
+        let vte = self.vte;
+        let vcrit = vte * (vte / (std::f64::consts::SQRT_2 * self.is)).ln();
+        let pnjlim = |new: f64, old: f64| -> f64 {
+            if new > vcrit && (new - old).abs() > 2.0 * vte {
+                if old > 0.0 {
+                    let arg = 1.0 + (new - old) / vte;
+                    if arg > 0.0 {
+                        old + vte * arg.ln()
+                    } else {
+                        vcrit
+                    }
+                } else {
+                    vte * (new / vte).ln()
+                }
+            } else {
+                new
+            }
+        };
+        match self.bv {
+            Some(bv) if new < (-bv + 10.0 * vte).min(0.0) => {
+                -(pnjlim(-(new + bv), -(old + bv)) + bv)
+            }
+            _ => pnjlim(new, old),
+        }
+    }
+
+    /// The junction voltage whose charge is `q` (the charge grows with the
+    /// voltage), from `guess`; `None` when no voltage has that charge.
+    pub fn voltage_at_charge(&self, q: f64, guess: f64) -> Option<f64> {
+        let at = |v: f64| self.charge(v)[0] - q;
+        // Bracket, then Newton kept inside the bracket (bisection otherwise).
+        let (mut lo, mut hi) = (guess - 0.1, guess + 0.1);
+        let mut width = 0.1;
+        while at(lo) > 0.0 {
+            width *= 2.0;
+            lo -= width;
+            if lo < -1e6 {
+                return None;
+            }
+        }
+        width = 0.1;
+        while at(hi) < 0.0 {
+            width *= 2.0;
+            hi += width;
+            if hi > 1e6 {
+                return None;
+            }
+        }
+        let mut v = guess.clamp(lo, hi);
+        for _ in 0..200 {
+            let [qv, c, _] = self.charge(v);
+            let r = qv - q;
+            if r == 0.0 {
+                return Some(v);
+            }
+            if r > 0.0 {
+                hi = v
+            } else {
+                lo = v
+            }
+            let next = v - r / c;
+            let next = if c > 0.0 && next > lo && next < hi {
+                next
+            } else {
+                0.5 * (lo + hi)
+            };
+            if (next - v).abs() <= 1e-15 * (1.0 + v.abs()) || hi - lo <= 1e-15 * (1.0 + v.abs()) {
+                return Some(next);
+            }
+            v = next;
+        }
+        Some(v)
+    }
+
     /// Whether the charge is used at all (a junction with capacitance).
     pub fn has_charge(&self) -> bool {
         self.cjo != 0.0 || self.tt != 0.0
@@ -190,7 +281,7 @@ mod tests {
     #[test]
     fn derivatives_match_finite_differences() {
         let p = d();
-        for v in [-12.0, -10.5, -5.0, -0.05, 0.0, 0.3, 0.34, 0.5, 0.7] {
+        for v in [-10.4, -10.0, -5.0, -0.05, 0.0, 0.3, 0.34, 0.5, 0.7] {
             for part in [DiodePart::Current, DiodePart::Charge] {
                 for order in 0..2u8 {
                     let h = 1e-7;
@@ -226,6 +317,56 @@ mod tests {
                 v += 0.0137;
             }
         }
+    }
+
+    /// Far beyond the breakdown voltage (a DC Newton step to a whole supply
+    /// across a zener) the current stays finite, continuous and monotone.
+    #[test]
+    fn deep_breakdown_is_finite_and_continuous() {
+        let p = d();
+        let bv = p.bv.expect("breakdown");
+        let edge = -bv - 50.0 * p.vte;
+        let (below, above) = (p.current(edge - 1e-9), p.current(edge + 1e-9));
+        assert!((below[0] - above[0]).abs() <= 1e-6 * above[0].abs());
+        assert!((below[1] - above[1]).abs() <= 1e-6 * above[1]);
+        let mut last = p.current(edge)[0];
+        for k in 1..100 {
+            let i = p.current(edge - 10.0 * k as f64)[0];
+            assert!(
+                i.is_finite() && i < last,
+                "at {} V: {i}",
+                edge - 10.0 * k as f64
+            );
+            last = i;
+        }
+    }
+
+    /// Charges invert to their voltages, from far guesses too.
+    #[test]
+    fn charges_invert_to_their_voltages() {
+        let p = d();
+        for v in [-9.0, -2.0, -0.1, 0.0, 0.2, 0.5, 0.65, 0.8] {
+            let q = p.charge(v)[0];
+            for guess in [0.0, -5.0, 0.7, v] {
+                let got = p.voltage_at_charge(q, guess).expect("a voltage");
+                assert!((got - v).abs() <= 1e-9, "Q⁻¹(Q({v})) from {guess} = {got}");
+            }
+        }
+    }
+
+    /// Junction limiting: a forward step beyond the critical voltage grows
+    /// logarithmically, and so does a step deeper into breakdown; steps
+    /// elsewhere pass unchanged.
+    #[test]
+    fn junction_steps_are_limited() {
+        let p = d();
+        let bv = p.bv.expect("breakdown");
+        let fwd = p.limit(5.0, 0.6);
+        assert!(fwd > 0.6 && fwd < 0.8, "{fwd}");
+        let deep = p.limit(-bv - 5.0, -bv);
+        assert!(deep < -bv && deep > -bv - 0.3, "{deep}");
+        assert_eq!(p.limit(0.3, 0.2), 0.3);
+        assert_eq!(p.limit(-3.0, -1.0), -3.0);
     }
 
     #[test]

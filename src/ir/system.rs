@@ -141,6 +141,8 @@ pub struct Equation {
 pub struct Param {
     pub name: String,
     pub value: f64,
+    /// The value of an independent DC source (ramped by source stepping).
+    pub source: bool,
 }
 
 /// A waveform of an independent source (ngspice semantics, defaults resolved).
@@ -462,7 +464,20 @@ impl EquationSystem {
     }
 
     pub fn add_param(&mut self, name: String, value: f64) -> ParamId {
-        self.params.push(Param { name, value })
+        self.params.push(Param {
+            name,
+            value,
+            source: false,
+        })
+    }
+
+    /// A parameter holding an independent DC source's value.
+    pub fn add_source_param(&mut self, name: String, value: f64) -> ParamId {
+        self.params.push(Param {
+            name,
+            value,
+            source: true,
+        })
     }
 
     pub fn add_eq(&mut self, lhs: ExprId, rhs: ExprId, origin: Origin) -> EqId {

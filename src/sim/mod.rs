@@ -311,6 +311,7 @@ fn initial_state<M: Matrix<T = f64>>(
     sorted: &Sorted,
     ode: &CircuitOde<M>,
     t0: f64,
+    atol: &[f64],
 ) -> Result<(Vec<f64>, Vec<crate::diag::Diagnostic>), SimError>
 where
     M::V: HostVec,
@@ -389,7 +390,7 @@ where
         })
         .collect();
     tape.dc.set(true);
-    let r = dc_point::<M>(c, ode, t0, y, &from_ic);
+    let r = dc_point::<M>(c, ode, t0, y, &from_ic, atol);
     tape.dc.set(false);
     Ok((r?, warnings))
 }
@@ -399,20 +400,23 @@ const DC_SINGULAR: &str = "the DC Jacobian is singular: a node or loop has no DC
 
 /// DC operating point by damped Newton on f(t0, y) = 0 in DC mode, with the
 /// states that `.ic` fixes held: the sparse LU of the coloured Jacobian above
-/// `DENSE_STATES` states, else a dense solve.
+/// `DENSE_STATES` states, else a dense solve. Junction charges take limited
+/// steps (as ngspice limits junction voltages); when Newton still fails,
+/// the sources are ramped up from zero (source stepping).
 fn dc_point<M: Matrix<T = f64>>(
     c: &Circuit,
     ode: &CircuitOde<M>,
     t0: f64,
     y: Vec<f64>,
     from_ic: &[bool],
+    atol: &[f64],
 ) -> Result<Vec<f64>, SimError>
 where
     M::V: HostVec,
 {
     use diffsol::{OdeEquations, Op, Vector};
     let n = y.len();
-    let mut f = vec![0.0; n];
+    let tape = &ode.tape;
     let fix: Vec<bool> = from_ic.iter().map(|&b| b && !c.ics.is_empty()).collect();
     let resid = |y: &[f64], f: &mut Vec<f64>| -> Result<f64, SimError> {
         ode.eval(t0, y, f)
@@ -424,21 +428,52 @@ where
         }
         Ok(f.iter().map(|x| x.abs()).fold(0.0, f64::max))
     };
-    let norm = resid(&y, &mut f)?;
-    if norm == 0.0 {
-        return Ok(y);
-    }
+    // The junction of each charge state, and its voltage at the last iterate.
+    let junction: Vec<Option<&crate::ir::DiodeParams>> = tape
+        .state_regs
+        .iter()
+        .map(|&s| {
+            tape.code.iter().find_map(|ins| match *ins {
+                tape::Instr::Block { k } => {
+                    let ci = tape.blocks[k as usize].charge_inverse?;
+                    (ci.target == s).then(|| &tape.diodes[ci.diode as usize])
+                }
+                _ => None,
+            })
+        })
+        .collect();
+    let mut volts: Vec<f64> = vec![0.0; n];
+    let mut limit = |y: &[f64], step: &mut [f64]| -> bool {
+        let mut limited = false;
+        for k in 0..n {
+            let Some(p) = junction[k] else { continue };
+            let Some(old) = p.voltage_at_charge(y[k], volts[k]) else {
+                continue;
+            };
+            volts[k] = old;
+            let Some(new) = p.voltage_at_charge(y[k] - step[k], old) else {
+                continue;
+            };
+            let v = p.limit(new, old);
+            if v != new {
+                step[k] = y[k] - p.charge(v)[0];
+                limited = true;
+            }
+        }
+        limited
+    };
     let singular = || SimError::DcFailed {
         message: DC_SINGULAR.into(),
     };
-    if n > DENSE_STATES {
+    let mut jacobian: Box<JacobianAt<'_>> = if n > DENSE_STATES {
         // The coloured sparse Jacobian; rows of states fixed by `.ic` become
         // identity rows (their residual is zero, so they do not move).
         use diffsol::NonLinearOpJacobian;
         let op = ode.rhs();
         let ctx = ode.context().clone();
         let mut jm = M::new_from_sparsity(n, n, op.jacobian_sparsity(), ctx.clone());
-        return dc_newton(y, f, norm, &resid, |y, f| {
+        let fix = fix.clone();
+        Box::new(move |y: &[f64]| {
             let yv = M::V::from_vec(y.to_vec(), ctx.clone());
             op.jacobian_inplace(&yv, t0, &mut jm);
             if let Some(error) = ode.error.borrow_mut().take() {
@@ -451,76 +486,188 @@ where
                 .map(|((i, j), v)| (i, j, v))
                 .collect();
             entries.extend((0..n).filter(|&k| fix[k]).map(|k| (k, k, 1.0)));
-            let step = sparse_lu::solve_triplets(n, entries, f).ok_or_else(singular)?;
-            if step.iter().any(|s| !s.is_finite()) {
+            Ok(DcJacobian::Sparse(entries))
+        })
+    } else {
+        let (mut cols, mut fy) = (vec![0.0; n * n], vec![0.0; n]);
+        let all: Vec<usize> = (0..n).collect();
+        let fix = fix.clone();
+        Box::new(move |y: &[f64]| {
+            ode.jacobian_columns(t0, y, &all, &mut cols, &mut fy)
+                .map_err(|error| SimError::Eval { error })?;
+            let mut lu = vec![0.0; n * n];
+            for i in 0..n {
+                for j in 0..n {
+                    lu[i * n + j] = if fix[i] {
+                        if i == j { 1.0 } else { 0.0 }
+                    } else {
+                        cols[i * n + j]
+                    };
+                }
+            }
+            let mut perm = vec![0; n];
+            if !(lu.iter().all(|v| v.is_finite()) && tape::lu_factor(n, &mut lu, &mut perm)) {
                 return Err(singular());
             }
-            Ok(step)
-        });
-    }
-    let mut jac = vec![0.0; n * n];
-    let mut col = vec![0.0; n];
-    let mut e = vec![0.0; n];
-    dc_newton(y, f, norm, &resid, |y, f| {
-        for j in 0..n {
-            e[j] = 1.0;
-            ode.jv(t0, y, &e, &mut col)
-                .map_err(|error| SimError::Eval { error })?;
-            e[j] = 0.0;
-            for i in 0..n {
-                jac[i * n + j] = if fix[i] {
-                    if i == j { 1.0 } else { 0.0 }
-                } else {
-                    col[i]
-                };
+            Ok(DcJacobian::Dense(lu, perm))
+        })
+    };
+    let solve = &mut *jacobian;
+    let first = if direct_dc() {
+        dc_newton(y.clone(), &resid, solve, &mut limit, atol)
+    } else {
+        Err(SimError::DcFailed {
+            message: "not tried (test)".into(),
+        })
+    };
+    let Err(error) = first else {
+        return first;
+    };
+    // Source stepping: from all sources off (where y = 0 solves a circuit
+    // without sources) up to their full values, each solution the start of
+    // the next; a failed stage is retried with a quarter of the increment.
+    let mut at = 0.0f64;
+    let mut y = y;
+    let mut inc = 0.1f64;
+    ode.scale_sources(0.0);
+    let result = (|| {
+        y = dc_newton(y.clone(), &resid, solve, &mut limit, atol)?;
+        while at < 1.0 {
+            let next = (at + inc).min(1.0);
+            ode.scale_sources(next);
+            match dc_newton(y.clone(), &resid, solve, &mut limit, atol) {
+                Ok(found) => {
+                    y = found;
+                    at = next;
+                    inc = (inc * 2.0).min(0.25);
+                }
+                Err(_) if inc > 1e-4 => inc *= 0.25,
+                Err(e) => return Err(e),
             }
         }
-        let mut step = f.to_vec();
-        if !tape::solve_dense(n, &mut jac, &mut step) {
-            return Err(singular());
-        }
-        Ok(step)
-    })
+        Ok(y.clone())
+    })();
+    ode.scale_sources(1.0);
+    // Report the direct attempt's failure, which names what went wrong at
+    // the full sources.
+    result.map_err(|_| error)
 }
 
 /// `f` into its argument, returning its max-norm.
 type Residual<'a> = dyn Fn(&[f64], &mut Vec<f64>) -> Result<f64, SimError> + 'a;
 
-/// Damped Newton from `y` (residual `f`, max-norm `norm`): `solve(y, f)`
-/// gives the full correction; the step is halved until the residual drops.
+/// Whether the DC solve tries Newton at the full sources first (tests can
+/// send it straight to source stepping).
+#[cfg(not(test))]
+fn direct_dc() -> bool {
+    true
+}
+
+#[cfg(test)]
+fn direct_dc() -> bool {
+    !tests::SOURCES_ONLY.with(|c| c.get())
+}
+
+/// The factored DC Jacobian at a point.
+type JacobianAt<'a> = dyn FnMut(&[f64]) -> Result<DcJacobian, SimError> + 'a;
+
+/// A factored DC Jacobian (rows of held states are identity rows).
+enum DcJacobian {
+    Dense(Vec<f64>, Vec<usize>),
+    Sparse(Vec<(usize, usize, f64)>),
+}
+
+impl DcJacobian {
+    /// `J⁻¹ b`, `None` when singular.
+    fn solve(&self, b: &[f64]) -> Option<Vec<f64>> {
+        let x = match self {
+            DcJacobian::Dense(lu, perm) => {
+                let mut x = b.to_vec();
+                let mut tmp = vec![0.0; b.len()];
+                tape::lu_solve(b.len(), lu, perm, &mut x, &mut tmp);
+                x
+            }
+            DcJacobian::Sparse(entries) => sparse_lu::solve_triplets(b.len(), entries.clone(), b)?,
+        };
+        x.iter().all(|v| v.is_finite()).then_some(x)
+    }
+}
+
+/// Damped Newton from `y` (Deuflhard's natural monotonicity test, which
+/// compares corrections in the states' own units rather than residuals of
+/// mixed units): `jacobian(y)` is factored once per iteration, `limit`
+/// shortens junction steps (a limited step is taken whole, as SPICE takes
+/// it). Converged when a correction is below 1e-10 relative and 1e-3 of
+/// the integration's absolute tolerances, or `f` vanishes.
 fn dc_newton(
     mut y: Vec<f64>,
-    mut f: Vec<f64>,
-    mut norm: f64,
     resid: &Residual<'_>,
-    mut solve: impl FnMut(&[f64], &[f64]) -> Result<Vec<f64>, SimError>,
+    jacobian: &mut JacobianAt<'_>,
+    limit: &mut dyn FnMut(&[f64], &mut [f64]) -> bool,
+    atol: &[f64],
 ) -> Result<Vec<f64>, SimError> {
     let n = y.len();
+    let mut f = vec![0.0; n];
+    let mut norm = resid(&y, &mut f)?;
+    if norm == 0.0 {
+        return Ok(y);
+    }
+    let singular = || SimError::DcFailed {
+        message: DC_SINGULAR.into(),
+    };
+    // Corrections measured against |y| + 1e7 atol: 1e-10 of it converges.
+    let scaled = |d: &[f64], y: &[f64]| -> f64 {
+        d.iter()
+            .zip(y)
+            .zip(atol)
+            .map(|((d, x), a)| d.abs() / (x.abs() + 1e7 * a))
+            .fold(0.0, f64::max)
+    };
+    let mut trial = vec![0.0; n];
+    let mut ft = vec![0.0; n];
     for _ in 0..200 {
-        let step = solve(&y, &f)?;
-        let y0 = y.clone();
+        let jac = jacobian(&y)?;
+        let mut step = jac.solve(&f).ok_or_else(singular)?;
+        let full = scaled(&step, &y);
+        if full <= 1e-10 || norm <= 1e-15 {
+            for k in 0..n {
+                y[k] -= step[k];
+            }
+            return Ok(y);
+        }
+        if limit(&y, &mut step) {
+            for k in 0..n {
+                y[k] -= step[k];
+            }
+            norm = resid(&y, &mut f)?;
+            continue;
+        }
         let mut lambda = 1.0;
         loop {
             for k in 0..n {
-                y[k] = y0[k] - lambda * step[k];
+                trial[k] = y[k] - lambda * step[k];
             }
-            let nn = resid(&y, &mut f)?;
-            if (nn.is_finite() && nn < norm) || lambda < 1e-10 {
-                norm = nn;
+            // A trial point where the circuit cannot be evaluated (a loop
+            // without solution that far out) is too far: halve the step.
+            let simplified = match resid(&trial, &mut ft) {
+                Ok(nn) if nn.is_finite() => {
+                    jac.solve(&ft).map_or(f64::INFINITY, |b| scaled(&b, &y))
+                }
+                _ => f64::INFINITY,
+            };
+            if simplified <= (1.0 - lambda / 4.0) * full {
                 break;
             }
             lambda *= 0.5;
+            if lambda < 1e-10 {
+                return Err(SimError::DcFailed {
+                    message: format!("Newton stalled (residual {norm:.3e})"),
+                });
+            }
         }
-        let small = step
-            .iter()
-            .zip(&y0)
-            .all(|(s, x)| (lambda * s).abs() <= 1e-12 * (1.0 + x.abs()));
-        if small || norm <= 1e-15 {
-            return Ok(y);
-        }
-    }
-    if norm.is_finite() && norm < 1e-9 {
-        return Ok(y);
+        std::mem::swap(&mut y, &mut trial);
+        std::mem::swap(&mut f, &mut ft);
+        norm = f.iter().map(|x| x.abs()).fold(0.0, f64::max);
     }
     Err(SimError::DcFailed {
         message: format!("Newton did not converge (residual {norm:.3e})"),
@@ -813,15 +960,15 @@ where
 {
     let t0 = 0.0;
     let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; tape.states.len()], sparse);
-    let (y0, warnings) = initial_state::<M>(sorted, &ode, t0)?;
-    *ode.y0.borrow_mut() = y0;
     let c = &sorted.elaborated.circuit;
+    let atol = atols(sys, &tape.states, opts, c);
+    let (y0, warnings) = initial_state::<M>(sorted, &ode, t0, &atol)?;
+    *ode.y0.borrow_mut() = y0;
     let rtol = opts.rtol.unwrap_or_else(|| {
         c.options
             .reltol
             .map_or(DEFAULT_RTOL, |r| r.min(DEFAULT_RTOL * 1e3))
     });
-    let atol = atols(sys, &tape.states, opts, c);
     let problem = OdeBuilder::<M>::new()
         .rtol(rtol)
         .atol(atol)
@@ -1238,4 +1385,48 @@ where
         };
     }
     SimError::Solver { t, message: msg }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    thread_local! {
+        pub(super) static SOURCES_ONLY: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    }
+
+    /// Source stepping reaches the operating point that Newton at the full
+    /// sources finds, on a zener in breakdown and a clamped inverting stage.
+    #[test]
+    fn source_stepping_reaches_the_operating_point() {
+        let circuits = [
+            "zener\nV1 in 0 DC 24\nR1 in out 100\nD1 0 out DZ\nC1 out 0 10u\nRL out 0 1k\n\
+             .model DZ D(IS=1e-14 N=1 RS=1 CJO=10p BV=5.1 IBV=5m)\n.tran 10u 20u\n.end\n",
+            "clamp\nV1 in 0 DC 2\nR1 in n 1k\nE1 out 0 0 n 1e5\nR2 n out 10k\nD1 n out DX\n\
+             D2 out n DX\nC1 out 0 1n\n.model DX D(IS=1e-14 N=1 RS=1 CJO=1p)\n.tran 1u 2u\n.end\n",
+        ];
+        for text in circuits {
+            let sorted =
+                crate::pipeline::sort_text("dc.cir", text.to_string(), &Default::default())
+                    .ok()
+                    .expect("sorts");
+            let direct = simulate(&sorted, &Options::default()).expect("direct");
+            SOURCES_ONLY.with(|c| c.set(true));
+            let stepped = simulate(&sorted, &Options::default());
+            SOURCES_ONLY.with(|c| c.set(false));
+            let stepped = stepped.expect("stepped");
+            for (name, (a, b)) in direct
+                .names
+                .iter()
+                .zip(direct.data.iter().zip(&stepped.data))
+            {
+                assert!(
+                    (a[0] - b[0]).abs() <= 1e-9 * a[0].abs().max(1e-3),
+                    "{name}: {} directly, {} by source stepping",
+                    a[0],
+                    b[0]
+                );
+            }
+        }
+    }
 }

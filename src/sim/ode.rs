@@ -178,6 +178,13 @@ where
         )
     }
 
+    /// Scale every independent source by `s` (source stepping; 1 restores).
+    pub fn scale_sources(&self, s: f64) {
+        self.tape.scale_sources(&mut self.regs.borrow_mut(), s);
+        self.tape.scale_sources(&mut self.side_regs.borrow_mut(), s);
+        self.tangents.borrow_mut().valid = false;
+    }
+
     /// `f(t, y)` at an output point, on the output side's own registers.
     pub fn side_eval(&self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<(), EvalError> {
         self.tape.rhs(&mut self.side_regs.borrow_mut(), t, y, dy)
