@@ -665,7 +665,9 @@ impl Elab {
                 phase: args.get(5).copied().unwrap_or(0.0),
             },
             TranFnKind::Exp => {
-                let td1 = args.get(2).copied().unwrap_or(0.0);
+                // ngspice (vsrcload.c) reads a zero or absent TD1 as TSTEP,
+                // not 0 as its manual says: the rise starts one step late.
+                let td1 = arg(2, tstep);
                 Waveform::Exp {
                     v1: args[0],
                     v2: args[1],
