@@ -103,6 +103,14 @@ pub enum ElabError {
         name: String,
         element: String,
     },
+    #[error(
+        "`{element}` is inside a subcircuit instance with `m=`, which kausal applies to R, C, L and D only"
+    )]
+    UnscalableElement {
+        span: Span,
+        element: String,
+        instance: Span,
+    },
     #[error("option `{name}` is ignored by kausal")]
     IgnoredOption { span: Span, name: String },
     #[error("node `{node}` has only one connection")]
@@ -127,6 +135,7 @@ impl ElabError {
             | CouplingRange { span, .. }
             | BadSourceArgs { span, .. }
             | BadElementValue { span, .. }
+            | UnscalableElement { span, .. }
             | UnknownNode { span, .. }
             | UnknownCurrent { span, .. }
             | BadTran { span }
@@ -169,6 +178,7 @@ impl ToDiagnostic for ElabError {
             CouplingRange { .. } => ("K0211", "out of range", "use 0 < k <= 1".into()),
             BadSourceArgs { .. } => ("K0212", "here", "see the ngspice manual for the source function's arguments".into()),
             BadElementValue { .. } => ("K0213", "here", "use a nonzero, finite value".into()),
+            UnscalableElement { .. } => ("K0217", "cannot be multiplied", "give the instance no `m=`, or write the parallel copies out".into()),
             UnknownNode { .. } => ("K0214", "no such node", "check the node name".into()),
             UnknownCurrent { .. } => ("K0215", "no such source", "ngspice names currents of V sources, e.g. `i(v1)`".into()),
             BadTran { .. } => ("K0216", "here", "write `.tran TSTEP TSTOP [TSTART [TMAX]] [uic]`".into()),
@@ -185,6 +195,7 @@ impl ToDiagnostic for ElabError {
         match self {
             DuplicateElement { first, .. } => d = d.with_label(*first, "first defined here"),
             PortMismatch { def, .. } => d = d.with_label(*def, "subcircuit defined here"),
+            UnscalableElement { instance, .. } => d = d.with_label(*instance, "the multiplier"),
             _ => {}
         }
         d

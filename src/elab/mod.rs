@@ -68,9 +68,21 @@ struct Scope<'s, 'a> {
     prefix: String,
     /// Formal port name → actual node.
     ports: HashMap<String, NodeId>,
+    /// The `m=` of the instance this scope expands, with its span.
+    m: Option<(f64, Span)>,
 }
 
 impl<'s, 'a> Scope<'s, 'a> {
+    /// The product of the `m=` of every enclosing instance, and the span of
+    /// the innermost one (`None` when no instance multiplies).
+    fn multiplier(&self) -> (f64, Option<Span>) {
+        let (outer, span) = self.parent.map_or((1.0, None), |p| p.multiplier());
+        match self.m {
+            Some((m, s)) => (m * outer, Some(s)),
+            None => (outer, span),
+        }
+    }
+
     fn param(&self, name: &str) -> Option<f64> {
         self.params
             .get(name)
@@ -395,17 +407,36 @@ impl Elab {
                 Some(v)
             }
         };
+        // The multiplier of enclosing instances: R, C, L and D scale with
+        // it; a source or controlled source inside cannot be multiplied.
+        let (inherited, from) = scope.multiplier();
+        if let Some(from) = from
+            && inherited != 1.0
+            && !matches!(
+                el.body,
+                ElementBody::Passive { .. }
+                    | ElementBody::Diode { .. }
+                    | ElementBody::Coupling { .. }
+            )
+        {
+            self.errors.push(ElabError::UnscalableElement {
+                span: el.name.span,
+                element: name.to_string(),
+                instance: from,
+            });
+            return None;
+        }
         Some(match &el.body {
             ElementBody::Passive { value, params } => {
                 let v = self.value(value, scope)?;
                 let mut ic = None;
                 // `m`: that many elements in parallel.
-                let mut m = 1.0;
+                let mut m = inherited;
                 for p in params {
                     if p.name.is("ic") && letter != 'R' {
                         ic = Some(self.value(&p.value, scope)?);
                     } else if p.name.is("m") {
-                        m = self.multiplier(p, name, scope)?;
+                        m *= self.multiplier(p, name, scope)?;
                     } else {
                         self.errors.push(ElabError::IgnoredElementParam {
                             span: p.name.span,
@@ -487,10 +518,11 @@ impl Elab {
                 area,
                 params,
             } => {
-                let mut area = match area {
-                    Some(a) => self.value(a, scope)?,
-                    None => 1.0,
-                };
+                let mut area = inherited
+                    * match area {
+                        Some(a) => self.value(a, scope)?,
+                        None => 1.0,
+                    };
                 for p in params {
                     if p.name.is("m") {
                         // `m` junctions in parallel: as `m` times the area.
@@ -744,7 +776,12 @@ impl Elab {
             }
         }
         for p in params {
-            if let Some(v) = self.value(&p.value, scope) {
+            if p.name.is("m") {
+                // `m` instances in parallel: every R, C, L and D inside scaled.
+                if let Some(m) = self.multiplier(p, name, scope) {
+                    inner.m = Some((m, p.name.span));
+                }
+            } else if let Some(v) = self.value(&p.value, scope) {
                 inner.params.insert(p.name.key(), v);
             }
         }
