@@ -1066,7 +1066,9 @@ impl Tape {
                     let mut w = Work::take(n, r.len());
                     self.solve_block(k as usize, r, t)?;
                     let result = (|| {
-                        if !b.constant_jacobian {
+                        let constant = if b.constant_jacobian {
+                            Some(self.constant_lu(b, r, t, &mut w)?)
+                        } else {
                             let mut scratch = std::mem::take(&mut w.dr);
                             let got = self.block_jacobian(b, r, &mut scratch, t, &mut w.jac);
                             w.dr = scratch;
@@ -1074,29 +1076,27 @@ impl Tape {
                             if !lu_factor(n, &mut w.jac, &mut w.perm) {
                                 return Err(b.singular(t));
                             }
-                        }
+                            None
+                        };
                         for &x in &b.tears {
                             dr[x as usize * m..(x as usize + 1) * m].fill(0.0);
                         }
                         self.run_tangents(&b.body, r, dr, m, t)?;
-                        let mut sol = vec![0.0; n * m];
+                        // Direction by direction; a tear's slot in direction
+                        // j is not read by the other directions' solves.
                         for j in 0..m {
                             for (i, &res) in b.residuals.iter().enumerate() {
                                 w.step[i] = -dr[res as usize * m + j];
                             }
-                            if b.constant_jacobian {
-                                let (jac, perm) = self.constant_lu(b, r, t, &mut w)?;
-                                lu_solve(n, jac, perm, &mut w.step, &mut w.tmp);
-                            } else {
-                                lu_solve(n, &w.jac, &w.perm, &mut w.step, &mut w.tmp);
+                            match constant {
+                                Some((jac, perm)) => {
+                                    lu_solve(n, jac, perm, &mut w.step, &mut w.tmp)
+                                }
+                                None => lu_solve(n, &w.jac, &w.perm, &mut w.step, &mut w.tmp),
                             }
-                            for i in 0..n {
-                                sol[i * m + j] = w.step[i];
+                            for (i, &x) in b.tears.iter().enumerate() {
+                                dr[x as usize * m + j] = w.step[i];
                             }
-                        }
-                        for (i, &x) in b.tears.iter().enumerate() {
-                            dr[x as usize * m..(x as usize + 1) * m]
-                                .copy_from_slice(&sol[i * m..(i + 1) * m]);
                         }
                         self.run_tangents(&b.body, r, dr, m, t)
                     })();
@@ -1841,24 +1841,10 @@ fn junctions(b: &TapeBlock, vte_regs: &dyn Fn(u32) -> Option<u32>) -> Vec<(usize
     out
 }
 
-/// ngspice's junction voltage limiting: a forward-biased junction moves by
-/// at most a few thermal voltages (logarithmically) per Newton iteration.
+/// [`crate::ir::pnjlim`] where the saturation current is not known (tears
+/// inside an `exp()`): the critical voltage taken as 12 thermal voltages.
 fn pnjlim(new: f64, old: f64, vt: f64) -> f64 {
-    let vcrit = 12.0 * vt;
-    if new > vcrit && (new - old).abs() > 2.0 * vt {
-        if old > 0.0 {
-            let arg = 1.0 + (new - old) / vt;
-            if arg > 0.0 {
-                old + vt * arg.ln()
-            } else {
-                vcrit
-            }
-        } else {
-            vt * (new / vt).ln()
-        }
-    } else {
-        new
-    }
+    crate::ir::pnjlim(new, old, vt, 12.0 * vt)
 }
 
 fn dest(ins: &Instr) -> u32 {

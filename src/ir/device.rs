@@ -180,27 +180,11 @@ impl DiodeParams {
     pub fn limit(&self, new: f64, old: f64) -> f64 {
         let vte = self.vte;
         let vcrit = vte * (vte / (std::f64::consts::SQRT_2 * self.is)).ln();
-        let pnjlim = |new: f64, old: f64| -> f64 {
-            if new > vcrit && (new - old).abs() > 2.0 * vte {
-                if old > 0.0 {
-                    let arg = 1.0 + (new - old) / vte;
-                    if arg > 0.0 {
-                        old + vte * arg.ln()
-                    } else {
-                        vcrit
-                    }
-                } else {
-                    vte * (new / vte).ln()
-                }
-            } else {
-                new
-            }
-        };
         match self.bv {
             Some(bv) if new < (-bv + 10.0 * vte).min(0.0) => {
-                -(pnjlim(-(new + bv), -(old + bv)) + bv)
+                -(pnjlim(-(new + bv), -(old + bv), vte, vcrit) + bv)
             }
-            _ => pnjlim(new, old),
+            _ => pnjlim(new, old, vte, vcrit),
         }
     }
 
@@ -255,6 +239,27 @@ impl DiodeParams {
     /// Whether the charge is used at all (a junction with capacitance).
     pub fn has_charge(&self) -> bool {
         self.cjo != 0.0 || self.tt != 0.0
+    }
+}
+
+/// ngspice's junction voltage limiting (DEVpnjlim): a step to `new` from
+/// `old` beyond the critical voltage `vcrit` that is longer than two
+/// thermal voltages `vt` advances by the logarithm of what the exponential
+/// would have grown by.
+pub fn pnjlim(new: f64, old: f64, vt: f64, vcrit: f64) -> f64 {
+    if new > vcrit && (new - old).abs() > 2.0 * vt {
+        if old > 0.0 {
+            let arg = 1.0 + (new - old) / vt;
+            if arg > 0.0 {
+                old + vt * arg.ln()
+            } else {
+                vcrit
+            }
+        } else {
+            vt * (new / vt).ln()
+        }
+    } else {
+        new
     }
 }
 

@@ -13,7 +13,7 @@ pub mod print;
 mod system;
 mod verify;
 
-pub use device::{DeviceFn, DiodeParams, DiodePart};
+pub use device::{DeviceFn, DiodeParams, DiodePart, pnjlim};
 pub use entity::{EntityId, IdVec};
 pub use expr::{Expr, ExprArena, ExprId, Func, bits};
 pub use system::{

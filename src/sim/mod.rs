@@ -10,6 +10,7 @@ pub mod ode;
 pub mod output;
 mod sparse_lu;
 
+use std::collections::HashMap;
 use std::rc::Rc;
 use std::time::{Duration, Instant};
 
@@ -331,7 +332,7 @@ where
     let mut from_ic = vec![false; n];
     let mut held_ics = vec![false; c.ics.len()];
     // The element of each variable, once (not a search per state).
-    let mut owner: std::collections::HashMap<VarId, usize> = std::collections::HashMap::new();
+    let mut owner: HashMap<VarId, usize> = HashMap::new();
     for (e, ev) in sorted.built.elem_vars.iter().enumerate() {
         if let Some(ev) = ev {
             owner.insert(ev.u, e);
@@ -428,20 +429,24 @@ where
         }
         Ok(f.iter().map(|x| x.abs()).fold(0.0, f64::max))
     };
-    // The junction of each charge state, and its voltage at the last iterate.
-    let junction: Vec<Option<&crate::ir::DiodeParams>> = tape
+    // The junction of each charge state (one pass over the tape: a search
+    // per state was quadratic), and its voltage at the last iterate.
+    let mut junction: Vec<Option<&crate::ir::DiodeParams>> = vec![None; n];
+    let slot: HashMap<u32, usize> = tape
         .state_regs
         .iter()
-        .map(|&s| {
-            tape.code.iter().find_map(|ins| match *ins {
-                tape::Instr::Block { k } => {
-                    let ci = tape.blocks[k as usize].charge_inverse?;
-                    (ci.target == s).then(|| &tape.diodes[ci.diode as usize])
-                }
-                _ => None,
-            })
-        })
+        .enumerate()
+        .map(|(k, &s)| (s, k))
         .collect();
+    for ins in &tape.code {
+        if let tape::Instr::Block { k } = *ins
+            && let Some(ci) = tape.blocks[k as usize].charge_inverse
+            && let Some(&k) = slot.get(&ci.target)
+            && junction[k].is_none()
+        {
+            junction[k] = Some(&tape.diodes[ci.diode as usize]);
+        }
+    }
     let mut volts: Vec<f64> = vec![0.0; n];
     let mut limit = |y: &[f64], step: &mut [f64]| -> bool {
         let mut limited = false;
@@ -486,7 +491,9 @@ where
                 .map(|((i, j), v)| (i, j, v))
                 .collect();
             entries.extend((0..n).filter(|&k| fix[k]).map(|k| (k, k, 1.0)));
-            Ok(DcJacobian::Sparse(entries))
+            sparse_lu::TripletLu::new(n, entries)
+                .map(DcJacobian::Sparse)
+                .ok_or_else(singular)
         })
     } else {
         let (mut cols, mut fy) = (vec![0.0; n * n], vec![0.0; n]);
@@ -574,7 +581,7 @@ type JacobianAt<'a> = dyn FnMut(&[f64]) -> Result<DcJacobian, SimError> + 'a;
 /// A factored DC Jacobian (rows of held states are identity rows).
 enum DcJacobian {
     Dense(Vec<f64>, Vec<usize>),
-    Sparse(Vec<(usize, usize, f64)>),
+    Sparse(sparse_lu::TripletLu),
 }
 
 impl DcJacobian {
@@ -587,7 +594,7 @@ impl DcJacobian {
                 tape::lu_solve(b.len(), lu, perm, &mut x, &mut tmp);
                 x
             }
-            DcJacobian::Sparse(entries) => sparse_lu::solve_triplets(b.len(), entries.clone(), b)?,
+            DcJacobian::Sparse(lu) => lu.solve(b),
         };
         x.iter().all(|v| v.is_finite()).then_some(x)
     }
@@ -1298,16 +1305,46 @@ where
     S: OdeSolverMethod<'p, CircuitOde<M>>,
 {
     let scale = 1e-9 * rec.grid.get(1).map_or(1.0, |g1| (g1 - rec.grid[0]).abs());
+    let inside = |tg: f64| if at_stop { tg <= t + scale } else { tg < t };
+    // At or past the solver's time (a stop reached to within a sub-ulp
+    // remainder): the state itself, never an extrapolation.
+    let at_state = |tg: f64| (tg - t).abs() <= scale || tg >= solver.state().t;
+    // Many points inside one step with outputs that read few states: the
+    // interpolant there is one polynomial, so a few full interpolations at
+    // nodes give the read states everywhere in the step.
+    let batch = rec.grid[rec.next..]
+        .iter()
+        .take_while(|&&tg| inside(tg) && !at_state(tg))
+        .count();
+    let n = solver.state().y.slice().len();
+    if rec.charges.is_empty() && batch > 2 * NODES && rec.ode.tape.out_inputs.len() * 4 < n {
+        let (a, b) = (rec.grid[rec.next], rec.grid[rec.next + batch - 1]);
+        let nodes = StepPolynomial::nodes(a, b);
+        let read: Vec<usize> = rec.ode.tape.out_inputs.iter().map(|&(k, _)| k).collect();
+        let mut values = Vec::with_capacity(NODES * read.len());
+        for &tn in &nodes {
+            let y = solver.interpolate(tn).map_err(|e| solver_err(tn, e))?;
+            values.extend(read.iter().map(|&k| y.slice()[k]));
+        }
+        let poly = StepPolynomial { nodes, values };
+        let mut y = vec![0.0; n];
+        let mut sub = vec![0.0; read.len()];
+        for _ in 0..batch {
+            let tg = rec.grid[rec.next];
+            poly.eval(tg, &mut sub);
+            for (&k, &v) in read.iter().zip(&sub) {
+                y[k] = v;
+            }
+            rec.record(tg, &y)?;
+            rec.next += 1;
+        }
+    }
     while rec.next < rec.grid.len() {
         let tg = rec.grid[rec.next];
-        let inside = if at_stop { tg <= t + scale } else { tg < t };
-        if !inside {
+        if !inside(tg) {
             break;
         }
-        // At or past the solver's time (a stop reached to within a
-        // sub-ulp remainder): the state itself, never an extrapolation.
-        let at_state = (tg - t).abs() <= scale || tg >= solver.state().t;
-        let (mut y, ty) = if at_state {
+        let (mut y, ty) = if at_state(tg) {
             (solver.state().y.slice().to_vec(), solver.state().t)
         } else {
             let y = solver.interpolate(tg).map_err(|e| solver_err(tg, e))?;
@@ -1325,6 +1362,54 @@ where
         rec.next += 1;
     }
     Ok(())
+}
+
+/// Interpolation nodes per step: every solver's interpolant within one step
+/// is a polynomial in t of degree at most 5 (BDF: its order ≤ 5; the
+/// Runge–Kutta dense outputs: ≤ 4; Hermite: 3), which six nodes determine.
+const NODES: usize = 6;
+
+/// The solver's interpolant within one step, for a few components, as its
+/// values at Chebyshev nodes (barycentric Lagrange form: stable, exact for
+/// the polynomial up to rounding).
+struct StepPolynomial {
+    nodes: [f64; NODES],
+    /// Row-major: the components at node 0, then at node 1, …
+    values: Vec<f64>,
+}
+
+impl StepPolynomial {
+    /// Chebyshev points of the first kind on `[a, b]`.
+    fn nodes(a: f64, b: f64) -> [f64; NODES] {
+        std::array::from_fn(|j| {
+            let x = ((2 * j + 1) as f64 * std::f64::consts::PI / (2 * NODES) as f64).cos();
+            0.5 * (a + b) + 0.5 * (b - a) * x
+        })
+    }
+
+    /// The components at `t` into `out`.
+    fn eval(&self, t: f64, out: &mut [f64]) {
+        let m = out.len();
+        if let Some(j) = self.nodes.iter().position(|&x| x == t) {
+            out.copy_from_slice(&self.values[j * m..(j + 1) * m]);
+            return;
+        }
+        // Barycentric weights of first-kind Chebyshev points:
+        // (-1)^j sin((2j+1)π/2N), common factors cancel.
+        let mut den = 0.0;
+        out.fill(0.0);
+        for j in 0..NODES {
+            let w = (2 * j + 1) as f64 * std::f64::consts::PI / (2 * NODES) as f64;
+            let w = if j % 2 == 0 { w.sin() } else { -w.sin() } / (t - self.nodes[j]);
+            den += w;
+            for (o, v) in out.iter_mut().zip(&self.values[j * m..(j + 1) * m]) {
+                *o += w * v;
+            }
+        }
+        for o in out.iter_mut() {
+            *o /= den;
+        }
+    }
 }
 
 /// Insert an accepted step into the recorded (sorted) series.
@@ -1393,6 +1478,48 @@ mod tests {
 
     thread_local! {
         pub(super) static SOURCES_ONLY: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    }
+
+    /// Outputs that read few states come from the interpolant's values at a
+    /// few nodes per step ([`StepPolynomial`]): the same numbers, to
+    /// rounding, as interpolating the whole state at every point, for every
+    /// solver (fails if an interpolant had a degree above five).
+    #[test]
+    fn few_read_states_interpolate_as_the_whole_state() {
+        let mut text = String::from("ladder\nV1 n0 0 SIN(0 1 300)\n");
+        for k in 1..=40 {
+            text += &format!("R{k} n{} n{k} 1k\nC{k} n{k} 0 1u\n", k - 1);
+        }
+        text += ".tran 1u 10m\n.end\n";
+        let sorted = crate::pipeline::sort_text("ladder.cir", text, &Default::default())
+            .ok()
+            .expect("sorts");
+        for method in [Method::Bdf, Method::TrBdf2, Method::Esdirk34, Method::Tsit5] {
+            let opts = |probes: Vec<String>| Options {
+                method: Some(method),
+                rtol: Some(1e-4),
+                probes,
+                ..Default::default()
+            };
+            let few =
+                simulate(&sorted, &opts(vec!["v(n1)".into(), "v(n40)".into()])).expect("runs");
+            let all = simulate(&sorted, &opts(Vec::new())).expect("runs");
+            assert!(
+                few.stats.steps * 20 < few.time.len(),
+                "{method:?}: few points per step"
+            );
+            assert_eq!(few.time, all.time);
+            for (name, col) in few.names.iter().zip(&few.data) {
+                let k = all.names.iter().position(|n| n == name).expect("in all");
+                for (i, (a, b)) in col.iter().zip(&all.data[k]).enumerate() {
+                    assert!(
+                        (a - b).abs() <= 1e-13,
+                        "{method:?} {name} at {}: {a} from nodes, {b} interpolated",
+                        few.time[i]
+                    );
+                }
+            }
+        }
     }
 
     /// Source stepping reaches the operating point that Newton at the full

@@ -142,20 +142,6 @@ where
         self.tape.outputs(&mut self.regs.borrow_mut(), t, y, out)
     }
 
-    /// `J v` outside the solver.
-    pub fn jv(&self, t: f64, y: &[f64], v: &[f64], out: &mut [f64]) -> Result<(), EvalError> {
-        self.tangents.borrow_mut().valid = false;
-        self.tape.jac_mul(
-            &mut self.regs.borrow_mut(),
-            &mut self.dregs.borrow_mut(),
-            t,
-            y,
-            v,
-            out,
-            None,
-        )
-    }
-
     /// Columns `cols` of the Jacobian at `(t, y)` in one tangent pass
     /// (row-major, `cols.len()` wide), and `f` there into `dy`.
     pub fn jacobian_columns(
@@ -167,15 +153,7 @@ where
         dy: &mut [f64],
     ) -> Result<(), EvalError> {
         self.tangents.borrow_mut().valid = false;
-        self.tape.jacobian_columns(
-            &mut self.regs.borrow_mut(),
-            &mut self.mregs.borrow_mut(),
-            t,
-            y,
-            cols,
-            jac,
-            dy,
-        )
+        self.columns_on(&self.regs, t, y, cols, jac, dy)
     }
 
     /// Scale every independent source by `s` (source stepping; 1 restores).
@@ -200,15 +178,21 @@ where
         jac: &mut [f64],
         dy: &mut [f64],
     ) -> Result<(), EvalError> {
-        self.tape.jacobian_columns(
-            &mut self.side_regs.borrow_mut(),
-            &mut self.mregs.borrow_mut(),
-            t,
-            y,
-            cols,
-            jac,
-            dy,
-        )
+        self.columns_on(&self.side_regs, t, y, cols, jac, dy)
+    }
+
+    fn columns_on(
+        &self,
+        regs: &RefCell<Vec<f64>>,
+        t: f64,
+        y: &[f64],
+        cols: &[usize],
+        jac: &mut [f64],
+        dy: &mut [f64],
+    ) -> Result<(), EvalError> {
+        let (mut regs, mut mregs) = (regs.borrow_mut(), self.mregs.borrow_mut());
+        self.tape
+            .jacobian_columns(&mut regs, &mut mregs, t, y, cols, jac, dy)
     }
 
     /// `J v` inside the solver: consecutive calls at one point (the columns

@@ -381,45 +381,54 @@ impl CircuitLu {
     }
 }
 
-/// Solve the `n`×`n` system given by `(row, column, value)` entries
-/// (repeated positions add up): one factorization with pivoting. `None` when
-/// it is singular.
-pub fn solve_triplets(
-    n: usize,
-    mut entries: Vec<(usize, usize, f64)>,
-    b: &[f64],
-) -> Option<Vec<f64>> {
-    entries.sort_unstable_by_key(|&(i, j, _)| (j, i));
-    let (mut col_ptr, mut row_idx, mut val) = (vec![0usize; n + 1], Vec::new(), Vec::new());
-    let mut last = None;
-    for (i, j, v) in entries {
-        if last == Some((i, j)) {
-            *val.last_mut().expect("an entry") += v;
-            continue;
+/// A matrix given by `(row, column, value)` entries, factored once
+/// (pivoting, AMD order) for several right-hand sides.
+pub struct TripletLu {
+    f: Factors,
+}
+
+impl TripletLu {
+    /// Factor the `n`×`n` matrix of `entries` (repeated positions add up);
+    /// `None` when it is singular.
+    pub fn new(n: usize, mut entries: Vec<(usize, usize, f64)>) -> Option<TripletLu> {
+        entries.sort_unstable_by_key(|&(i, j, _)| (j, i));
+        let (mut col_ptr, mut row_idx, mut val) = (vec![0usize; n + 1], Vec::new(), Vec::new());
+        let mut last = None;
+        for (i, j, v) in entries {
+            if last == Some((i, j)) {
+                *val.last_mut().expect("an entry") += v;
+                continue;
+            }
+            last = Some((i, j));
+            row_idx.push(i);
+            val.push(v);
+            col_ptr[j + 1] += 1;
         }
-        last = Some((i, j));
-        row_idx.push(i);
-        val.push(v);
-        col_ptr[j + 1] += 1;
+        for j in 0..n {
+            col_ptr[j + 1] += col_ptr[j];
+        }
+        let sym =
+            faer::sparse::SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
+        let mut f = Factors {
+            n,
+            q: amd_order_of(n, sym),
+            ..Factors::default()
+        };
+        let csc = Csc {
+            col_ptr: &col_ptr,
+            row_idx: &row_idx,
+            val: &val,
+        };
+        f.factor(&csc, &mut Work::default()).ok()?;
+        Some(TripletLu { f })
     }
-    for j in 0..n {
-        col_ptr[j + 1] += col_ptr[j];
+
+    /// `A⁻¹ b`.
+    pub fn solve(&self, b: &[f64]) -> Vec<f64> {
+        let mut x = b.to_vec();
+        self.f.solve(&mut x, &mut vec![0.0; self.f.n]);
+        x
     }
-    let sym = faer::sparse::SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
-    let mut f = Factors {
-        n,
-        q: amd_order_of(n, sym),
-        ..Factors::default()
-    };
-    let csc = Csc {
-        col_ptr: &col_ptr,
-        row_idx: &row_idx,
-        val: &val,
-    };
-    f.factor(&csc, &mut Work::default()).ok()?;
-    let mut x = b.to_vec();
-    f.solve(&mut x, &mut vec![0.0; n]);
-    Some(x)
 }
 
 /// Approximate minimum degree order of `A + Aᵀ` (identity if it fails).
