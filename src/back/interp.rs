@@ -5,7 +5,7 @@
 
 use super::tape::solve_dense;
 use crate::analysis::{Assignment, Schedule, Solved, Step};
-use crate::ir::{EquationSystem, Expr, ExprArena, ExprId, VarId};
+use crate::ir::{EqId, EquationSystem, Expr, ExprArena, ExprId, VarId};
 
 /// Why the interpreter failed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -34,6 +34,21 @@ pub fn eval(sys: &EquationSystem, x: &ExprArena, e: ExprId, vals: &[f64], t: f64
         Expr::Device(f, a) => {
             sys.diodes[f.diode as usize].eval(f.part, f.order, eval(sys, x, a, vals, t))
         }
+    }
+}
+
+/// The size of `e`'s terms at `vals`: sums and differences add their
+/// operands' sizes, products multiply them, anything else is its value's.
+/// A residual is judged against it (a KCL sum of milliamperes cancels to
+/// zero).
+pub fn magnitude(sys: &EquationSystem, x: &ExprArena, e: ExprId, vals: &[f64], t: f64) -> f64 {
+    let m = |a| magnitude(sys, x, a, vals, t);
+    match x.get(e) {
+        Expr::Neg(a) => m(a),
+        Expr::Add(a, b) | Expr::Sub(a, b) => m(a) + m(b),
+        Expr::Mul(a, b) => m(a) * m(b),
+        Expr::Div(a, b) => m(a) / eval(sys, x, b, vals, t).abs(),
+        _ => eval(sys, x, e, vals, t).abs(),
     }
 }
 
@@ -83,12 +98,18 @@ fn assign(
 
 /// Execute the schedule: on entry `vals` holds the states (and warm-start
 /// guesses for tearing variables); on exit every unknown is computed.
+///
+/// Returns, for each equation that closes a torn loop, the residual that
+/// rounding its loop's tears to `f64` can leave (`Σ_j |∂r/∂x_j| · 4 ulp(x_j)`):
+/// a badly conditioned loop (a tiny transconductance solved for its control
+/// voltage) cannot be satisfied more closely than that.
 pub fn run(
     sys: &EquationSystem,
     s: &Schedule,
     vals: &mut [f64],
     t: f64,
-) -> Result<(), InterpError> {
+) -> Result<Vec<(EqId, f64)>, InterpError> {
+    let mut floors = Vec::new();
     for step in &s.steps {
         match step {
             Step::Assign(a) => assign(sys, s, a, vals, t, 0)?,
@@ -106,19 +127,27 @@ pub fn run(
                 };
                 let mut converged = false;
                 let mut last = f64::INFINITY;
-                let norm = |r: &[f64]| r.iter().map(|x| x.abs()).fold(0.0, f64::max);
+                // Each residual relative to the size of its own terms (the
+                // loop mixes amperes with volts per second).
+                let norm = |r: &[f64], vals: &[f64]| {
+                    r.iter()
+                        .zip(&b.residuals)
+                        .map(|(x, a)| {
+                            let eq = &sys.eqs[a.eq];
+                            let size = magnitude(sys, &s.exprs, eq.lhs, vals, t)
+                                + magnitude(sys, &s.exprs, eq.rhs, vals, t);
+                            if *x == 0.0 { 0.0 } else { x.abs() / size }
+                        })
+                        .fold(0.0, f64::max)
+                };
                 let mut r = resid(vals)?;
+                let mut jac = vec![0.0; n * n];
                 for _ in 0..200 {
-                    let scale: f64 = tears
-                        .iter()
-                        .map(|v| vals[v.0 as usize].abs())
-                        .fold(1.0, f64::max);
-                    last = norm(&r);
-                    if last <= 1e-13 * scale {
+                    last = norm(&r, vals);
+                    if last <= 1e-14 {
                         converged = true;
                         break;
                     }
-                    let mut jac = vec![0.0; n * n];
                     for (j, &v) in tears.iter().enumerate() {
                         let x0 = vals[v.0 as usize];
                         let h = 1e-7 * (1.0 + x0.abs());
@@ -130,7 +159,7 @@ pub fn run(
                         }
                     }
                     let mut dx = r.clone();
-                    if !solve_dense(n, &mut jac, &mut dx) {
+                    if !solve_dense(n, &mut jac.clone(), &mut dx) {
                         return Err(InterpError::Singular { block: b.index });
                     }
                     // Damped step: halve until the residual is finite and smaller.
@@ -141,7 +170,7 @@ pub fn run(
                             vals[v.0 as usize] = x0[j] - lambda * dx[j];
                         }
                         let rn = resid(vals)?;
-                        let nn = norm(&rn);
+                        let nn = norm(&rn, vals);
                         if (nn.is_finite() && nn < last) || lambda < 1e-10 {
                             r = rn;
                             break;
@@ -151,8 +180,8 @@ pub fn run(
                     let small = dx
                         .iter()
                         .zip(&x0)
-                        .all(|(d, x)| (lambda * d).abs() <= 1e-12 * (1.0 + x.abs()));
-                    if small && norm(&r).is_finite() {
+                        .all(|(d, x)| (lambda * d).abs() <= 1e-15 * x.abs());
+                    if small && norm(&r, vals).is_finite() {
                         converged = true;
                         break;
                     }
@@ -165,10 +194,20 @@ pub fn run(
                 }
                 // Leave the inner unknowns consistent with the final guess.
                 resid(vals)?;
+                for (i, a) in b.residuals.iter().enumerate() {
+                    let floor = tears
+                        .iter()
+                        .enumerate()
+                        .map(|(j, v)| {
+                            jac[i * n + j].abs() * 4.0 * f64::EPSILON * vals[v.0 as usize].abs()
+                        })
+                        .sum();
+                    floors.push((a.eq, floor));
+                }
             }
         }
     }
-    Ok(())
+    Ok(floors)
 }
 
 #[cfg(test)]
