@@ -108,6 +108,11 @@ pub struct TapeBlock {
 pub struct ChargeInverse {
     pub diode: u32,
     pub target: u32,
+    /// Four registers: the last voltage the inversion evaluated the junction
+    /// at, and its charge, `Q′` and `Q″` there (NaN: none yet). The next
+    /// inversion starts from it and takes its first step without evaluating:
+    /// one junction evaluation per inversion where there were two.
+    pub memo: u32,
 }
 
 impl TapeBlock {
@@ -697,8 +702,14 @@ pub fn compile(
         &[&deriv_regs, &out_regs],
     );
     set_constant_jacobians(&mut c.blocks, &[&code, &out_code], &state_regs);
-    for b in &mut c.blocks {
-        b.charge_inverse = charge_inverse(b);
+    for k in 0..c.blocks.len() {
+        c.blocks[k].charge_inverse = charge_inverse(&c.blocks[k]).map(|ci| {
+            let memo = c.reg(f64::NAN);
+            for _ in 1..4 {
+                c.reg(f64::NAN);
+            }
+            ChargeInverse { memo, ..ci }
+        });
     }
     let n_in_f = count(&in_f);
     let n_at_outputs = count(&at_out);
@@ -1246,10 +1257,20 @@ impl Tape {
     fn invert_charge(&self, b: &TapeBlock, ci: ChargeInverse, r: &mut [f64]) -> bool {
         let p = &self.diodes[ci.diode as usize];
         let (x_reg, target) = (b.tears[0] as usize, r[ci.target as usize]);
+        let memo = ci.memo as usize;
         let start = r[x_reg];
-        let mut x = start;
+        // From the last evaluated point when there is one: its values are
+        // known, so the first step is free.
+        let mut x = if r[memo].is_finite() { r[memo] } else { start };
         for _ in 0..100 {
-            let [q, c, c2] = p.charge(x);
+            let [q, c, c2] = if x == r[memo] {
+                [r[memo + 1], r[memo + 2], r[memo + 3]]
+            } else {
+                let v = p.charge(x);
+                r[memo] = x;
+                r[memo + 1..memo + 4].copy_from_slice(&v);
+                v
+            };
             let f = q - target;
             if f == 0.0 {
                 r[x_reg] = x;
@@ -1760,6 +1781,7 @@ fn charge_inverse(b: &TapeBlock) -> Option<ChargeInverse> {
     (charge && a == x && d == res && target != x && target != q).then_some(ChargeInverse {
         diode: f.diode,
         target,
+        memo: NONE,
     })
 }
 
