@@ -443,13 +443,6 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
         signals.push(rep);
     }
     // Did the reference step on every source corner?
-    let sys = sorted.system();
-    let tran = sorted
-        .elaborated
-        .circuit
-        .tran
-        .clone()
-        .ok_or(SimError::NoTran)?;
     let mut missed = Vec::new();
     for s in sys.sources.values() {
         for b in s.wave.breakpoints(tran.tstop) {
