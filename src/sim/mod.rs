@@ -23,7 +23,7 @@ use crate::back::tape::{self, EvalError, OutputRef, Tape};
 use crate::elab::{Circuit, ElementKind, GROUND, Output};
 use crate::ir::{EquationSystem, VarId, Waveform};
 use crate::pipeline::Sorted;
-use ode::{CircuitOde, EvalCounts, HostVec};
+use ode::{CircuitOde, EvalCounts, HostVec, Regs};
 
 /// The integration method.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -500,7 +500,7 @@ where
         let all: Vec<usize> = (0..n).collect();
         let fix = fix.clone();
         Box::new(move |y: &[f64]| {
-            ode.jacobian_columns(t0, y, &all, &mut cols, &mut fy)
+            ode.jacobian_columns(Regs::Solver, t0, y, &all, &mut cols, &mut fy)
                 .map_err(|error| SimError::Eval { error })?;
             let mut lu = vec![0.0; n * n];
             for i in 0..n {
@@ -904,7 +904,7 @@ where
             let mut jac = vec![0.0; n * m];
             if self
                 .ode
-                .side_jacobian_columns(t, y, &self.charges, &mut jac, &mut f)
+                .jacobian_columns(Regs::Side, t, y, &self.charges, &mut jac, &mut f)
                 .is_err()
             {
                 self.settle = None;

@@ -143,17 +143,27 @@ where
     }
 
     /// Columns `cols` of the Jacobian at `(t, y)` in one tangent pass
-    /// (row-major, `cols.len()` wide), and `f` there into `dy`.
+    /// (row-major, `cols.len()` wide), and `f` there into `dy`, on the
+    /// solver's registers or the output side's.
     pub fn jacobian_columns(
         &self,
+        on: Regs,
         t: f64,
         y: &[f64],
         cols: &[usize],
         jac: &mut [f64],
         dy: &mut [f64],
     ) -> Result<(), EvalError> {
-        self.tangents.borrow_mut().valid = false;
-        self.columns_on(&self.regs, t, y, cols, jac, dy)
+        let regs = match on {
+            Regs::Solver => {
+                self.tangents.borrow_mut().valid = false;
+                &self.regs
+            }
+            Regs::Side => &self.side_regs,
+        };
+        let (mut regs, mut mregs) = (regs.borrow_mut(), self.mregs.borrow_mut());
+        self.tape
+            .jacobian_columns(&mut regs, &mut mregs, t, y, cols, jac, dy)
     }
 
     /// Scale every independent source by `s` (source stepping; 1 restores).
@@ -166,33 +176,6 @@ where
     /// `f(t, y)` at an output point, on the output side's own registers.
     pub fn side_eval(&self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<(), EvalError> {
         self.tape.rhs(&mut self.side_regs.borrow_mut(), t, y, dy)
-    }
-
-    /// [`Self::jacobian_columns`] at an output point, on the output side's
-    /// own registers.
-    pub fn side_jacobian_columns(
-        &self,
-        t: f64,
-        y: &[f64],
-        cols: &[usize],
-        jac: &mut [f64],
-        dy: &mut [f64],
-    ) -> Result<(), EvalError> {
-        self.columns_on(&self.side_regs, t, y, cols, jac, dy)
-    }
-
-    fn columns_on(
-        &self,
-        regs: &RefCell<Vec<f64>>,
-        t: f64,
-        y: &[f64],
-        cols: &[usize],
-        jac: &mut [f64],
-        dy: &mut [f64],
-    ) -> Result<(), EvalError> {
-        let (mut regs, mut mregs) = (regs.borrow_mut(), self.mregs.borrow_mut());
-        self.tape
-            .jacobian_columns(&mut regs, &mut mregs, t, y, cols, jac, dy)
     }
 
     /// `J v` inside the solver: consecutive calls at one point (the columns
@@ -221,6 +204,15 @@ where
     pub fn registers(&self) -> Vec<f64> {
         self.regs.borrow().clone()
     }
+}
+
+/// The register set of an evaluation outside the solver: the solver's own
+/// (which then loses its cached tangents), or the output side's, which never
+/// moves the solver's warm starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Regs {
+    Solver,
+    Side,
 }
 
 pub struct Rhs<'a, M: Matrix<T = f64>>
@@ -307,9 +299,9 @@ where
                 let cols: Vec<usize> = (0..n).collect();
                 let mut jac = vec![0.0; n * n];
                 let mut f = vec![0.0; n];
-                let r = self
-                    .eqn
-                    .jacobian_columns(t, x.slice(), &cols, &mut jac, &mut f);
+                let r =
+                    self.eqn
+                        .jacobian_columns(Regs::Solver, t, x.slice(), &cols, &mut jac, &mut f);
                 if let Err(e) = r {
                     self.eqn.fail(e);
                     jac.iter_mut().for_each(|v| *v = f64::NAN);
