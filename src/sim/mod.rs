@@ -114,8 +114,10 @@ pub enum SimError {
         t: f64,
         what: String,
     },
-    #[error("step size underflow at t = {t:e}; the fastest-changing state is {state}")]
-    StepUnderflow { t: f64, state: String },
+    #[error(
+        "step size underflow at t = {t:e}; the fastest-changing state is `{state}` (= {value:e})"
+    )]
+    StepUnderflow { t: f64, state: String, value: f64 },
     #[error("the solver failed at t = {t:e}: {message}")]
     Solver { t: f64, message: String },
     #[error("no DC operating point: {message}")]
@@ -760,18 +762,24 @@ fn algebraic(
     opts: &Options,
     sink: Option<RowSink<'_>>,
 ) -> Result<Waveforms, SimError> {
-    let mut times = opts.times.clone().unwrap_or_else(|| grid(tran));
+    let mut times = opts
+        .times
+        .clone()
+        .map_or_else(|| Grid::of(tran), Grid::Times);
     if opts.all_steps {
         let (hard, _) = breakpoints(sys, 0.0, tran.tstop, tran.tmax);
-        times.extend(hard.into_iter().filter(|&t| t >= tran.tstart));
-        times.sort_by(f64::total_cmp);
-        times.dedup();
+        let mut all: Vec<f64> = (0..times.len()).map(|k| times.at(k)).collect();
+        all.extend(hard.into_iter().filter(|&t| t >= tran.tstart));
+        all.sort_by(f64::total_cmp);
+        all.dedup();
+        times = Grid::Times(all);
     }
     let mut regs = tape.registers();
     let mut out = vec![0.0; tape.out_regs.len()];
     let mut rows = Rows::new(out.len(), sink);
     let mut stats = Stats::default();
-    for (k, &t) in times.iter().enumerate() {
+    for k in 0..times.len() {
+        let t = times.at(k);
         // The first point is the DC operating point unless `uic`.
         tape.dc.set(k == 0 && t == 0.0 && !tran.uic);
         let r = tape.outputs(&mut regs, t, &[], &mut out);
@@ -783,18 +791,67 @@ fn algebraic(
     Ok(rows.into_waveforms(stats))
 }
 
-/// Output times of `.tran tstep tstop tstart`.
-fn grid(tran: &crate::elab::Tran) -> Vec<f64> {
-    let n = ((tran.tstop - tran.tstart) / tran.tstep + 1e-9).floor() as usize;
-    let mut g: Vec<f64> = (0..=n)
-        .map(|k| tran.tstart + k as f64 * tran.tstep)
-        .collect();
-    if g.last()
-        .is_some_and(|&t| tran.tstop - t > 1e-9 * tran.tstep)
-    {
-        g.push(tran.tstop);
+/// Output times: `.tran`'s uniform grid, computed point by point (a long
+/// run at a fine TSTEP must not hold its grid in memory: memory stays
+/// bounded by the circuit), or times given.
+#[derive(Clone, Debug)]
+enum Grid {
+    /// `start + k·step` for `k < n`, then `stop` when it is not on the grid.
+    Uniform {
+        start: f64,
+        step: f64,
+        n: usize,
+        stop: Option<f64>,
+    },
+    Times(Vec<f64>),
+}
+
+impl Grid {
+    /// The output times of `.tran tstep tstop tstart`.
+    fn of(tran: &crate::elab::Tran) -> Grid {
+        let k = ((tran.tstop - tran.tstart) / tran.tstep + 1e-9).floor() as usize;
+        let last = tran.tstart + k as f64 * tran.tstep;
+        Grid::Uniform {
+            start: tran.tstart,
+            step: tran.tstep,
+            n: k + 1,
+            stop: (tran.tstop - last > 1e-9 * tran.tstep).then_some(tran.tstop),
+        }
     }
-    g
+
+    fn len(&self) -> usize {
+        match self {
+            Grid::Uniform { n, stop, .. } => n + usize::from(stop.is_some()),
+            Grid::Times(t) => t.len(),
+        }
+    }
+
+    /// The `k`-th time (`k < len()`).
+    fn at(&self, k: usize) -> f64 {
+        match *self {
+            Grid::Uniform {
+                start,
+                step,
+                n,
+                stop,
+            } => {
+                if k < n {
+                    start + k as f64 * step
+                } else {
+                    stop.unwrap_or(f64::NAN)
+                }
+            }
+            Grid::Times(ref t) => t[k],
+        }
+    }
+
+    fn first(&self) -> Option<f64> {
+        (self.len() > 0).then(|| self.at(0))
+    }
+
+    fn last(&self) -> Option<f64> {
+        self.len().checked_sub(1).map(|k| self.at(k))
+    }
 }
 
 /// Where output rows go as they are computed (time, one value per output).
@@ -850,7 +907,7 @@ where
     M::V: HostVec,
 {
     ode: &'a CircuitOde<M>,
-    grid: Vec<f64>,
+    grid: Grid,
     next: usize,
     rows: Rows<'s>,
     out: Vec<f64>,
@@ -995,12 +1052,13 @@ where
     // cannot converge ends in step-size underflow instead.
     problem.ode_options.max_nonlinear_solver_failures = usize::MAX / 2;
     let times = match &opts.times {
-        Some(t) => t
-            .iter()
-            .copied()
-            .filter(|&x| x >= 0.0 && x <= tran.tstop)
-            .collect(),
-        None => grid(tran),
+        Some(t) => Grid::Times(
+            t.iter()
+                .copied()
+                .filter(|&x| x >= 0.0 && x <= tran.tstop)
+                .collect(),
+        ),
+        None => Grid::of(tran),
     };
     // Junction charges, the states that interpolation must not leave off
     // their slow manifold (see `Recorder::settle_charges`); small circuits only.
@@ -1123,8 +1181,8 @@ where
     M::V: HostVec,
     S: OdeSolverMethod<'p, CircuitOde<M>>,
 {
-    let t_end = *rec.grid.last().unwrap_or(&0.0);
-    let tstart = rec.grid.first().copied().unwrap_or(0.0);
+    let t_end = rec.grid.last().unwrap_or(0.0);
+    let tstart = rec.grid.first().unwrap_or(0.0);
     // Stop points in order, marking the hard ones.
     let mut stops: Vec<(f64, bool)> = hard
         .iter()
@@ -1146,7 +1204,7 @@ where
     {
         let st = solver.state();
         let (t, y) = (st.t, st.y.slice().to_vec());
-        if rec.grid.first() == Some(&t) {
+        if rec.grid.first() == Some(t) {
             let tape = &problem.eqn.tape;
             tape.dc.set(rec.dc_start);
             let r = rec.record(t, &y);
@@ -1304,7 +1362,12 @@ where
     M::V: HostVec,
     S: OdeSolverMethod<'p, CircuitOde<M>>,
 {
-    let scale = 1e-9 * rec.grid.get(1).map_or(1.0, |g1| (g1 - rec.grid[0]).abs());
+    let scale = 1e-9
+        * if rec.grid.len() > 1 {
+            (rec.grid.at(1) - rec.grid.at(0)).abs()
+        } else {
+            1.0
+        };
     let inside = |tg: f64| if at_stop { tg <= t + scale } else { tg < t };
     // At or past the solver's time (a stop reached to within a sub-ulp
     // remainder): the state itself, never an extrapolation.
@@ -1312,13 +1375,13 @@ where
     // Many points inside one step with outputs that read few states: the
     // interpolant there is one polynomial, so a few full interpolations at
     // nodes give the read states everywhere in the step.
-    let batch = rec.grid[rec.next..]
-        .iter()
-        .take_while(|&&tg| inside(tg) && !at_state(tg))
+    let batch = (rec.next..rec.grid.len())
+        .map(|k| rec.grid.at(k))
+        .take_while(|&tg| inside(tg) && !at_state(tg))
         .count();
     let n = solver.state().y.slice().len();
     if rec.charges.is_empty() && batch > 2 * NODES && rec.ode.tape.out_inputs.len() * 4 < n {
-        let (a, b) = (rec.grid[rec.next], rec.grid[rec.next + batch - 1]);
+        let (a, b) = (rec.grid.at(rec.next), rec.grid.at(rec.next + batch - 1));
         let nodes = StepPolynomial::nodes(a, b);
         let read: Vec<usize> = rec.ode.tape.out_inputs.iter().map(|&(k, _)| k).collect();
         let mut values = Vec::with_capacity(NODES * read.len());
@@ -1330,7 +1393,7 @@ where
         let mut y = vec![0.0; n];
         let mut sub = vec![0.0; read.len()];
         for _ in 0..batch {
-            let tg = rec.grid[rec.next];
+            let tg = rec.grid.at(rec.next);
             poly.eval(tg, &mut sub);
             for (&k, &v) in read.iter().zip(&sub) {
                 y[k] = v;
@@ -1340,7 +1403,7 @@ where
         }
     }
     while rec.next < rec.grid.len() {
-        let tg = rec.grid[rec.next];
+        let tg = rec.grid.at(rec.next);
         if !inside(tg) {
             break;
         }
@@ -1445,7 +1508,10 @@ where
     if dy.iter().any(|v| !v.is_finite()) {
         let regs = eqn.registers();
         if let Some((reg, var)) = tape.first_non_finite(&regs) {
-            let sys_name = var.map_or_else(|| format!("register {reg}"), |v| format!("{v}"));
+            let sys_name = var.map_or_else(
+                || format!("register {reg}"),
+                |v| tape.var_names[v.0 as usize].clone(),
+            );
             return SimError::NonFinite {
                 name: sys_name.clone(),
                 value: regs[reg],
@@ -1466,7 +1532,11 @@ where
             .unwrap_or(0);
         return SimError::StepUnderflow {
             t,
-            state: format!("{}", tape.states.get(k).map_or(0, |v| v.0)),
+            state: tape
+                .states
+                .get(k)
+                .map_or_else(String::new, |v| tape.var_names[v.0 as usize].clone()),
+            value: y.get(k).copied().unwrap_or(f64::NAN),
         };
     }
     SimError::Solver { t, message: msg }

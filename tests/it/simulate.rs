@@ -139,6 +139,13 @@ fn an_exploding_circuit_ends_with_a_clear_error() {
     }
     let msg = e.to_string();
     assert!(msg.contains("t = "), "{msg}");
+    // Named by its variable (it was named by an internal index).
+    if matches!(
+        e,
+        SimError::StepUnderflow { .. } | SimError::NonFinite { .. }
+    ) {
+        assert!(msg.contains("`u_C1`"), "{msg}");
+    }
 }
 
 #[test]
