@@ -144,7 +144,7 @@ impl crate::diag::ToDiagnostic for SimError {
             ),
             SimError::StepUnderflow { .. } => (
                 "K0404",
-                "the circuit may be ill-posed there; try --method bdf or looser --rtol",
+                "the circuit may be ill-posed there, or change faster than steps of TSTOP·1e-16 can follow (shorten TSTOP); try another --method or a looser --rtol",
             ),
             SimError::Solver { .. } => ("K0405", "try another --method"),
             SimError::DcFailed { .. } => {
