@@ -48,9 +48,32 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 /// A file written in pieces through a temporary file in the same directory,
 /// renamed over its path by [`AtomicFile::commit`]; dropped uncommitted (an
 /// error on the way), it leaves nothing behind and the old file untouched.
+/// Interrupted (Ctrl-C, SIGTERM, SIGHUP), the process removes it too: see
+/// [`remove_pending_on_interrupt`].
 pub struct AtomicFile {
-    tmp: std::io::BufWriter<tempfile::NamedTempFile>,
+    /// `None` only while [`AtomicFile::commit`] consumes it.
+    tmp: Option<std::io::BufWriter<tempfile::NamedTempFile>>,
+    tmp_path: std::path::PathBuf,
     path: std::path::PathBuf,
+}
+
+/// The temporary files of the [`AtomicFile`]s not yet committed or dropped.
+static PENDING: std::sync::Mutex<Vec<std::path::PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn pending() -> std::sync::MutexGuard<'static, Vec<std::path::PathBuf>> {
+    PENDING.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// On an interrupt, remove the temporary files of the outputs being written
+/// and exit with 130 (128 + SIGINT): a long run stopped by the user leaves
+/// neither a half-written output nor a stray temporary beside it.
+pub fn remove_pending_on_interrupt() {
+    let _ = ctrlc::set_handler(|| {
+        for p in pending().drain(..) {
+            let _ = std::fs::remove_file(p);
+        }
+        std::process::exit(130);
+    });
 }
 
 impl AtomicFile {
@@ -67,8 +90,12 @@ impl AtomicFile {
             use std::os::unix::fs::PermissionsExt;
             builder.permissions(std::fs::Permissions::from_mode(0o666));
         }
+        let tmp = builder.tempfile_in(dir)?;
+        let tmp_path = tmp.path().to_path_buf();
+        pending().push(tmp_path.clone());
         Ok(AtomicFile {
-            tmp: std::io::BufWriter::with_capacity(1 << 16, builder.tempfile_in(dir)?),
+            tmp: Some(std::io::BufWriter::with_capacity(1 << 16, tmp)),
+            tmp_path,
             path: path.to_path_buf(),
         })
     }
@@ -79,22 +106,39 @@ impl AtomicFile {
     }
 
     /// Flush and rename over the path.
-    pub fn commit(self) -> std::io::Result<()> {
-        let tmp = self.tmp.into_inner().map_err(|e| e.into_error())?;
+    pub fn commit(mut self) -> std::io::Result<()> {
+        let Some(tmp) = self.tmp.take() else {
+            return Ok(());
+        };
+        let tmp = tmp.into_inner().map_err(|e| e.into_error())?;
         tmp.persist(&self.path).map_err(|e| e.error)?;
         Ok(())
+    }
+
+    fn writer(&mut self) -> &mut std::io::BufWriter<tempfile::NamedTempFile> {
+        self.tmp
+            .as_mut()
+            .expect("an AtomicFile is written only before its commit")
+    }
+}
+
+impl Drop for AtomicFile {
+    /// Committed or not, its temporary is no longer the interrupt's business
+    /// (renamed, or removed by the `NamedTempFile` dropped with it).
+    fn drop(&mut self) {
+        pending().retain(|p| *p != self.tmp_path);
     }
 }
 
 impl Write for AtomicFile {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        self.tmp.write(buf)
+        self.writer().write(buf)
     }
     fn write_all(&mut self, buf: &[u8]) -> std::io::Result<()> {
-        self.tmp.write_all(buf)
+        self.writer().write_all(buf)
     }
     fn flush(&mut self) -> std::io::Result<()> {
-        self.tmp.flush()
+        self.writer().flush()
     }
 }
 

@@ -186,6 +186,7 @@ enum Command {
 
 fn main() -> ExitCode {
     kausal::io::no_huge_pages();
+    kausal::io::remove_pending_on_interrupt();
     let cli = Cli::parse();
     match run(cli) {
         Ok(code) => code,

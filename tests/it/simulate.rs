@@ -171,6 +171,50 @@ fn newton_failure_names_the_loop_and_leaves_no_file() {
     assert!(String::from_utf8_lossy(&status.stderr).contains("D1"));
 }
 
+/// A run interrupted by the user (SIGINT) leaves neither an output nor its
+/// temporary file, and exits with 130; the old output stays as it was.
+#[cfg(unix)]
+#[test]
+fn an_interrupted_run_leaves_nothing_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let net = dir.path().join("long.cir");
+    // Long enough to be interrupted on any machine (seconds of solving).
+    std::fs::write(&net, kausal::generate::rc_ladder(50_000)).unwrap();
+    let out = dir.path().join("out.csv");
+    std::fs::write(&out, "old\n").unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+        .args(["sim", net.to_str().unwrap(), "-o", out.to_str().unwrap()])
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let temporaries = || {
+        std::fs::read_dir(dir.path())
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().starts_with(".tmp"))
+            .count()
+    };
+    let waited = std::time::Instant::now();
+    while temporaries() == 0 {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before it was interrupted"
+        );
+        assert!(
+            waited.elapsed().as_secs() < 60,
+            "no temporary output appeared"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    // SAFETY: a plain kill(2) of our own child, which has not been reaped.
+    let killed = unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) };
+    assert_eq!(killed, 0);
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{status:?}");
+    assert_eq!(temporaries(), 0, "the temporary output was left behind");
+    assert_eq!(std::fs::read_to_string(&out).unwrap(), "old\n");
+}
+
 #[test]
 fn csv_and_raw_output_follow_ngspice_names() {
     let path = root().join("netlists/subckt_rc_filter.cir");
