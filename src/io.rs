@@ -107,9 +107,7 @@ impl AtomicFile {
 
     /// Flush and rename over the path.
     pub fn commit(mut self) -> std::io::Result<()> {
-        let Some(tmp) = self.tmp.take() else {
-            return Ok(());
-        };
+        let tmp = self.tmp.take().expect("committed once (commit takes self)");
         let tmp = tmp.into_inner().map_err(|e| e.into_error())?;
         tmp.persist(&self.path).map_err(|e| e.error)?;
         Ok(())

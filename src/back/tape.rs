@@ -212,8 +212,6 @@ pub struct Tape {
     pub source_scale: std::cell::Cell<f64>,
     /// The registers of DC sources' values, and the values.
     pub source_params: Vec<(u32, f64)>,
-    /// Every variable's name (by `VarId`), for diagnostics.
-    pub var_names: Vec<String>,
 }
 
 struct Compiler<'a> {
@@ -742,7 +740,6 @@ pub fn compile(
         dc: std::cell::Cell::new(false),
         source_scale: std::cell::Cell::new(1.0),
         source_params,
-        var_names: sys.vars.iter().map(|(_, v)| v.name.clone()).collect(),
     }
 }
 

@@ -1091,6 +1091,7 @@ where
         Method::Bdf => {
             let s = problem.bdf::<LS>().map_err(|e| solver_err(t0, e))?;
             drive(
+                sys,
                 &problem,
                 s,
                 |p, st| p.bdf_solver::<LS>(st),
@@ -1105,6 +1106,7 @@ where
         Method::TrBdf2 => {
             let s = problem.tr_bdf2::<LS>().map_err(|e| solver_err(t0, e))?;
             drive(
+                sys,
                 &problem,
                 s,
                 |p, st| p.tr_bdf2_solver::<LS>(st),
@@ -1119,6 +1121,7 @@ where
         Method::Esdirk34 => {
             let s = problem.esdirk34::<LS>().map_err(|e| solver_err(t0, e))?;
             drive(
+                sys,
                 &problem,
                 s,
                 |p, st| p.esdirk34_solver::<LS>(st),
@@ -1133,6 +1136,7 @@ where
         Method::Tsit5 => {
             let s = problem.tsit45().map_err(|e| solver_err(t0, e))?;
             drive(
+                sys,
                 &problem,
                 s,
                 |p, st| p.tsit45_solver(st),
@@ -1166,6 +1170,7 @@ fn solver_err(t: f64, e: diffsol::DiffsolError) -> SimError {
 /// `--all-steps`).
 #[allow(clippy::too_many_arguments)]
 fn drive<'p, 's, M, S>(
+    sys: &EquationSystem,
     problem: &'p OdeSolverProblem<CircuitOde<M>>,
     mut solver: S,
     make: impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, S::State) -> Result<S, diffsol::DiffsolError>,
@@ -1273,7 +1278,7 @@ where
                         _ => 0,
                     };
                     if !too_many || here >= 3 {
-                        return Err(diagnose(problem, &solver, e));
+                        return Err(diagnose(sys, problem, &solver, e));
                     }
                     rescues = Some((t, here + 1));
                     stats.rescues += 1;
@@ -1375,12 +1380,17 @@ where
     // Many points inside one step with outputs that read few states: the
     // interpolant there is one polynomial, so a few full interpolations at
     // nodes give the read states everywhere in the step.
-    let batch = (rec.next..rec.grid.len())
-        .map(|k| rec.grid.at(k))
-        .take_while(|&tg| inside(tg) && !at_state(tg))
-        .count();
     let n = solver.state().y.slice().len();
-    if rec.charges.is_empty() && batch > 2 * NODES && rec.ode.tape.out_inputs.len() * 4 < n {
+    let few_read = rec.charges.is_empty() && rec.ode.tape.out_inputs.len() * 4 < n;
+    let batch = if few_read {
+        (rec.next..rec.grid.len())
+            .map(|k| rec.grid.at(k))
+            .take_while(|&tg| inside(tg) && !at_state(tg))
+            .count()
+    } else {
+        0
+    };
+    if batch > 2 * NODES {
         let (a, b) = (rec.grid.at(rec.next), rec.grid.at(rec.next + batch - 1));
         let nodes = StepPolynomial::nodes(a, b);
         let read: Vec<usize> = rec.ode.tape.out_inputs.iter().map(|&(k, _)| k).collect();
@@ -1389,7 +1399,7 @@ where
             let y = solver.interpolate(tn).map_err(|e| solver_err(tn, e))?;
             values.extend(read.iter().map(|&k| y.slice()[k]));
         }
-        let poly = StepPolynomial { nodes, values };
+        let poly = StepPolynomial::new(nodes, values);
         let mut y = vec![0.0; n];
         let mut sub = vec![0.0; read.len()];
         for _ in 0..batch {
@@ -1437,17 +1447,34 @@ const NODES: usize = 6;
 /// the polynomial up to rounding).
 struct StepPolynomial {
     nodes: [f64; NODES],
+    /// Barycentric weights of first-kind Chebyshev points,
+    /// `(-1)^j sin((2j+1)π/2N)` (common factors cancel).
+    weights: [f64; NODES],
     /// Row-major: the components at node 0, then at node 1, …
     values: Vec<f64>,
 }
 
 impl StepPolynomial {
+    /// The angles of the Chebyshev points of the first kind.
+    fn angle(j: usize) -> f64 {
+        (2 * j + 1) as f64 * std::f64::consts::PI / (2 * NODES) as f64
+    }
+
     /// Chebyshev points of the first kind on `[a, b]`.
     fn nodes(a: f64, b: f64) -> [f64; NODES] {
-        std::array::from_fn(|j| {
-            let x = ((2 * j + 1) as f64 * std::f64::consts::PI / (2 * NODES) as f64).cos();
-            0.5 * (a + b) + 0.5 * (b - a) * x
-        })
+        std::array::from_fn(|j| 0.5 * (a + b) + 0.5 * (b - a) * Self::angle(j).cos())
+    }
+
+    fn new(nodes: [f64; NODES], values: Vec<f64>) -> StepPolynomial {
+        let weights = std::array::from_fn(|j| {
+            let w = Self::angle(j).sin();
+            if j % 2 == 0 { w } else { -w }
+        });
+        StepPolynomial {
+            nodes,
+            weights,
+            values,
+        }
     }
 
     /// The components at `t` into `out`.
@@ -1457,13 +1484,10 @@ impl StepPolynomial {
             out.copy_from_slice(&self.values[j * m..(j + 1) * m]);
             return;
         }
-        // Barycentric weights of first-kind Chebyshev points:
-        // (-1)^j sin((2j+1)π/2N), common factors cancel.
         let mut den = 0.0;
         out.fill(0.0);
         for j in 0..NODES {
-            let w = (2 * j + 1) as f64 * std::f64::consts::PI / (2 * NODES) as f64;
-            let w = if j % 2 == 0 { w.sin() } else { -w.sin() } / (t - self.nodes[j]);
+            let w = self.weights[j] / (t - self.nodes[j]);
             den += w;
             for (o, v) in out.iter_mut().zip(&self.values[j * m..(j + 1) * m]) {
                 *o += w * v;
@@ -1489,6 +1513,7 @@ where
 
 /// Turn a solver failure into a message that names what went wrong.
 fn diagnose<'p, M, S>(
+    sys: &EquationSystem,
     problem: &'p OdeSolverProblem<CircuitOde<M>>,
     solver: &S,
     e: diffsol::DiffsolError,
@@ -1508,10 +1533,8 @@ where
     if dy.iter().any(|v| !v.is_finite()) {
         let regs = eqn.registers();
         if let Some((reg, var)) = tape.first_non_finite(&regs) {
-            let sys_name = var.map_or_else(
-                || format!("register {reg}"),
-                |v| tape.var_names[v.0 as usize].clone(),
-            );
+            let sys_name =
+                var.map_or_else(|| format!("register {reg}"), |v| sys.vars[v].name.clone());
             return SimError::NonFinite {
                 name: sys_name.clone(),
                 value: regs[reg],
@@ -1535,7 +1558,7 @@ where
             state: tape
                 .states
                 .get(k)
-                .map_or_else(String::new, |v| tape.var_names[v.0 as usize].clone()),
+                .map_or_else(String::new, |&v| sys.vars[v].name.clone()),
             value: y.get(k).copied().unwrap_or(f64::NAN),
         };
     }
