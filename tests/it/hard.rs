@@ -62,18 +62,32 @@ fn hard_cases_do_not_blow_up() {
 
 /// The bridge rectifiers at every tolerance of the benchmark and every stiff
 /// solver: diode switching leaves kinks in the solver's history, which once
-/// ended BDF runs with repeated error-test failures.
+/// ended BDF runs with repeated error-test failures. No node may leave the
+/// source's amplitude: at rtol 1e-2 BDF once charged the 10 V bridge's
+/// capacitor to 43 V (a Newton iterate accepted too early at a turn-on).
 #[test]
 fn bridge_rectifiers_run_at_every_tolerance() {
-    for name in ["rectifier_big_cap.cir", "../diode_bridge.cir"] {
+    // (netlist, the source's amplitude in V)
+    for (name, amplitude) in [
+        ("rectifier_big_cap.cir", 12.0),
+        ("../diode_bridge.cir", 10.0),
+    ] {
         let s = sorted(name);
         for method in [Method::Bdf, Method::TrBdf2, Method::Esdirk34] {
-            for rtol in [1e-3, 1e-4, 1e-5] {
+            for rtol in [1e-2, 1e-3, 1e-4, 1e-5] {
                 let w = sim(&s, method, rtol);
-                assert!(
-                    w.data.iter().flatten().all(|v| v.is_finite()),
-                    "{name} {method:?} rtol {rtol}: not finite"
-                );
+                for (k, n) in w.names.iter().enumerate() {
+                    let worst = w.data[k].iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                    assert!(
+                        worst.is_finite(),
+                        "{name} {method:?} rtol {rtol}: {n} not finite"
+                    );
+                    assert!(
+                        !n.starts_with("v(") || worst <= amplitude,
+                        "{name} {method:?} rtol {rtol}: |{n}| reaches {worst} V \
+                         beyond the source's {amplitude} V"
+                    );
+                }
             }
         }
     }
