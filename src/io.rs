@@ -64,16 +64,122 @@ fn pending() -> std::sync::MutexGuard<'static, Vec<std::path::PathBuf>> {
     PENDING.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// On an interrupt, remove the temporary files of the outputs being written
-/// and exit with 130 (128 + SIGINT): a long run stopped by the user leaves
-/// neither a half-written output nor a stray temporary beside it.
+/// Set first thing by the interrupt handler.
+static INTERRUPTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+fn refuse_if_interrupted() -> std::io::Result<()> {
+    if INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst) {
+        Err(std::io::Error::new(
+            std::io::ErrorKind::Interrupted,
+            "interrupted",
+        ))
+    } else {
+        Ok(())
+    }
+}
+
+/// The live [`ScratchDir`]s.
+static SCRATCH: std::sync::Mutex<Vec<std::path::PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn scratch() -> std::sync::MutexGuard<'static, Vec<std::path::PathBuf>> {
+    SCRATCH.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The children started by [`run_child`] and not yet reaped.
+static CHILDREN: std::sync::Mutex<Vec<u32>> = std::sync::Mutex::new(Vec::new());
+
+fn children() -> std::sync::MutexGuard<'static, Vec<u32>> {
+    CHILDREN.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// On an interrupt, kill the children it runs (ngspice, `kausal sim` under
+/// `kausal bench`), remove its scratch directories and the temporary files
+/// of the outputs being written, and exit with 130 (128 + SIGINT): a long
+/// run stopped by the user leaves neither a half-written output, nor a stray
+/// temporary beside it, nor an ngspice scratch directory in `$TMPDIR`.
 pub fn remove_pending_on_interrupt() {
     let _ = ctrlc::set_handler(|| {
+        // The main thread runs on until the exit: it starts nothing new.
+        INTERRUPTED.store(true, std::sync::atomic::Ordering::SeqCst);
+        for pid in children().drain(..) {
+            if let Ok(pid) = libc::pid_t::try_from(pid) {
+                // Killed outright and waited for: a child given time to
+                // exit could still be writing into its scratch directory
+                // while that is removed, which would then stay.
+                // SAFETY: kill(2) and waitpid(2) on a child this process
+                // started; waitpid only fails (ECHILD) if it was reaped.
+                unsafe {
+                    libc::kill(pid, libc::SIGKILL);
+                    libc::waitpid(pid, std::ptr::null_mut(), 0);
+                }
+            }
+        }
+        // The main thread runs on meanwhile and may be writing into a
+        // directory (ngspice's netlist): removal fails while it does (not
+        // empty) and is retried, for at most a second.
+        for d in scratch().drain(..) {
+            for _ in 0..200 {
+                match std::fs::remove_dir_all(&d) {
+                    Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                        std::thread::sleep(std::time::Duration::from_millis(5));
+                    }
+                    _ => break,
+                }
+            }
+        }
         for p in pending().drain(..) {
             let _ = std::fs::remove_file(p);
         }
         std::process::exit(130);
     });
+}
+
+/// A temporary directory (in `$TMPDIR`) removed when dropped, and by
+/// [`remove_pending_on_interrupt`] if the process is interrupted first.
+pub struct ScratchDir {
+    dir: tempfile::TempDir,
+}
+
+impl ScratchDir {
+    pub fn new() -> std::io::Result<ScratchDir> {
+        let mut live = scratch();
+        refuse_if_interrupted()?;
+        let dir = tempfile::tempdir()?;
+        live.push(dir.path().to_path_buf());
+        drop(live);
+        Ok(ScratchDir { dir })
+    }
+
+    pub fn path(&self) -> &Path {
+        self.dir.path()
+    }
+}
+
+impl Drop for ScratchDir {
+    /// Unregistered; the `TempDir` then removes it.
+    fn drop(&mut self) {
+        scratch().retain(|p| p != self.dir.path());
+    }
+}
+
+/// Run `cmd` to completion as [`std::process::Command::output`] does, with
+/// the child known to [`remove_pending_on_interrupt`] while it runs.
+pub fn run_child(cmd: &mut std::process::Command) -> std::io::Result<std::process::Output> {
+    let mut live = children();
+    refuse_if_interrupted()?;
+    let child = cmd
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()?;
+    let pid = child.id();
+    live.push(pid);
+    drop(live);
+    // Unregistered as soon as it is reaped: only in those few instructions
+    // could an interrupt signal the pid after the kernel freed it.
+    let out = child.wait_with_output();
+    children().retain(|&p| p != pid);
+    out
 }
 
 impl AtomicFile {

@@ -717,7 +717,7 @@ fn cmd_bench(a: BenchArgs) -> Result<ExitCode, String> {
     let scaled = if sizes.is_empty() {
         None
     } else {
-        let dir = tempfile::tempdir().map_err(|e| e.to_string())?;
+        let dir = kausal::io::ScratchDir::new().map_err(|e| e.to_string())?;
         Some(
             bench::scaling(&sizes, dir.path(), !a.no_ngspice, &tick)
                 .map_err(|e| format!("scaling: {e}"))?,

@@ -386,26 +386,25 @@ fn kausal_process(
     tol: f64,
     repeats: usize,
 ) -> Result<f64, String> {
-    let dir = tempfile::tempdir().map_err(|e| format!("no scratch directory: {e}"))?;
+    let dir = crate::io::ScratchDir::new().map_err(|e| format!("no scratch directory: {e}"))?;
     let out = dir.path().join("out.csv");
     let mut times = Vec::new();
     for _ in 0..repeats.max(1) {
         let started = std::time::Instant::now();
-        let run = std::process::Command::new(exe)
-            .arg("sim")
-            .arg(path)
-            .args([
-                "--method",
-                method_name(m),
-                "--rtol",
-                &format!("{tol:e}"),
-                "-o",
-            ])
-            .arg(&out)
-            .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::piped())
-            .output()
-            .map_err(|e| format!("cannot run `{}`: {e}", exe.display()))?;
+        let run = crate::io::run_child(
+            std::process::Command::new(exe)
+                .arg("sim")
+                .arg(path)
+                .args([
+                    "--method",
+                    method_name(m),
+                    "--rtol",
+                    &format!("{tol:e}"),
+                    "-o",
+                ])
+                .arg(&out),
+        )
+        .map_err(|e| format!("cannot run `{}`: {e}", exe.display()))?;
         times.push(started.elapsed().as_secs_f64());
         if !run.status.success() {
             return Err(format!(

@@ -149,27 +149,28 @@ pub struct Execution {
 pub fn exec(program: &str, path: &Path, extra: Option<&str>) -> Result<Execution, ValidateError> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| ValidateError::Io(format!("{}: {e}", path.display())))?;
-    let dir = tempfile::tempdir().map_err(|e| ValidateError::Io(e.to_string()))?;
+    let dir = crate::io::ScratchDir::new().map_err(|e| ValidateError::Io(e.to_string()))?;
     let net = dir.path().join("netlist.cir");
     let rawp = dir.path().join("out.raw");
     std::fs::write(&net, prepare_netlist(path, &text, extra))
         .map_err(|e| ValidateError::Io(e.to_string()))?;
     let program = program.to_string();
     let started = std::time::Instant::now();
-    let output = Command::new(&program)
-        .arg("-b")
-        .arg("-r")
-        .arg(&rawp)
-        .arg(&net)
-        .current_dir(dir.path())
-        .env("SPICE_ASCIIRAWFILE", "0")
-        .output()
-        .map_err(|e| match e.kind() {
-            std::io::ErrorKind::NotFound => ValidateError::Missing {
-                program: program.clone(),
-            },
-            _ => ValidateError::Io(format!("{program}: {e}")),
-        })?;
+    let output = crate::io::run_child(
+        Command::new(&program)
+            .arg("-b")
+            .arg("-r")
+            .arg(&rawp)
+            .arg(&net)
+            .current_dir(dir.path())
+            .env("SPICE_ASCIIRAWFILE", "0"),
+    )
+    .map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound => ValidateError::Missing {
+            program: program.clone(),
+        },
+        _ => ValidateError::Io(format!("{program}: {e}")),
+    })?;
     let wall = started.elapsed();
     let mut full = String::from_utf8_lossy(&output.stdout).into_owned();
     full.push_str(&String::from_utf8_lossy(&output.stderr));

@@ -201,3 +201,50 @@ fn missing_failing_and_garbled_ngspice_give_clear_errors() {
         other => panic!("{other:?}"),
     }
 }
+
+/// An interrupted `kausal validate` stops its ngspice and removes ngspice's
+/// scratch directory (netlist, raw file) from `$TMPDIR`; it once left both.
+#[test]
+fn an_interrupted_validation_leaves_no_scratch() {
+    require_ngspice();
+    let work = tempfile::tempdir().unwrap();
+    let tmp = work.path().join("tmp");
+    std::fs::create_dir(&tmp).unwrap();
+    let net = work.path().join("long.cir");
+    // ngspice needs seconds on it: long enough to be interrupted anywhere.
+    std::fs::write(&net, kausal::generate::rc_ladder(50_000)).unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+        .args(["validate", net.to_str().unwrap()])
+        .env("TMPDIR", &tmp)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let entries = || std::fs::read_dir(&tmp).unwrap().count();
+    let waited = std::time::Instant::now();
+    while entries() == 0 {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the validation ended before it was interrupted"
+        );
+        assert!(
+            waited.elapsed().as_secs() < 120,
+            "no scratch directory appeared in $TMPDIR"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    // SAFETY: a plain kill(2) of our own child, which has not been reaped.
+    let killed = unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) };
+    assert_eq!(killed, 0);
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{status:?}");
+    // A surviving ngspice would write its raw file into a recreated path or
+    // fail; either way nothing may reappear.
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let left: Vec<_> = std::fs::read_dir(&tmp)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name())
+        .collect();
+    assert!(left.is_empty(), "left in $TMPDIR: {left:?}");
+}
