@@ -115,6 +115,14 @@ pub enum ElabError {
     IgnoredOption { span: Span, name: String },
     #[error("node `{node}` has only one connection")]
     DanglingNode { span: Span, node: String },
+    #[error(
+        "`.tran` asks for {points:.2e} output points (TSTOP/TSTEP): about {gigabytes:.0} GB of CSV"
+    )]
+    ManyOutputPoints {
+        span: Span,
+        points: f64,
+        gigabytes: f64,
+    },
 }
 
 impl ElabError {
@@ -143,7 +151,8 @@ impl ElabError {
             | IgnoredModelParam { span, .. }
             | IgnoredElementParam { span, .. }
             | IgnoredOption { span, .. }
-            | DanglingNode { span, .. } => *span,
+            | DanglingNode { span, .. }
+            | ManyOutputPoints { span, .. } => *span,
         }
     }
 
@@ -154,7 +163,8 @@ impl ElabError {
             | IgnoredModelParam { .. }
             | IgnoredElementParam { .. }
             | IgnoredOption { .. }
-            | DanglingNode { .. } => Severity::Warning,
+            | DanglingNode { .. }
+            | ManyOutputPoints { .. } => Severity::Warning,
             _ => Severity::Error,
         }
     }
@@ -187,6 +197,7 @@ impl ToDiagnostic for ElabError {
             IgnoredElementParam { .. } => ("K0292", "ignored", "kausal does not model this instance parameter".into()),
             IgnoredOption { .. } => ("K0293", "ignored", "kausal honours reltol, abstol, vntol, chgtol, trtol, method and maxord".into()),
             DanglingNode { .. } => ("K0294", "dangling node", "a node with one connection carries no current".into()),
+            ManyOutputPoints { .. } => ("K0295", "TSTEP", "TSTEP is the output spacing, not the solver's step (which follows the tolerance): a larger TSTEP, `--times`, or `.save` of fewer vectors makes the file smaller".into()),
         };
         let mut d = Diagnostic::error(code, self.to_string())
             .with_label(self.span(), label)

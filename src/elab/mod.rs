@@ -19,6 +19,10 @@ use crate::diag::Span;
 use crate::front::ast::{self, ElementBody, Stmt, TranFnKind, Value};
 use crate::ir::Waveform;
 
+/// Output points of a `.tran` above which it warns (K0295): a 10^8-row CSV
+/// is several gigabytes, most likely a TSTEP meant as a step limit.
+const MANY_OUTPUT_POINTS: f64 = 1e8;
+
 /// Flatten a parsed netlist into a circuit. Errors and warnings are collected;
 /// the circuit holds everything that elaborated.
 pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
@@ -220,6 +224,16 @@ impl Elab {
                         if !(tstep > 0.0 && tstop > tstart && tstart >= 0.0) {
                             self.errors.push(ElabError::BadTran { span: t.span });
                             continue;
+                        }
+                        // Each point is a CSV row of ~24 bytes per column
+                        // (time and at least one vector).
+                        let points = (tstop - tstart) / tstep + 1.0;
+                        if points > MANY_OUTPUT_POINTS {
+                            self.errors.push(ElabError::ManyOutputPoints {
+                                span: t.tstep.span(),
+                                points,
+                                gigabytes: points * 48.0 / 1e9,
+                            });
                         }
                         self.tstep = tstep;
                         self.tstop = tstop;
