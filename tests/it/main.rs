@@ -13,6 +13,30 @@ mod validate;
 
 use std::path::{Path, PathBuf};
 
+/// Wait (at most `limit`) until `ready`, with `child` still running, then
+/// send it SIGINT and reap it.
+#[cfg(unix)]
+pub fn interrupt_when(
+    child: &mut std::process::Child,
+    ready: impl Fn() -> bool,
+    limit: std::time::Duration,
+    what: &str,
+) -> std::process::ExitStatus {
+    let waited = std::time::Instant::now();
+    while !ready() {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "it ended before it was interrupted"
+        );
+        assert!(waited.elapsed() < limit, "{what} did not happen");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    // SAFETY: a plain kill(2) of our own child, which has not been reaped.
+    let killed = unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) };
+    assert_eq!(killed, 0);
+    child.wait().unwrap()
+}
+
 /// The repository root.
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

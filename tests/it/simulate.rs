@@ -194,22 +194,12 @@ fn an_interrupted_run_leaves_nothing_behind() {
             .filter(|e| e.file_name().to_string_lossy().starts_with(".tmp"))
             .count()
     };
-    let waited = std::time::Instant::now();
-    while temporaries() == 0 {
-        assert!(
-            child.try_wait().unwrap().is_none(),
-            "the run ended before it was interrupted"
-        );
-        assert!(
-            waited.elapsed().as_secs() < 60,
-            "no temporary output appeared"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    // SAFETY: a plain kill(2) of our own child, which has not been reaped.
-    let killed = unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) };
-    assert_eq!(killed, 0);
-    let status = child.wait().unwrap();
+    let status = crate::interrupt_when(
+        &mut child,
+        || temporaries() > 0,
+        std::time::Duration::from_secs(60),
+        "a temporary output",
+    );
     assert_eq!(status.code(), Some(130), "{status:?}");
     assert_eq!(temporaries(), 0, "the temporary output was left behind");
     assert_eq!(std::fs::read_to_string(&out).unwrap(), "old\n");

@@ -204,6 +204,7 @@ fn missing_failing_and_garbled_ngspice_give_clear_errors() {
 
 /// An interrupted `kausal validate` stops its ngspice and removes ngspice's
 /// scratch directory (netlist, raw file) from `$TMPDIR`; it once left both.
+#[cfg(unix)]
 #[test]
 fn an_interrupted_validation_leaves_no_scratch() {
     require_ngspice();
@@ -221,22 +222,12 @@ fn an_interrupted_validation_leaves_no_scratch() {
         .spawn()
         .unwrap();
     let entries = || std::fs::read_dir(&tmp).unwrap().count();
-    let waited = std::time::Instant::now();
-    while entries() == 0 {
-        assert!(
-            child.try_wait().unwrap().is_none(),
-            "the validation ended before it was interrupted"
-        );
-        assert!(
-            waited.elapsed().as_secs() < 120,
-            "no scratch directory appeared in $TMPDIR"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    // SAFETY: a plain kill(2) of our own child, which has not been reaped.
-    let killed = unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) };
-    assert_eq!(killed, 0);
-    let status = child.wait().unwrap();
+    let status = crate::interrupt_when(
+        &mut child,
+        || entries() > 0,
+        std::time::Duration::from_secs(120),
+        "a scratch directory in $TMPDIR",
+    );
     assert_eq!(status.code(), Some(130), "{status:?}");
     // A surviving ngspice would write its raw file into a recreated path or
     // fail; either way nothing may reappear.
