@@ -665,18 +665,45 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
                 num(*td2),
                 num(*tau2)
             ),
-            Waveform::Pwl { points } => {
+            Waveform::Pwl {
+                points,
+                repeat,
+                delay,
+            } => {
+                // The time within the sequence (`ir::pwl_time`): delayed,
+                // and folded back past the last point when it repeats (the
+                // remainder is of a positive number: `%` and fmod agree).
+                let local = if *delay == 0.0 {
+                    "t".to_string()
+                } else {
+                    format!("(t - {})", num(*delay))
+                };
+                let tau = match (repeat, points.last()) {
+                    (Some(r), Some(&(last, _))) => {
+                        let (r, last, period) = (num(*r), num(last), num(last - r));
+                        if rust {
+                            format!(
+                                "if {local} >= {last} {{ {r} + ({local} - {r}) % {period} }} else {{ {local} }}"
+                            )
+                        } else {
+                            format!(
+                                "({local} >= {last} ? {r} + fmod({local} - {r}, {period}) : {local})"
+                            )
+                        }
+                    }
+                    _ => local,
+                };
                 if rust {
                     let pts: Vec<String> = points
                         .iter()
                         .map(|(a, b)| format!("({}, {})", num(*a), num(*b)))
                         .collect();
-                    format!("pwl(t, o, &[{}])", pts.join(", "))
+                    format!("pwl({tau}, o, &[{}])", pts.join(", "))
                 } else {
                     let ts: Vec<String> = points.iter().map(|p| num(p.0)).collect();
                     let ys: Vec<String> = points.iter().map(|p| num(p.1)).collect();
                     format!(
-                        "pwl(t, o, (const double[]){{{}}}, (const double[]){{{}}}, {})",
+                        "pwl({tau}, o, (const double[]){{{}}}, (const double[]){{{}}}, {})",
                         ts.join(", "),
                         ys.join(", "),
                         points.len()

@@ -731,7 +731,36 @@ impl Elab {
                 if points.windows(2).any(|w| w[1].0 < w[0].0) {
                     return bad(self, "has times that decrease".into());
                 }
-                Waveform::Pwl { points }
+                let delay = match &f.delay {
+                    Some(v) => self.value(v, scope)?,
+                    None => 0.0,
+                };
+                let repeat = match &f.repeat {
+                    Some(v) => Some(self.value(v, scope)?),
+                    None => None,
+                };
+                if let Some(r) = repeat {
+                    // ngspice repeats from one of the sequence's own points,
+                    // and the part repeated must last.
+                    let last = points[points.len() - 1].0;
+                    let near = |t: f64| (t - r).abs() <= 1e-12 * last.abs().max(r.abs());
+                    if !points.iter().any(|p| near(p.0)) || near(last) || r > last {
+                        self.errors.push(ElabError::BadSourceArgs {
+                            span: f.repeat.as_ref().map_or(f.span, |v| v.span()),
+                            element: element.to_string(),
+                            kind: f.kind.name(),
+                            problem: format!(
+                                "repeats from r={r:e}, which must be one of its time points before the last ({last:e})"
+                            ),
+                        });
+                        return None;
+                    }
+                }
+                Waveform::Pwl {
+                    points,
+                    repeat,
+                    delay,
+                }
             }
         })
     }

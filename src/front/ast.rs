@@ -78,6 +78,10 @@ impl TranFnKind {
 pub struct TranFn<'a> {
     pub kind: TranFnKind,
     pub args: Vec<Value<'a>>,
+    /// PWL's `r=` (the time point the sequence repeats from) and `td=`
+    /// (its delay), written after the parenthesis.
+    pub repeat: Option<Value<'a>>,
+    pub delay: Option<Value<'a>>,
     pub span: Span,
 }
 

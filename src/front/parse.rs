@@ -820,9 +820,29 @@ impl<'a> Parser<'a> {
                         what: "second transient function".into(),
                     });
                 }
+                // PWL's `r=value` and `td=value`, in either order.
+                let (mut repeat, mut delay) = (None, None);
+                while kind == TranFnKind::Pwl
+                    && let (Some(n), Some(eq)) = (c.peek(), c.peek_at(1))
+                    && eq.kind == TokKind::Eq
+                    && (n.is_word("r") || n.is_word("td"))
+                {
+                    let n = *n;
+                    c.next();
+                    c.next();
+                    let v = self.value_tok(c, name.text, "PWL option")?;
+                    end = v.span();
+                    if n.is_word("r") {
+                        repeat = Some(v);
+                    } else {
+                        delay = Some(v);
+                    }
+                }
                 tran = Some(TranFn {
                     kind,
                     args,
+                    repeat,
+                    delay,
                     span: start.to(end),
                 });
                 continue;

@@ -162,6 +162,12 @@ fn element(e: &Element<'_>, out: &mut String) {
             if let Some(t) = tran {
                 let args: Vec<String> = t.args.iter().map(value).collect();
                 let _ = write!(out, " {}({})", t.kind.name(), args.join(" "));
+                if let Some(r) = &t.repeat {
+                    let _ = write!(out, " r={}", value(r));
+                }
+                if let Some(d) = &t.delay {
+                    let _ = write!(out, " td={}", value(d));
+                }
             }
         }
         ElementBody::VoltageControlled { gain } => {

@@ -179,7 +179,18 @@ pub enum Waveform {
     },
     Pwl {
         points: Vec<(f64, f64)>,
+        /// `r=`: past the last point the sequence from this time point on
+        /// repeats forever (ngspice).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        repeat: Option<f64>,
+        /// `td=`: the whole sequence is delayed by this.
+        #[serde(default, skip_serializing_if = "is_zero")]
+        delay: f64,
     },
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl Waveform {
@@ -284,10 +295,15 @@ impl Waveform {
                 }
                 value
             }
-            Waveform::Pwl { ref points } => {
+            Waveform::Pwl {
+                ref points,
+                repeat,
+                delay,
+            } => {
                 let Some(&(t0, y0)) = points.first() else {
                     return 0.0;
                 };
+                let t = pwl_time(points, repeat, delay, t);
                 if t < t0 {
                     return if order == 0 { y0 } else { 0.0 };
                 }
@@ -342,14 +358,52 @@ impl Waveform {
             Waveform::Exp { td1, td2, .. } => {
                 out.extend([td1, td2].into_iter().filter(|&t| t <= t_end));
             }
-            Waveform::Pwl { ref points } => {
-                out.extend(points.iter().map(|p| p.0).filter(|&t| t <= t_end));
+            Waveform::Pwl {
+                ref points,
+                repeat,
+                delay,
+            } => {
+                out.extend(
+                    points
+                        .iter()
+                        .map(|p| p.0 + delay)
+                        .take_while(|&t| t <= t_end),
+                );
+                if let (Some(r), Some(&(last, _))) = (repeat, points.last())
+                    && last > r
+                {
+                    // The corners of the repeated part, period after period.
+                    let period = last - r;
+                    let first = points.partition_point(|p| p.0 < r);
+                    let mut shift = period + delay;
+                    'periods: for _ in 0..1_000_000usize {
+                        for p in &points[first..] {
+                            let t = p.0 + shift;
+                            if t > t_end {
+                                break 'periods;
+                            }
+                            out.push(t);
+                        }
+                        shift += period;
+                    }
+                }
             }
         }
         out.retain(|&t| t > 0.0);
         out.sort_by(f64::total_cmp);
         out.dedup();
         out
+    }
+}
+
+/// The time within a PWL sequence at circuit time `t`: `t - delay`, and past
+/// the last point, folded back into `[repeat, last)` (right-continuous: at
+/// the end of a period the sequence is at its repeat point again).
+pub fn pwl_time(points: &[(f64, f64)], repeat: Option<f64>, delay: f64, t: f64) -> f64 {
+    let t = t - delay;
+    match (repeat, points.last()) {
+        (Some(r), Some(&(last, _))) if last > r && t >= last => r + (t - r).rem_euclid(last - r),
+        _ => t,
     }
 }
 
@@ -585,11 +639,41 @@ mod tests {
         assert_eq!(p.breakpoints(12.0), vec![1.0, 2.0, 4.0, 5.0, 11.0, 12.0]);
         let w = Waveform::Pwl {
             points: vec![(0.0, 0.0), (1.0, 2.0), (3.0, 0.0)],
+            repeat: None,
+            delay: 0.0,
         };
         assert_eq!(w.eval(0.5, 0), 1.0);
         assert_eq!(w.eval(2.0, 0), 1.0);
         assert_eq!(w.eval(2.0, 1), -1.0);
         assert_eq!(w.eval(5.0, 0), 0.0);
+    }
+
+    /// ngspice's `r=` and `td=` (values as ngspice 39 prints them).
+    #[test]
+    fn pwl_repeats_and_delays() {
+        let pts = vec![(0.0, 0.0), (1.0, 1.0), (3.0, 0.0)];
+        let pwl = |repeat, delay| Waveform::Pwl {
+            points: pts.clone(),
+            repeat,
+            delay,
+        };
+        // r = 0: the whole sequence, period 3.
+        let w = pwl(Some(0.0), 0.0);
+        assert_eq!(w.eval(3.5, 0), 0.5);
+        assert_eq!(w.eval(7.0, 0), 1.0);
+        assert_eq!(w.eval(7.5, 1), -0.5);
+        // r = 1: the part from 1 to 3, period 2 (a jump back to 1 V).
+        let w = pwl(Some(1.0), 0.0);
+        assert_eq!(w.eval(2.5, 0), 0.25);
+        assert_eq!(w.eval(3.25, 0), 0.875);
+        assert_eq!(w.eval(5.0, 0), 1.0);
+        // td = 0.5 delays it all, repeat included.
+        let w = pwl(Some(1.0), 0.5);
+        assert_eq!(w.eval(0.75, 0), 0.25);
+        assert_eq!(w.eval(3.75, 0), 0.875);
+        assert_eq!(w.breakpoints(8.0), vec![0.5, 1.5, 3.5, 5.5, 7.5]);
+        let w = pwl(Some(0.0), 0.0);
+        assert_eq!(w.breakpoints(7.0), vec![1.0, 3.0, 4.0, 6.0, 7.0]);
     }
 
     #[test]
