@@ -376,7 +376,9 @@ impl Waveform {
                     let period = last - r;
                     let first = points.partition_point(|p| p.0 < r);
                     let mut shift = period + delay;
-                    'periods: for _ in 0..1_000_000usize {
+                    // At most 10^7 corners (a 1 ns repeat in a 1 s run would
+                    // otherwise be 10^9 of them; the rest go unmarked).
+                    'periods: while out.len() < 10_000_000 {
                         for p in &points[first..] {
                             let t = p.0 + shift;
                             if t > t_end {
