@@ -10,7 +10,7 @@ pub mod topology;
 
 use std::collections::HashMap;
 
-use rustc_hash::FxHashMap;
+use rustc_hash::{FxHashMap, FxHashSet};
 
 pub use circuit::*;
 pub use error::ElabError;
@@ -44,6 +44,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         model_cache: HashMap::new(),
         tstep: 1.0,
         tstop: 1.0,
+        globals: FxHashSet::default(),
     };
     e.circuit.nodes.push(Node {
         name: "0".into(),
@@ -131,6 +132,8 @@ struct Elab {
     model_cache: HashMap<(u32, u32, String), DiodeModel>,
     tstep: f64,
     tstop: f64,
+    /// `.global` node names (case-folded): top-level nodes in every scope.
+    globals: FxHashSet<String>,
 }
 
 /// Level-1 diode parameters kausal models, with their aliases.
@@ -275,6 +278,14 @@ impl Elab {
                         }
                     }
                 }
+                Stmt::Global(names, _) => {
+                    self.globals.extend(
+                        names
+                            .iter()
+                            .map(|n| n.key())
+                            .filter(|k| k != "0" && k != "gnd"),
+                    );
+                }
                 Stmt::Include { body, .. } => self.settings(body, scope),
                 _ => {}
             }
@@ -310,9 +321,18 @@ impl Elab {
             }
         }
         key.clear();
-        key.push_str(&scope.prefix);
-        key.push_str(name.text);
-        key.make_ascii_lowercase();
+        if !scope.prefix.is_empty() && !self.globals.is_empty() {
+            key.push_str(name.text);
+            key.make_ascii_lowercase();
+            if !self.globals.contains(key.as_str()) {
+                key.clear();
+            }
+        }
+        if key.is_empty() {
+            key.push_str(&scope.prefix);
+            key.push_str(name.text);
+            key.make_ascii_lowercase();
+        }
         if let Some(&n) = self.node_map.get(key.as_str()) {
             return n;
         }

@@ -201,6 +201,9 @@ pub enum Stmt<'a> {
     Param(Vec<Assign<'a>>, Span),
     /// `.ic v(node)=value ...`
     Ic(Vec<(OutVec<'a>, Value<'a>)>, Span),
+    /// `.global node ...`: these names mean the top-level node inside every
+    /// subcircuit too.
+    Global(Vec<Name<'a>>, Span),
     Tran(Box<Tran<'a>>),
     Options(Vec<OptionDef<'a>>, Span),
     /// `.print`, `.save`, `.probe`: the directive name and its vectors.

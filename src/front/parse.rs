@@ -239,6 +239,25 @@ impl<'a> Parser<'a> {
                 }
                 Some(Stmt::Param(params, span))
             }
+            "global" => {
+                let mut names = Vec::new();
+                while let Some(t) = c.peek() {
+                    if t.kind != TokKind::Word {
+                        break;
+                    }
+                    names.push(name_of(t));
+                    c.next();
+                }
+                self.rest_unexpected(&c);
+                if names.is_empty() {
+                    self.errors.push(ParseError::Expected {
+                        span,
+                        expected: "node names after `.global`".into(),
+                    });
+                    return None;
+                }
+                Some(Stmt::Global(names, span))
+            }
             "ic" => {
                 let mut ics = Vec::new();
                 while !c.done() {
@@ -392,7 +411,7 @@ impl<'a> Parser<'a> {
                 });
                 None
             }
-            "temp" | "width" | "nodeset" | "global" | "csparam" | "title" | "save_all" => {
+            "temp" | "width" | "nodeset" | "csparam" | "title" | "save_all" => {
                 self.errors.push(ParseError::IgnoredDirective {
                     span: toks[0].span,
                     name: d.to_string(),

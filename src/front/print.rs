@@ -67,6 +67,13 @@ fn stmt(s: &Stmt<'_>, out: &mut String) {
             assigns(a, out);
             out.push('\n');
         }
+        Stmt::Global(names, _) => {
+            out.push_str(".global");
+            for n in names {
+                let _ = write!(out, " {}", n.text);
+            }
+            out.push('\n');
+        }
         Stmt::Ic(ics, _) => {
             out.push_str(".ic");
             for (v, val) in ics {
