@@ -132,7 +132,7 @@ impl ParseError {
             StrayEnds { .. } => ("K0111", "no open subcircuit", "remove it, or add the `.subckt` line it closes".into()),
             UnclosedControl { .. } => ("K0112", "opened here", "end the block with `.endc`".into()),
             UnknownDirective { .. } => ("K0113", "unknown directive", "check the spelling against the ngspice manual".into()),
-            UnsupportedDirective { .. } => ("K0114", "not supported", "remove it; kausal reads .param, .subckt, .model, .include, .lib, .ic, .tran, .options, .print, .save, .probe".into()),
+            UnsupportedDirective { .. } => ("K0114", "not supported", "remove it. kausal reads these directives: param, subckt, model, include, lib, global, ic, tran, options, print, save, probe".into()),
             UnsupportedSource { .. } => ("K0115", "not supported", "use DC, PULSE, SIN, PWL or EXP".into()),
             IncludeNotFound { .. } => ("K0116", "included here", "include paths are relative to the including file".into()),
             IncludeCycle { .. } => ("K0117", "included again here", "remove the circular `.include` or `.lib`".into()),
@@ -141,7 +141,11 @@ impl ParseError {
             Expected { .. } => ("K0118", "here", "see the ngspice manual for the statement's syntax".into()),
             SkippedAnalysis { .. } => ("K0190", "skipped", "only `.tran` analyses are run".into()),
             SkippedControl { .. } => ("K0191", "skipped", "use `.tran`, `.print` and `.options` instead of a control script".into()),
-            IgnoredDirective { .. } => ("K0192", "ignored", "it does not affect the transient run as kausal performs it".into()),
+            IgnoredDirective { name, .. } => ("K0192", "ignored", match name.as_str() {
+                "temp" => "kausal's devices are at 27 °C (ngspice's default): at another .temp ngspice's diodes conduct differently".into(),
+                "nodeset" => "kausal finds the operating point without initial guesses; `.ic` holds a capacitor's voltage instead".into(),
+                _ => "it does not affect the transient run as kausal performs it".into(),
+            }),
         }
     }
 }
