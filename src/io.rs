@@ -196,9 +196,14 @@ impl AtomicFile {
             use std::os::unix::fs::PermissionsExt;
             builder.permissions(std::fs::Permissions::from_mode(0o666));
         }
+        // Created and registered under the registry's lock: an interrupt
+        // in between would otherwise miss it.
+        let mut live = pending();
+        refuse_if_interrupted()?;
         let tmp = builder.tempfile_in(dir)?;
         let tmp_path = tmp.path().to_path_buf();
-        pending().push(tmp_path.clone());
+        live.push(tmp_path.clone());
+        drop(live);
         Ok(AtomicFile {
             tmp: Some(std::io::BufWriter::with_capacity(1 << 16, tmp)),
             tmp_path,
