@@ -68,6 +68,7 @@ struct Scope<'s, 'a> {
     params: HashMap<String, f64>,
     subckts: HashMap<String, &'s ast::Subckt<'a>>,
     models: HashMap<String, &'s ast::Model<'a>>,
+    funcs: HashMap<String, &'s ast::FuncDef<'a>>,
     parent: Option<&'s Scope<'s, 'a>>,
     /// Element-name prefix as written (`X1.`), empty at the top level.
     prefix: String,
@@ -93,6 +94,13 @@ impl<'s, 'a> Scope<'s, 'a> {
             .get(name)
             .copied()
             .or_else(|| self.parent.and_then(|p| p.param(name)))
+    }
+
+    fn func(&self, name: &str) -> Option<&'s ast::FuncDef<'a>> {
+        self.funcs
+            .get(name)
+            .copied()
+            .or_else(|| self.parent.and_then(|p| p.func(name)))
     }
 
     fn subckt(&self, name: &str) -> Option<&'s ast::Subckt<'a>> {
@@ -171,16 +179,23 @@ impl Elab {
     /// parameter may use one defined later in the same scope.
     fn params<'s, 'a>(&mut self, stmts: &'s [Stmt<'a>], scope: &mut Scope<'s, 'a>) {
         let mut list = Vec::new();
-        fn gather<'s, 'a>(stmts: &'s [Stmt<'a>], out: &mut Vec<&'s ast::Assign<'a>>) {
+        fn gather<'s, 'a>(
+            stmts: &'s [Stmt<'a>],
+            out: &mut Vec<&'s ast::Assign<'a>>,
+            funcs: &mut HashMap<String, &'s ast::FuncDef<'a>>,
+        ) {
             for s in stmts {
                 match s {
                     Stmt::Param(a, _) => out.extend(a.iter()),
-                    Stmt::Include { body, .. } => gather(body, out),
+                    Stmt::Func(f) => {
+                        funcs.insert(f.name.key(), f);
+                    }
+                    Stmt::Include { body, .. } => gather(body, out, funcs),
                     _ => {}
                 }
             }
         }
-        gather(stmts, &mut list);
+        gather(stmts, &mut list, &mut scope.funcs);
         let mut left: Vec<&ast::Assign<'_>> = list;
         loop {
             let before = left.len();
@@ -1058,6 +1073,39 @@ impl Elab {
     }
 }
 
+/// The `.func` `name` visible in `scope` at `args` (`None`: there is none);
+/// its arguments shadow the parameters it can also read. `depth` counts the
+/// calls in progress: a function that calls itself is an error, not an
+/// endless recursion.
+fn call_func(
+    scope: &Scope<'_, '_>,
+    name: &str,
+    args: &[f64],
+    depth: usize,
+) -> Option<Result<f64, crate::front::expr::EvalError>> {
+    use crate::front::expr::EvalError;
+    let f = scope.func(name)?;
+    if args.len() != f.params.len() {
+        return Some(Err(EvalError::Arity(name.to_string(), f.params.len())));
+    }
+    if depth >= 64 {
+        return Some(Err(EvalError::Recursive(name.to_string())));
+    }
+    let bound = |p: &str| {
+        f.params
+            .iter()
+            .position(|q| q.text.eq_ignore_ascii_case(p))
+            .map(|k| args[k])
+            .or_else(|| scope.param(p))
+    };
+    let inner = |n: &str, a: &[f64]| call_func(scope, n, a, depth + 1);
+    Some(match &f.body {
+        Value::Num { value, .. } => Ok(*value),
+        Value::Ident(n) => bound(&n.key()).ok_or_else(|| EvalError::Undefined(n.text.to_string())),
+        Value::Expr { expr, .. } => expr.eval_with(&bound, &inner),
+    })
+}
+
 fn try_value(v: &Value<'_>, scope: &Scope<'_, '_>) -> Result<f64, ElabError> {
     use crate::front::expr::EvalError;
     match v {
@@ -1069,24 +1117,31 @@ fn try_value(v: &Value<'_>, scope: &Scope<'_, '_>) -> Result<f64, ElabError> {
                 name: n.text.to_string(),
             }),
         Value::Expr { expr, text, span } => {
-            expr.eval(&|name| scope.param(name)).map_err(|e| match e {
-                EvalError::Undefined(name) => ElabError::UndefinedParam { span: *span, name },
-                EvalError::UnknownFunction(f) => ElabError::BadValue {
-                    span: *span,
-                    text: text.to_string(),
-                    reason: format!("unknown function `{f}`"),
-                },
-                EvalError::Arity(f, n) => ElabError::BadValue {
-                    span: *span,
-                    text: text.to_string(),
-                    reason: format!("`{f}` takes {n} argument(s)"),
-                },
-                EvalError::NotFinite => ElabError::BadValue {
-                    span: *span,
-                    text: text.to_string(),
-                    reason: "the result is not a finite number".into(),
-                },
-            })
+            let user = |name: &str, args: &[f64]| call_func(scope, name, args, 0);
+            expr.eval_with(&|name| scope.param(name), &user)
+                .map_err(|e| match e {
+                    EvalError::Recursive(f) => ElabError::BadValue {
+                        span: *span,
+                        text: text.to_string(),
+                        reason: format!("`.func {f}` calls itself"),
+                    },
+                    EvalError::Undefined(name) => ElabError::UndefinedParam { span: *span, name },
+                    EvalError::UnknownFunction(f) => ElabError::BadValue {
+                        span: *span,
+                        text: text.to_string(),
+                        reason: format!("unknown function `{f}`"),
+                    },
+                    EvalError::Arity(f, n) => ElabError::BadValue {
+                        span: *span,
+                        text: text.to_string(),
+                        reason: format!("`{f}` takes {n} argument(s)"),
+                    },
+                    EvalError::NotFinite => ElabError::BadValue {
+                        span: *span,
+                        text: text.to_string(),
+                        reason: "the result is not a finite number".into(),
+                    },
+                })
         }
     }
 }

@@ -204,6 +204,8 @@ pub enum Stmt<'a> {
     /// `.global node ...`: these names mean the top-level node inside every
     /// subcircuit too.
     Global(Vec<Name<'a>>, Span),
+    /// `.func name(arg ...) {expression}`.
+    Func(Box<FuncDef<'a>>),
     Tran(Box<Tran<'a>>),
     Options(Vec<OptionDef<'a>>, Span),
     /// `.print`, `.save`, `.probe`: the directive name and its vectors.
@@ -221,6 +223,15 @@ pub enum Stmt<'a> {
         span: Span,
         body: Vec<Stmt<'a>>,
     },
+}
+
+/// A user function: `.func name(a b) {a*b}`.
+#[derive(Clone, Debug)]
+pub struct FuncDef<'a> {
+    pub name: Name<'a>,
+    pub params: Vec<Name<'a>>,
+    pub body: Value<'a>,
+    pub span: Span,
 }
 
 /// A parsed netlist file tree.

@@ -132,7 +132,7 @@ impl ParseError {
             StrayEnds { .. } => ("K0111", "no open subcircuit", "remove it, or add the `.subckt` line it closes".into()),
             UnclosedControl { .. } => ("K0112", "opened here", "end the block with `.endc`".into()),
             UnknownDirective { .. } => ("K0113", "unknown directive", "check the spelling against the ngspice manual".into()),
-            UnsupportedDirective { .. } => ("K0114", "not supported", "remove it. kausal reads these directives: param, subckt, model, include, lib, global, ic, tran, options, print, save, probe".into()),
+            UnsupportedDirective { .. } => ("K0114", "not supported", "remove it. kausal reads these directives: param, subckt, model, include, lib, global, func, ic, tran, options, print, save, probe".into()),
             UnsupportedSource { .. } => ("K0115", "not supported", "use DC, PULSE, SIN, PWL or EXP".into()),
             IncludeNotFound { .. } => ("K0116", "included here", "include paths are relative to the including file".into()),
             IncludeCycle { .. } => ("K0117", "included again here", "remove the circular `.include` or `.lib`".into()),

@@ -223,11 +223,27 @@ pub enum EvalError {
     UnknownFunction(String),
     Arity(String, usize),
     NotFinite,
+    /// A `.func` that calls itself, directly or not.
+    Recursive(String),
 }
+
+/// A user function (`.func`) as the evaluator calls it: `None` when `name`
+/// is not one, else its value at `args`.
+pub type UserCall<'c> = &'c dyn Fn(&str, &[f64]) -> Option<Result<f64, EvalError>>;
 
 impl PExpr {
     /// Evaluate with `lookup` for parameter names.
     pub fn eval(&self, lookup: &dyn Fn(&str) -> Option<f64>) -> Result<f64, EvalError> {
+        self.eval_with(lookup, &|_, _| None)
+    }
+
+    /// Evaluate with `lookup` for parameter names and `user` for functions
+    /// defined by `.func` (tried before the built-in ones).
+    pub fn eval_with(
+        &self,
+        lookup: &dyn Fn(&str) -> Option<f64>,
+        user: UserCall<'_>,
+    ) -> Result<f64, EvalError> {
         let v = match self {
             PExpr::Num(x) => *x,
             PExpr::Ident(name) => match lookup(name) {
@@ -238,9 +254,9 @@ impl PExpr {
                     _ => return Err(EvalError::Undefined(name.clone())),
                 },
             },
-            PExpr::Neg(a) => -a.eval(lookup)?,
+            PExpr::Neg(a) => -a.eval_with(lookup, user)?,
             PExpr::Bin(op, a, b) => {
-                let (a, b) = (a.eval(lookup)?, b.eval(lookup)?);
+                let (a, b) = (a.eval_with(lookup, user)?, b.eval_with(lookup, user)?);
                 match op {
                     BinOp::Add => a + b,
                     BinOp::Sub => a - b,
@@ -252,8 +268,16 @@ impl PExpr {
             PExpr::Call(name, args) => {
                 let vals = args
                     .iter()
-                    .map(|a| a.eval(lookup))
+                    .map(|a| a.eval_with(lookup, user))
                     .collect::<Result<Vec<_>, _>>()?;
+                if let Some(v) = user(name, &vals) {
+                    let v = v?;
+                    return if v.is_finite() {
+                        Ok(v)
+                    } else {
+                        Err(EvalError::NotFinite)
+                    };
+                }
                 let one = |f: fn(f64) -> f64| -> Result<f64, EvalError> {
                     match vals.as_slice() {
                         [x] => Ok(f(*x)),

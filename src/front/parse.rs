@@ -239,6 +239,11 @@ impl<'a> Parser<'a> {
                 }
                 Some(Stmt::Param(params, span))
             }
+            "func" => {
+                let def = self.func_def(&mut c, span)?;
+                self.rest_unexpected(&c);
+                Some(Stmt::Func(Box::new(def)))
+            }
             "global" => {
                 let mut names = Vec::new();
                 while let Some(t) = c.peek() {
@@ -418,7 +423,7 @@ impl<'a> Parser<'a> {
                 });
                 None
             }
-            "func" | "if" | "else" | "endif" | "model_lib" => {
+            "if" | "else" | "endif" | "model_lib" => {
                 self.errors.push(ParseError::UnsupportedDirective {
                     span: toks[0].span,
                     name: toks[0].text.to_string(),
@@ -889,6 +894,46 @@ impl<'a> Parser<'a> {
             return None;
         }
         Some(ElementBody::Source { dc, tran, ac })
+    }
+
+    /// `name(arg ...) [=] {expression}` of a `.func`.
+    fn func_def(&mut self, c: &mut Cursor<'_, 'a>, span: Span) -> Option<FuncDef<'a>> {
+        let expected = |this: &mut Self, c: &Cursor<'_, 'a>, what: &str| {
+            this.errors.push(ParseError::Expected {
+                span: c.here(span),
+                expected: what.into(),
+            });
+        };
+        let Some(name) = c.peek().filter(|t| t.kind == TokKind::Word).map(name_of) else {
+            expected(self, c, "a function name after `.func`");
+            return None;
+        };
+        c.next();
+        if !c.eat(TokKind::LParen) {
+            expected(self, c, "`(` and the argument names");
+            return None;
+        }
+        let mut params = Vec::new();
+        while let Some(t) = c.peek().filter(|t| t.kind == TokKind::Word) {
+            params.push(name_of(t));
+            c.next();
+        }
+        if !c.eat(TokKind::RParen) {
+            expected(self, c, "`)` closing the argument names");
+            return None;
+        }
+        c.eat(TokKind::Eq);
+        if c.done() {
+            expected(self, c, "the function's `{expression}`");
+            return None;
+        }
+        let body = self.value_tok(c, name.text, "function body")?;
+        Some(FuncDef {
+            name,
+            params,
+            body,
+            span,
+        })
     }
 
     /// `name=value` pairs until the cursor meets something else.

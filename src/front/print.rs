@@ -67,6 +67,16 @@ fn stmt(s: &Stmt<'_>, out: &mut String) {
             assigns(a, out);
             out.push('\n');
         }
+        Stmt::Func(f) => {
+            let params: Vec<&str> = f.params.iter().map(|p| p.text).collect();
+            let _ = writeln!(
+                out,
+                ".func {}({}) {}",
+                f.name.text,
+                params.join(" "),
+                value(&f.body)
+            );
+        }
         Stmt::Global(names, _) => {
             out.push_str(".global");
             for n in names {
