@@ -49,6 +49,12 @@ pub enum ParseError {
     UnsupportedDirective { span: Span, name: String },
     #[error("source function `{name}` is not supported by kausal")]
     UnsupportedSource { span: Span, name: String },
+    #[error("`{name}` is a behavioural source (`{form}`), which kausal does not support")]
+    BehavioralSource {
+        span: Span,
+        name: String,
+        form: String,
+    },
     #[error("cannot read include file `{path}`: {reason}")]
     IncludeNotFound {
         span: Span,
@@ -95,6 +101,7 @@ impl ParseError {
             | UnknownDirective { span, .. }
             | UnsupportedDirective { span, .. }
             | UnsupportedSource { span, .. }
+            | BehavioralSource { span, .. }
             | IncludeNotFound { span, .. }
             | IncludeCycle { span, .. }
             | LibSectionNotFound { span, .. }
@@ -134,6 +141,7 @@ impl ParseError {
             UnknownDirective { .. } => ("K0113", "unknown directive", "check the spelling against the ngspice manual".into()),
             UnsupportedDirective { .. } => ("K0114", "not supported", "remove it. kausal reads these directives: param, subckt, model, include, lib, global, func, ic, tran, options, print, save, probe".into()),
             UnsupportedSource { .. } => ("K0115", "not supported", "use DC, PULSE, SIN, PWL or EXP".into()),
+            BehavioralSource { .. } => ("K0121", "not supported", "write it linear: `E1 out 0 in 0 GAIN` (VCVS), `G1 out 0 in 0 GM` (VCCS), or F/H sensing a V source's current".into()),
             IncludeNotFound { .. } => ("K0116", "included here", "include paths are relative to the including file".into()),
             IncludeCycle { .. } => ("K0117", "included again here", "remove the circular `.include` or `.lib`".into()),
             LibSectionNotFound { .. } => ("K0119", "no such section", "sections are opened by `.lib NAME` and closed by `.endl` in the library file".into()),

@@ -596,7 +596,31 @@ impl<'a> Parser<'a> {
                 span,
             });
         }
-        for _ in 0..n_nodes {
+        // `E1 out 0 VALUE={...}`, `F1 out 0 POLY(2) ...`: ngspice's
+        // behavioural forms, where a linear source has its nodes or gain.
+        let behavioural = |c: &Cursor<'_, 'a>| {
+            let t = c
+                .peek()
+                .filter(|_| matches!(letter, 'E' | 'F' | 'G' | 'H'))?;
+            let form = ["value", "poly", "table", "laplace", "vol", "cur"]
+                .iter()
+                .any(|w| t.is_word(w))
+                && c.peek_at(1)
+                    .is_some_and(|n| matches!(n.kind, TokKind::Eq | TokKind::LParen));
+            form.then(|| ParseError::BehavioralSource {
+                span: t.span,
+                name: name.text.to_string(),
+                form: t.text.to_ascii_uppercase(),
+            })
+        };
+        for k in 0..=n_nodes {
+            if let Some(e) = behavioural(&c) {
+                self.errors.push(e);
+                return None;
+            }
+            if k == n_nodes {
+                break;
+            }
             match c.peek() {
                 Some(t)
                     if t.kind == TokKind::Word
