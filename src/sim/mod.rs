@@ -29,7 +29,9 @@ use ode::{CircuitOde, EvalCounts, HostVec, Regs};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
-    /// Variable-order BDF (stiff; the default).
+    /// Variable-order BDF (stiff; the default). Its orders above 2 are not
+    /// A-stable: on an undamped oscillator (an LC tank) at a loose --rtol
+    /// (1e-2) the amplitude can grow; tr-bdf2 cannot.
     Bdf,
     /// TR-BDF2, an L-stable SDIRK (stiff).
     TrBdf2,
