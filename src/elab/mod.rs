@@ -1075,21 +1075,27 @@ impl Elab {
 
 /// The `.func` `name` visible in `scope` at `args` (`None`: there is none);
 /// its arguments shadow the parameters it can also read. `depth` counts the
-/// calls in progress: a function that calls itself is an error, not an
-/// endless recursion.
+/// calls in progress, `calls` all calls of the expression: a function that
+/// calls itself, or functions that each call the next twice 60 deep, are an
+/// error, not an endless evaluation.
 fn call_func(
     scope: &Scope<'_, '_>,
     name: &str,
     args: &[f64],
     depth: usize,
+    calls: &std::cell::Cell<usize>,
 ) -> Option<Result<f64, crate::front::expr::EvalError>> {
     use crate::front::expr::EvalError;
     let f = scope.func(name)?;
     if args.len() != f.params.len() {
         return Some(Err(EvalError::Arity(name.to_string(), f.params.len())));
     }
+    calls.set(calls.get() + 1);
     if depth >= 64 {
         return Some(Err(EvalError::Recursive(name.to_string())));
+    }
+    if calls.get() > 100_000 {
+        return Some(Err(EvalError::TooManyCalls));
     }
     let bound = |p: &str| {
         f.params
@@ -1098,7 +1104,7 @@ fn call_func(
             .map(|k| args[k])
             .or_else(|| scope.param(p))
     };
-    let inner = |n: &str, a: &[f64]| call_func(scope, n, a, depth + 1);
+    let inner = |n: &str, a: &[f64]| call_func(scope, n, a, depth + 1, calls);
     Some(match &f.body {
         Value::Num { value, .. } => Ok(*value),
         Value::Ident(n) => bound(&n.key()).ok_or_else(|| EvalError::Undefined(n.text.to_string())),
@@ -1117,13 +1123,19 @@ fn try_value(v: &Value<'_>, scope: &Scope<'_, '_>) -> Result<f64, ElabError> {
                 name: n.text.to_string(),
             }),
         Value::Expr { expr, text, span } => {
-            let user = |name: &str, args: &[f64]| call_func(scope, name, args, 0);
+            let calls = std::cell::Cell::new(0);
+            let user = |name: &str, args: &[f64]| call_func(scope, name, args, 0, &calls);
             expr.eval_with(&|name| scope.param(name), &user)
                 .map_err(|e| match e {
                     EvalError::Recursive(f) => ElabError::BadValue {
                         span: *span,
                         text: text.to_string(),
                         reason: format!("`.func {f}` calls itself"),
+                    },
+                    EvalError::TooManyCalls => ElabError::BadValue {
+                        span: *span,
+                        text: text.to_string(),
+                        reason: "its functions call each other more than 10^5 times".into(),
                     },
                     EvalError::Undefined(name) => ElabError::UndefinedParam { span: *span, name },
                     EvalError::UnknownFunction(f) => ElabError::BadValue {

@@ -225,6 +225,8 @@ pub enum EvalError {
     NotFinite,
     /// A `.func` that calls itself, directly or not.
     Recursive(String),
+    /// `.func`s that call each other more than 10^5 times in one expression.
+    TooManyCalls,
 }
 
 /// A user function (`.func`) as the evaluator calls it: `None` when `name`
