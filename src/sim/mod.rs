@@ -920,6 +920,8 @@ where
     charges: Vec<usize>,
     /// The factored shifted Jacobian of the charges in the current step.
     settle: Option<Settle>,
+    /// The state at the end of the run.
+    last: Vec<f64>,
 }
 
 /// What [`Recorder::settle_charges`] keeps for the output points of a step.
@@ -1089,6 +1091,7 @@ where
         dc_start: !tran.uic,
         charges,
         settle: None,
+        last: Vec::new(),
     };
     // Soft stops (a step cap) are not used: diffsol's stop handling can
     // leave a sub-ulp step after them; error control keeps the accuracy.
@@ -1161,9 +1164,121 @@ where
     stats.rhs_evals = counts.rhs;
     stats.jac_mul_evals = counts.jac_mul;
     stats.jacobians = counts.jacobians;
+    let mut warnings = warnings;
+    let points = rec.grid.len();
+    if let Some(d) = ringing(sys, &problem.eqn, tran, stats.steps, points, &rec.last) {
+        warnings.push(d);
+    }
     let mut w = rec.rows.into_waveforms(stats);
     w.warnings = warnings;
     Ok(w)
+}
+
+/// Steps this many times more numerous than the output points, in a run of at
+/// least [`RINGING_MIN_STEPS`], make kausal look for the mode that kept them
+/// short.
+const RINGING_STEPS_PER_POINT: usize = 20;
+const RINGING_MIN_STEPS: usize = 20_000;
+
+/// When the steps were far shorter than the output interval and the circuit
+/// is small (dense): the least damped oscillatory mode of the Jacobian at the
+/// end of the run that is fast against TSTEP, named by the states that take
+/// part in it (modal participation factors |w_k v_k|, dimensionless whatever
+/// the states' units). A high-Q LC loop (a transformer's leakage inductance
+/// with a diode's junction capacitance) rings at MHz through a run of
+/// seconds: the error test makes the solver follow every cycle.
+fn ringing<M>(
+    sys: &EquationSystem,
+    ode: &CircuitOde<M>,
+    tran: &crate::elab::Tran,
+    steps: usize,
+    points: usize,
+    y: &[f64],
+) -> Option<crate::diag::Diagnostic>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+{
+    use nalgebra::{Complex, DMatrix, DVector};
+    let n = y.len();
+    if steps < RINGING_MIN_STEPS
+        || steps < RINGING_STEPS_PER_POINT * points.max(1)
+        || n == 0
+        || n > DENSE_STATES
+    {
+        return None;
+    }
+    let cols: Vec<usize> = (0..n).collect();
+    let mut jac = vec![0.0; n * n];
+    let mut f = vec![0.0; n];
+    ode.jacobian_columns(Regs::Side, tran.tstop, y, &cols, &mut jac, &mut f)
+        .ok()?;
+    if jac.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let j = DMatrix::from_row_slice(n, n, &jac);
+    // Oscillatory (Im > 0), faster than a tenth of the output interval,
+    // lightly damped (Q > 5); the least damped of them.
+    let fast = 20.0 * std::f64::consts::PI / tran.tstep;
+    let lambda = j
+        .complex_eigenvalues()
+        .iter()
+        .copied()
+        .filter(|l| l.im > 0.0 && l.im > fast && -l.re < 0.1 * l.im)
+        .min_by(|a, b| (-a.re / a.im).total_cmp(&(-b.re / b.im)))?;
+    // Right and left eigenvectors by inverse iteration next to λ.
+    let cj = j.map(|v| Complex::new(v, 0.0));
+    let shift = lambda * Complex::new(1.0 + 1e-9, 0.0);
+    let eye = DMatrix::<Complex<f64>>::identity(n, n) * shift;
+    let iterate = |a: DMatrix<Complex<f64>>| -> Option<DVector<Complex<f64>>> {
+        let lu = a.lu();
+        let mut x = DVector::from_element(n, Complex::new(1.0, 0.0));
+        for _ in 0..3 {
+            x = lu.solve(&x)?;
+            let norm = x.norm();
+            if !(norm.is_finite() && norm > 0.0) {
+                return None;
+            }
+            x /= Complex::new(norm, 0.0);
+        }
+        Some(x)
+    };
+    let right = iterate(&cj - &eye)?;
+    let left = iterate(cj.transpose() - &eye)?;
+    let part: Vec<f64> = (0..n).map(|k| (left[k] * right[k]).norm()).collect();
+    let total: f64 = part.iter().sum();
+    if total.is_nan() || total <= 0.0 {
+        return None;
+    }
+    let ode_states = &ode.tape.states;
+    let mut order: Vec<usize> = (0..n).filter(|&k| part[k] / total >= 0.05).collect();
+    order.sort_by(|&a, &b| part[b].total_cmp(&part[a]));
+    let who: Vec<String> = order
+        .iter()
+        .take(6)
+        .map(|&k| {
+            format!(
+                "{} ({:.0} %)",
+                sys.vars[ode_states[k]].name,
+                100.0 * part[k] / total
+            )
+        })
+        .collect();
+    let freq = lambda.im / (2.0 * std::f64::consts::PI);
+    let q = lambda.norm() / (2.0 * (-lambda.re).max(f64::MIN_POSITIVE));
+    Some(
+        crate::diag::Diagnostic::warning(
+            "K0409",
+            format!(
+                "{steps} steps for {points} output points: a lightly damped mode rings at {freq:.3e} Hz (Q ≈ {}), and the solver follows each cycle; it lives in {}",
+                if q < 1e6 { format!("{q:.0}") } else { "10^6 or more".into() },
+                who.join(", ")
+            ),
+        )
+        .with_help(
+            "it is the circuit's own ringing (nothing resistive damps it): a series R–C snubber across those elements damps it; a looser --rtol lets BDF damp it numerically instead",
+        ),
+    )
 }
 
 fn solver_err(t: f64, e: diffsol::DiffsolError) -> SimError {
@@ -1305,6 +1420,7 @@ where
             insert_step(&mut rec, reason, &y)?;
         }
         if reason >= t_end || k + 1 >= stops.len() {
+            rec.last = solver.state().y.slice().to_vec();
             add_solver_stats(stats, &solver);
             break;
         }

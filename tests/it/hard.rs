@@ -250,3 +250,34 @@ fn malformed_exact_line_is_located() {
             .is_none()
     );
 }
+
+/// A transformer's leakage inductance rings with a diode's junction
+/// capacitance at ~7 MHz (Q ~ 10^5) through the run: kausal follows it and
+/// says why it took 10^5 steps, naming the mode's states. The circuits of the
+/// benchmark set, whose steps are few, get no such warning.
+#[test]
+fn a_ringing_mode_is_named() {
+    let s = sorted("transformer_ringing.cir");
+    let w = sim::simulate(&s, &sim::Options::default()).expect("simulates");
+    let k0409: Vec<&kausal::diag::Diagnostic> =
+        w.warnings.iter().filter(|d| d.code == "K0409").collect();
+    assert_eq!(k0409.len(), 1, "{:?}", w.warnings);
+    let m = &k0409[0].message;
+    assert!(m.contains("i_Ls2") && m.contains("q_D2"), "{m}");
+    // The tank: 2 % of 10 mH with 26 pF, ~6-8 MHz.
+    let freq: f64 = m
+        .split("rings at ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|f| f.parse().ok())
+        .unwrap_or_else(|| panic!("no frequency in {m}"));
+    assert!((5e6..1e7).contains(&freq), "{m}");
+    for name in ["rectifier_big_cap.cir", "lc_tank_1000_periods.cir"] {
+        let w = sim::simulate(&sorted(name), &sim::Options::default()).expect("simulates");
+        assert!(
+            w.warnings.iter().all(|d| d.code != "K0409"),
+            "{name}: {:?}",
+            w.warnings
+        );
+    }
+}
