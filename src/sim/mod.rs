@@ -1037,6 +1037,12 @@ where
             .reltol
             .map_or(DEFAULT_RTOL, |r| r.min(DEFAULT_RTOL * 1e3))
     });
+    let mut warnings = warnings;
+    if method == Method::Bdf
+        && let Some(d) = oscillation_at_loose_rtol(sys, &ode, tran, rtol, t0, &ode.y0.borrow())
+    {
+        warnings.push(d);
+    }
     let problem = OdeBuilder::<M>::new()
         .rtol(rtol)
         .atol(atol)
@@ -1164,7 +1170,6 @@ where
     stats.rhs_evals = counts.rhs;
     stats.jac_mul_evals = counts.jac_mul;
     stats.jacobians = counts.jacobians;
-    let mut warnings = warnings;
     let points = rec.grid.len();
     if let Some(d) = ringing(sys, &problem.eqn, tran, stats.steps, points, &rec.last) {
         warnings.push(d);
@@ -1183,10 +1188,9 @@ const RINGING_MIN_STEPS: usize = 20_000;
 /// When the steps were far shorter than the output interval and the circuit
 /// is small (dense): the least damped oscillatory mode of the Jacobian at the
 /// end of the run that is fast against TSTEP, named by the states that take
-/// part in it (modal participation factors |w_k v_k|, dimensionless whatever
-/// the states' units). A high-Q LC loop (a transformer's leakage inductance
-/// with a diode's junction capacitance) rings at MHz through a run of
-/// seconds: the error test makes the solver follow every cycle.
+/// part in it. A high-Q LC loop (a transformer's leakage inductance with a
+/// diode's junction capacitance) rings at MHz through a run of seconds: the
+/// error test makes the solver follow every cycle.
 fn ringing<M>(
     sys: &EquationSystem,
     ode: &CircuitOde<M>,
@@ -1199,34 +1203,116 @@ where
     M: Matrix<T = f64>,
     M::V: HostVec,
 {
+    if steps < RINGING_MIN_STEPS || steps < RINGING_STEPS_PER_POINT * points.max(1) {
+        return None;
+    }
+    // Faster than a tenth of the output interval, Q > 5.
+    let fast = 20.0 * std::f64::consts::PI / tran.tstep;
+    let m = least_damped_mode(sys, ode, tran.tstop, y, fast, 5.0)?;
+    Some(
+        crate::diag::Diagnostic::warning(
+            "K0409",
+            format!(
+                "{steps} steps for {points} output points: a lightly damped mode rings at {:.3e} Hz (Q ≈ {}), and the solver follows each cycle; it lives in {}",
+                m.freq, m.quality(), m.states
+            ),
+        )
+        .with_help(
+            "it is the circuit's own ringing (nothing resistive damps it): a series R–C snubber across those elements damps it; a looser --rtol lets BDF damp it numerically instead",
+        ),
+    )
+}
+
+/// Before a BDF run at a loose rtol (above 1e-3): a mode with Q > 20 that
+/// goes through 10 or more cycles in the run. BDF's orders 3 to 5 are not
+/// A-stable near the imaginary axis, and its error test is relative to the
+/// amplitude it computes: at rtol 1e-2 a lossless LC tank grows 170-fold over
+/// 1000 periods.
+fn oscillation_at_loose_rtol<M>(
+    sys: &EquationSystem,
+    ode: &CircuitOde<M>,
+    tran: &crate::elab::Tran,
+    rtol: f64,
+    t0: f64,
+    y0: &[f64],
+) -> Option<crate::diag::Diagnostic>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+{
+    if rtol <= 1e-3 {
+        return None;
+    }
+    let cycles = 20.0 * std::f64::consts::PI / (tran.tstop - tran.tstart).max(f64::MIN_POSITIVE);
+    let m = least_damped_mode(sys, ode, t0, y0, cycles, 20.0)?;
+    Some(
+        crate::diag::Diagnostic::warning(
+            "K0410",
+            format!(
+                "BDF at rtol {rtol:e} on a lightly damped mode at {:.3e} Hz (Q ≈ {}) in {}: BDF's orders above 2 are not A-stable, and over many cycles the amplitude can grow",
+                m.freq, m.quality(), m.states
+            ),
+        )
+        .with_help("use --method tr-bdf2 (A-stable), or an rtol of 1e-3 or tighter"),
+    )
+}
+
+/// An oscillatory mode of the circuit's Jacobian.
+struct Mode {
+    freq: f64,
+    q: f64,
+    /// The states that take part, with their share, most first.
+    states: String,
+}
+
+impl Mode {
+    fn quality(&self) -> String {
+        if self.q < 1e6 {
+            format!("{:.0}", self.q)
+        } else {
+            "10^6 or more".into()
+        }
+    }
+}
+
+/// The least damped oscillatory mode of `J(t, y)` with angular frequency
+/// above `min_omega` and quality factor above `min_q`, for a small (dense)
+/// circuit; the states in it by modal participation factors `|w_k v_k|`
+/// (right and left eigenvectors by inverse iteration: dimensionless whatever
+/// the states' units).
+fn least_damped_mode<M>(
+    sys: &EquationSystem,
+    ode: &CircuitOde<M>,
+    t: f64,
+    y: &[f64],
+    min_omega: f64,
+    min_q: f64,
+) -> Option<Mode>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+{
     use nalgebra::{Complex, DMatrix, DVector};
     let n = y.len();
-    if steps < RINGING_MIN_STEPS
-        || steps < RINGING_STEPS_PER_POINT * points.max(1)
-        || n == 0
-        || n > DENSE_STATES
-    {
+    if n == 0 || n > DENSE_STATES {
         return None;
     }
     let cols: Vec<usize> = (0..n).collect();
     let mut jac = vec![0.0; n * n];
     let mut f = vec![0.0; n];
-    ode.jacobian_columns(Regs::Side, tran.tstop, y, &cols, &mut jac, &mut f)
+    ode.jacobian_columns(Regs::Side, t, y, &cols, &mut jac, &mut f)
         .ok()?;
     if jac.iter().any(|v| !v.is_finite()) {
         return None;
     }
     let j = DMatrix::from_row_slice(n, n, &jac);
-    // Oscillatory (Im > 0), faster than a tenth of the output interval,
-    // lightly damped (Q > 5); the least damped of them.
-    let fast = 20.0 * std::f64::consts::PI / tran.tstep;
+    // Q = |λ| / (2 |Re λ|) > min_q, i.e. -Re λ < |λ| / (2 min_q).
     let lambda = j
         .complex_eigenvalues()
         .iter()
         .copied()
-        .filter(|l| l.im > 0.0 && l.im > fast && -l.re < 0.1 * l.im)
+        .filter(|l| l.im > 0.0 && l.im > min_omega && -l.re < l.norm() / (2.0 * min_q))
         .min_by(|a, b| (-a.re / a.im).total_cmp(&(-b.re / b.im)))?;
-    // Right and left eigenvectors by inverse iteration next to λ.
     let cj = j.map(|v| Complex::new(v, 0.0));
     let shift = lambda * Complex::new(1.0 + 1e-9, 0.0);
     let eye = DMatrix::<Complex<f64>>::identity(n, n) * shift;
@@ -1250,35 +1336,24 @@ where
     if total.is_nan() || total <= 0.0 {
         return None;
     }
-    let ode_states = &ode.tape.states;
     let mut order: Vec<usize> = (0..n).filter(|&k| part[k] / total >= 0.05).collect();
     order.sort_by(|&a, &b| part[b].total_cmp(&part[a]));
-    let who: Vec<String> = order
+    let states: Vec<String> = order
         .iter()
         .take(6)
         .map(|&k| {
             format!(
                 "{} ({:.0} %)",
-                sys.vars[ode_states[k]].name,
+                sys.vars[ode.tape.states[k]].name,
                 100.0 * part[k] / total
             )
         })
         .collect();
-    let freq = lambda.im / (2.0 * std::f64::consts::PI);
-    let q = lambda.norm() / (2.0 * (-lambda.re).max(f64::MIN_POSITIVE));
-    Some(
-        crate::diag::Diagnostic::warning(
-            "K0409",
-            format!(
-                "{steps} steps for {points} output points: a lightly damped mode rings at {freq:.3e} Hz (Q ≈ {}), and the solver follows each cycle; it lives in {}",
-                if q < 1e6 { format!("{q:.0}") } else { "10^6 or more".into() },
-                who.join(", ")
-            ),
-        )
-        .with_help(
-            "it is the circuit's own ringing (nothing resistive damps it): a series R–C snubber across those elements damps it; a looser --rtol lets BDF damp it numerically instead",
-        ),
-    )
+    Some(Mode {
+        freq: lambda.im / (2.0 * std::f64::consts::PI),
+        q: lambda.norm() / (2.0 * (-lambda.re).max(f64::MIN_POSITIVE)),
+        states: states.join(", "),
+    })
 }
 
 fn solver_err(t: f64, e: diffsol::DiffsolError) -> SimError {

@@ -281,3 +281,25 @@ fn a_ringing_mode_is_named() {
         );
     }
 }
+
+/// BDF at a loose rtol on a high-Q oscillator is warned about before the run
+/// (K0410: the LC tank grows 170-fold at rtol 1e-2); not with tr-bdf2, not at
+/// rtol 1e-3, and not on the underdamped RLC (Q ≈ 3).
+#[test]
+fn bdf_at_loose_rtol_on_an_oscillator_is_warned() {
+    let warns = |s: &Sorted, method, rtol| {
+        sim(s, method, rtol)
+            .warnings
+            .iter()
+            .any(|d| d.code == "K0410")
+    };
+    let tank = sorted("lc_tank_1000_periods.cir");
+    assert!(warns(&tank, Method::Bdf, 1e-2));
+    assert!(!warns(&tank, Method::Bdf, 1e-3));
+    assert!(!warns(&tank, Method::TrBdf2, 1e-2));
+    let path = crate::root().join("netlists/rlc_series_underdamped.cir");
+    let rlc = pipeline::sort(&path, &FsLoader, &SortOptions::default())
+        .ok()
+        .expect("sorts");
+    assert!(!warns(&rlc, Method::Bdf, 1e-2));
+}
