@@ -60,37 +60,39 @@ pub struct AtomicFile {
 /// The temporary files of the [`AtomicFile`]s not yet committed or dropped.
 static PENDING: std::sync::Mutex<Vec<std::path::PathBuf>> = std::sync::Mutex::new(Vec::new());
 
-fn pending() -> std::sync::MutexGuard<'static, Vec<std::path::PathBuf>> {
-    PENDING.lock().unwrap_or_else(|e| e.into_inner())
+/// A registry of what the interrupt handler cleans up, locked (a panic
+/// elsewhere while it was held leaves it usable).
+fn registry<T>(r: &'static std::sync::Mutex<Vec<T>>) -> std::sync::MutexGuard<'static, Vec<T>> {
+    r.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// `make` something and register its `key`, under the registry's lock so that
+/// an interrupt in between cannot miss it; after an interrupt, nothing.
+fn register<T, R>(
+    r: &'static std::sync::Mutex<Vec<T>>,
+    make: impl FnOnce() -> std::io::Result<R>,
+    key: impl FnOnce(&R) -> T,
+) -> std::io::Result<R> {
+    let mut live = registry(r);
+    if INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst) {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::Interrupted,
+            "interrupted",
+        ));
+    }
+    let made = make()?;
+    live.push(key(&made));
+    Ok(made)
 }
 
 /// Set first thing by the interrupt handler.
 static INTERRUPTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
-fn refuse_if_interrupted() -> std::io::Result<()> {
-    if INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst) {
-        Err(std::io::Error::new(
-            std::io::ErrorKind::Interrupted,
-            "interrupted",
-        ))
-    } else {
-        Ok(())
-    }
-}
-
 /// The live [`ScratchDir`]s.
 static SCRATCH: std::sync::Mutex<Vec<std::path::PathBuf>> = std::sync::Mutex::new(Vec::new());
 
-fn scratch() -> std::sync::MutexGuard<'static, Vec<std::path::PathBuf>> {
-    SCRATCH.lock().unwrap_or_else(|e| e.into_inner())
-}
-
 /// The children started by [`run_child`] and not yet reaped.
 static CHILDREN: std::sync::Mutex<Vec<u32>> = std::sync::Mutex::new(Vec::new());
-
-fn children() -> std::sync::MutexGuard<'static, Vec<u32>> {
-    CHILDREN.lock().unwrap_or_else(|e| e.into_inner())
-}
 
 /// On an interrupt, kill the children it runs (ngspice, `kausal sim` under
 /// `kausal bench`), remove its scratch directories and the temporary files
@@ -101,7 +103,7 @@ pub fn remove_pending_on_interrupt() {
     let _ = ctrlc::set_handler(|| {
         // The main thread runs on until the exit: it starts nothing new.
         INTERRUPTED.store(true, std::sync::atomic::Ordering::SeqCst);
-        for pid in children().drain(..) {
+        for pid in registry(&CHILDREN).drain(..) {
             if let Ok(pid) = libc::pid_t::try_from(pid) {
                 // Killed outright and waited for: a child given time to
                 // exit could still be writing into its scratch directory
@@ -117,7 +119,7 @@ pub fn remove_pending_on_interrupt() {
         // The main thread runs on meanwhile and may be writing into a
         // directory (ngspice's netlist): removal fails while it does (not
         // empty) and is retried, for at most a second.
-        for d in scratch().drain(..) {
+        for d in registry(&SCRATCH).drain(..) {
             for _ in 0..200 {
                 match std::fs::remove_dir_all(&d) {
                     Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
@@ -127,7 +129,7 @@ pub fn remove_pending_on_interrupt() {
                 }
             }
         }
-        for p in pending().drain(..) {
+        for p in registry(&PENDING).drain(..) {
             let _ = std::fs::remove_file(p);
         }
         std::process::exit(130);
@@ -142,11 +144,7 @@ pub struct ScratchDir {
 
 impl ScratchDir {
     pub fn new() -> std::io::Result<ScratchDir> {
-        let mut live = scratch();
-        refuse_if_interrupted()?;
-        let dir = tempfile::tempdir()?;
-        live.push(dir.path().to_path_buf());
-        drop(live);
+        let dir = register(&SCRATCH, tempfile::tempdir, |d| d.path().to_path_buf())?;
         Ok(ScratchDir { dir })
     }
 
@@ -158,27 +156,25 @@ impl ScratchDir {
 impl Drop for ScratchDir {
     /// Unregistered; the `TempDir` then removes it.
     fn drop(&mut self) {
-        scratch().retain(|p| p != self.dir.path());
+        registry(&SCRATCH).retain(|p| p != self.dir.path());
     }
 }
 
 /// Run `cmd` to completion as [`std::process::Command::output`] does, with
 /// the child known to [`remove_pending_on_interrupt`] while it runs.
 pub fn run_child(cmd: &mut std::process::Command) -> std::io::Result<std::process::Output> {
-    let mut live = children();
-    refuse_if_interrupted()?;
-    let child = cmd
-        .stdin(std::process::Stdio::null())
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()?;
+    let spawn = || {
+        cmd.stdin(std::process::Stdio::null())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+    };
+    let child = register(&CHILDREN, spawn, std::process::Child::id)?;
     let pid = child.id();
-    live.push(pid);
-    drop(live);
     // Unregistered as soon as it is reaped: only in those few instructions
     // could an interrupt signal the pid after the kernel freed it.
     let out = child.wait_with_output();
-    children().retain(|&p| p != pid);
+    registry(&CHILDREN).retain(|&p| p != pid);
     out
 }
 
@@ -196,14 +192,12 @@ impl AtomicFile {
             use std::os::unix::fs::PermissionsExt;
             builder.permissions(std::fs::Permissions::from_mode(0o666));
         }
-        // Created and registered under the registry's lock: an interrupt
-        // in between would otherwise miss it.
-        let mut live = pending();
-        refuse_if_interrupted()?;
-        let tmp = builder.tempfile_in(dir)?;
+        let tmp = register(
+            &PENDING,
+            || builder.tempfile_in(dir),
+            |t| t.path().to_path_buf(),
+        )?;
         let tmp_path = tmp.path().to_path_buf();
-        live.push(tmp_path.clone());
-        drop(live);
         Ok(AtomicFile {
             tmp: Some(std::io::BufWriter::with_capacity(1 << 16, tmp)),
             tmp_path,
@@ -235,7 +229,7 @@ impl Drop for AtomicFile {
     /// Committed or not, its temporary is no longer the interrupt's business
     /// (renamed, or removed by the `NamedTempFile` dropped with it).
     fn drop(&mut self) {
-        pending().retain(|p| *p != self.tmp_path);
+        registry(&PENDING).retain(|p| *p != self.tmp_path);
     }
 }
 

@@ -1126,33 +1126,24 @@ fn try_value(v: &Value<'_>, scope: &Scope<'_, '_>) -> Result<f64, ElabError> {
             let calls = std::cell::Cell::new(0);
             let user = |name: &str, args: &[f64]| call_func(scope, name, args, 0, &calls);
             expr.eval_with(&|name| scope.param(name), &user)
-                .map_err(|e| match e {
-                    EvalError::Recursive(f) => ElabError::BadValue {
+                .map_err(|e| {
+                    let reason = match e {
+                        EvalError::Undefined(name) => {
+                            return ElabError::UndefinedParam { span: *span, name };
+                        }
+                        EvalError::Recursive(f) => format!("`.func {f}` calls itself"),
+                        EvalError::TooManyCalls => {
+                            "its functions call each other more than 10^5 times".into()
+                        }
+                        EvalError::UnknownFunction(f) => format!("unknown function `{f}`"),
+                        EvalError::Arity(f, n) => format!("`{f}` takes {n} argument(s)"),
+                        EvalError::NotFinite => "the result is not a finite number".into(),
+                    };
+                    ElabError::BadValue {
                         span: *span,
                         text: text.to_string(),
-                        reason: format!("`.func {f}` calls itself"),
-                    },
-                    EvalError::TooManyCalls => ElabError::BadValue {
-                        span: *span,
-                        text: text.to_string(),
-                        reason: "its functions call each other more than 10^5 times".into(),
-                    },
-                    EvalError::Undefined(name) => ElabError::UndefinedParam { span: *span, name },
-                    EvalError::UnknownFunction(f) => ElabError::BadValue {
-                        span: *span,
-                        text: text.to_string(),
-                        reason: format!("unknown function `{f}`"),
-                    },
-                    EvalError::Arity(f, n) => ElabError::BadValue {
-                        span: *span,
-                        text: text.to_string(),
-                        reason: format!("`{f}` takes {n} argument(s)"),
-                    },
-                    EvalError::NotFinite => ElabError::BadValue {
-                        span: *span,
-                        text: text.to_string(),
-                        reason: "the result is not a finite number".into(),
-                    },
+                        reason,
+                    }
                 })
         }
     }

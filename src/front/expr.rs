@@ -273,48 +273,9 @@ impl PExpr {
                     .map(|a| a.eval_with(lookup, user))
                     .collect::<Result<Vec<_>, _>>()?;
                 if let Some(v) = user(name, &vals) {
-                    let v = v?;
-                    return if v.is_finite() {
-                        Ok(v)
-                    } else {
-                        Err(EvalError::NotFinite)
-                    };
-                }
-                let one = |f: fn(f64) -> f64| -> Result<f64, EvalError> {
-                    match vals.as_slice() {
-                        [x] => Ok(f(*x)),
-                        _ => Err(EvalError::Arity(name.clone(), 1)),
-                    }
-                };
-                let two = |f: fn(f64, f64) -> f64| -> Result<f64, EvalError> {
-                    match vals.as_slice() {
-                        [x, y] => Ok(f(*x, *y)),
-                        _ => Err(EvalError::Arity(name.clone(), 2)),
-                    }
-                };
-                match name.as_str() {
-                    "sqrt" => one(f64::sqrt)?,
-                    "exp" => one(f64::exp)?,
-                    "log" | "ln" => one(f64::ln)?,
-                    "log10" => one(f64::log10)?,
-                    "sin" => one(f64::sin)?,
-                    "cos" => one(f64::cos)?,
-                    "tan" => one(f64::tan)?,
-                    "atan" => one(f64::atan)?,
-                    "asin" => one(f64::asin)?,
-                    "acos" => one(f64::acos)?,
-                    "sinh" => one(f64::sinh)?,
-                    "cosh" => one(f64::cosh)?,
-                    "tanh" => one(f64::tanh)?,
-                    "abs" => one(f64::abs)?,
-                    "floor" => one(f64::floor)?,
-                    "ceil" => one(f64::ceil)?,
-                    "int" => one(f64::trunc)?,
-                    "pow" | "pwr" => two(f64::powf)?,
-                    "min" => two(f64::min)?,
-                    "max" => two(f64::max)?,
-                    "atan2" => two(f64::atan2)?,
-                    _ => return Err(EvalError::UnknownFunction(name.clone())),
+                    v?
+                } else {
+                    Self::builtin(name, &vals)?
                 }
             }
         };
@@ -322,6 +283,46 @@ impl PExpr {
             Ok(v)
         } else {
             Err(EvalError::NotFinite)
+        }
+    }
+
+    /// A built-in function of `vals`.
+    fn builtin(name: &str, vals: &[f64]) -> Result<f64, EvalError> {
+        let one = |f: fn(f64) -> f64| -> Result<f64, EvalError> {
+            match vals {
+                [x] => Ok(f(*x)),
+                _ => Err(EvalError::Arity(name.to_string(), 1)),
+            }
+        };
+        let two = |f: fn(f64, f64) -> f64| -> Result<f64, EvalError> {
+            match vals {
+                [x, y] => Ok(f(*x, *y)),
+                _ => Err(EvalError::Arity(name.to_string(), 2)),
+            }
+        };
+        match name {
+            "sqrt" => one(f64::sqrt),
+            "exp" => one(f64::exp),
+            "log" | "ln" => one(f64::ln),
+            "log10" => one(f64::log10),
+            "sin" => one(f64::sin),
+            "cos" => one(f64::cos),
+            "tan" => one(f64::tan),
+            "atan" => one(f64::atan),
+            "asin" => one(f64::asin),
+            "acos" => one(f64::acos),
+            "sinh" => one(f64::sinh),
+            "cosh" => one(f64::cosh),
+            "tanh" => one(f64::tanh),
+            "abs" => one(f64::abs),
+            "floor" => one(f64::floor),
+            "ceil" => one(f64::ceil),
+            "int" => one(f64::trunc),
+            "pow" | "pwr" => two(f64::powf),
+            "min" => two(f64::min),
+            "max" => two(f64::max),
+            "atan2" => two(f64::atan2),
+            _ => Err(EvalError::UnknownFunction(name.to_string())),
         }
     }
 

@@ -372,21 +372,23 @@ impl Waveform {
                 if let (Some(r), Some(&(last, _))) = (repeat, points.last())
                     && last > r
                 {
-                    // The corners of the repeated part, period after period.
+                    // The corners of the repeated part, period after period:
+                    // those after `r` (a period's start is the last one's
+                    // end, already marked), shifted by k periods (not summed:
+                    // no drift over many periods).
                     let period = last - r;
-                    let first = points.partition_point(|p| p.0 < r);
-                    let mut shift = period + delay;
+                    let after = points.partition_point(|p| p.0 <= r);
                     // At most 10^7 corners (a 1 ns repeat in a 1 s run would
                     // otherwise be 10^9 of them; the rest go unmarked).
-                    'periods: while out.len() < 10_000_000 {
-                        for p in &points[first..] {
+                    'periods: for k in 1.. {
+                        let shift = delay + k as f64 * period;
+                        for p in &points[after..] {
                             let t = p.0 + shift;
-                            if t > t_end {
+                            if t > t_end || out.len() >= 10_000_000 {
                                 break 'periods;
                             }
                             out.push(t);
                         }
-                        shift += period;
                     }
                 }
             }

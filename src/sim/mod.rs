@@ -1243,8 +1243,9 @@ where
     if rtol <= 1e-3 {
         return None;
     }
-    let cycles = 20.0 * std::f64::consts::PI / (tran.tstop - tran.tstart).max(f64::MIN_POSITIVE);
-    let m = least_damped_mode(sys, ode, t0, y0, cycles, 20.0)?;
+    let ten_cycles =
+        20.0 * std::f64::consts::PI / (tran.tstop - tran.tstart).max(f64::MIN_POSITIVE);
+    let m = least_damped_mode(sys, ode, t0, y0, ten_cycles, 20.0)?;
     Some(
         crate::diag::Diagnostic::warning(
             "K0410",
@@ -1311,7 +1312,7 @@ where
         .complex_eigenvalues()
         .iter()
         .copied()
-        .filter(|l| l.im > 0.0 && l.im > min_omega && -l.re < l.norm() / (2.0 * min_q))
+        .filter(|l| l.im > min_omega.max(0.0) && -l.re < l.norm() / (2.0 * min_q))
         .min_by(|a, b| (-a.re / a.im).total_cmp(&(-b.re / b.im)))?;
     let cj = j.map(|v| Complex::new(v, 0.0));
     let shift = lambda * Complex::new(1.0 + 1e-9, 0.0);
