@@ -6,6 +6,7 @@
 //! It knows the circuit (for names, initial conditions and outputs), the
 //! schedule and diffsol; it does no IO.
 
+mod ic;
 pub mod ode;
 pub mod output;
 mod sparse_lu;
@@ -20,6 +21,7 @@ use diffsol::{
 };
 
 use crate::back::tape::{self, EvalError, OutputRef, Tape};
+use crate::build::Built;
 use crate::elab::{Circuit, ElementKind, GROUND, Output};
 use crate::ir::{EquationSystem, VarId, Waveform};
 use crate::pipeline::Sorted;
@@ -158,12 +160,8 @@ impl crate::diag::ToDiagnostic for SimError {
     }
 }
 
-/// An output: its name and what computes it.
-fn resolve_probe(
-    c: &Circuit,
-    sorted: &Sorted,
-    probe: &str,
-) -> Result<(String, OutputRef), SimError> {
+/// The output a probe names.
+fn resolve_probe(c: &Circuit, probe: &str) -> Result<Output, SimError> {
     let p = probe.trim().to_ascii_lowercase();
     let bad = || SimError::UnknownProbe(probe.to_string());
     let inner = |prefix: &str| -> Option<&str> { p.strip_prefix(prefix)?.strip_suffix(')') };
@@ -174,29 +172,27 @@ fn resolve_probe(
             .map(|n| c.find_node(n))
             .collect::<Option<_>>()
             .ok_or_else(bad)?;
-        let out = match ids.as_slice() {
-            [a] => Output::Voltage {
+        return match ids.as_slice() {
+            [a] => Ok(Output::Voltage {
                 pos: *a,
                 neg: GROUND,
-            },
-            [a, b] => Output::Voltage { pos: *a, neg: *b },
-            _ => return Err(bad()),
+            }),
+            [a, b] => Ok(Output::Voltage { pos: *a, neg: *b }),
+            _ => Err(bad()),
         };
-        return Ok((c.output_name(&out), output_ref(sorted, &out)));
     }
     if let Some(name) = inner("i(") {
         let e = c.find_element(name.trim()).ok_or_else(bad)?;
         if matches!(c.elements[e].kind, ElementKind::Coupling { .. }) {
             return Err(bad());
         }
-        let out = Output::Current { elem: e };
-        return Ok((c.output_name(&out), output_ref(sorted, &out)));
+        return Ok(Output::Current { elem: e });
     }
     Err(bad())
 }
 
-fn output_ref(sorted: &Sorted, out: &Output) -> OutputRef {
-    let b = &sorted.built;
+/// What computes an output in the equations `b`.
+fn output_ref(b: &Built, out: &Output) -> OutputRef {
     match *out {
         Output::Voltage { pos, neg } if neg == GROUND => {
             OutputRef::Expr(b.node_pot[pos.0 as usize])
@@ -214,34 +210,37 @@ fn output_ref(sorted: &Sorted, out: &Output) -> OutputRef {
 
 /// The outputs of a run: `--probe`s, else `.print`/`.save`, else every node
 /// voltage and every voltage source's current (ngspice's default vectors).
+pub fn output_list(c: &Circuit, probes: &[String]) -> Result<Vec<Output>, SimError> {
+    if !probes.is_empty() {
+        return probes.iter().map(|p| resolve_probe(c, p)).collect();
+    }
+    if !c.outputs.is_empty() {
+        return Ok(c.outputs.clone());
+    }
+    let mut v: Vec<Output> = c
+        .nodes
+        .ids()
+        .filter(|&n| n != GROUND)
+        .map(|n| Output::Voltage {
+            pos: n,
+            neg: GROUND,
+        })
+        .collect();
+    v.extend(
+        c.elements
+            .iter()
+            .filter(|(_, e)| matches!(e.kind, ElementKind::VSource { .. }))
+            .map(|(id, _)| Output::Current { elem: id }),
+    );
+    Ok(v)
+}
+
+/// [`output_list`] with each output's name and what computes it.
 pub fn outputs(sorted: &Sorted, probes: &[String]) -> Result<Vec<(String, OutputRef)>, SimError> {
     let c = &sorted.elaborated.circuit;
-    if !probes.is_empty() {
-        return probes.iter().map(|p| resolve_probe(c, sorted, p)).collect();
-    }
-    let list: Vec<Output> = if !c.outputs.is_empty() {
-        c.outputs.clone()
-    } else {
-        let mut v: Vec<Output> = c
-            .nodes
-            .ids()
-            .filter(|&n| n != GROUND)
-            .map(|n| Output::Voltage {
-                pos: n,
-                neg: GROUND,
-            })
-            .collect();
-        v.extend(
-            c.elements
-                .iter()
-                .filter(|(_, e)| matches!(e.kind, ElementKind::VSource { .. }))
-                .map(|(id, _)| Output::Current { elem: id }),
-        );
-        v
-    };
-    Ok(list
+    Ok(output_list(c, probes)?
         .iter()
-        .map(|o| (c.output_name(o), output_ref(sorted, o)))
+        .map(|o| (c.output_name(o), output_ref(&sorted.built, o)))
         .collect())
 }
 
@@ -310,14 +309,39 @@ fn breakpoints(sys: &EquationSystem, t0: f64, t1: f64, tmax: Option<f64>) -> (Ve
     (hard, soft)
 }
 
-/// The initial states: `uic` (element `ic=` and `.ic` values) or the DC
+/// The start of a run.
+struct Start {
+    y: Vec<f64>,
+    warnings: Vec<crate::diag::Diagnostic>,
+    /// The outputs at t = 0 when they are not those of `y`: the operating
+    /// point with the `.ic` nodes held, before they are released.
+    row: Option<Vec<f64>>,
+}
+
+/// The element that owns each branch variable.
+fn element_of_vars(sorted: &Sorted) -> HashMap<VarId, crate::elab::ElemId> {
+    let mut owner = HashMap::new();
+    for (e, ev) in sorted.built.elem_vars.iter().enumerate() {
+        if let Some(ev) = ev {
+            let id = crate::elab::ElemId(e as u32);
+            owner.insert(ev.u, id);
+            owner.insert(ev.i, id);
+        }
+    }
+    owner
+}
+
+/// The initial states: `uic` (element `ic=` and `.ic` values), the DC
+/// operating point with the `.ic` nodes held (see [`ic`]), or the DC
 /// operating point (capacitors open, inductors shorted: `f(0, y) = 0`).
 fn initial_state<M: Matrix<T = f64>>(
     sorted: &Sorted,
     ode: &CircuitOde<M>,
     t0: f64,
     atol: &[f64],
-) -> Result<(Vec<f64>, Vec<crate::diag::Diagnostic>), SimError>
+    outputs: &[Output],
+    opts: &Options,
+) -> Result<Start, SimError>
 where
     M::V: HostVec,
 {
@@ -325,79 +349,64 @@ where
     let tape = &ode.tape;
     let n = tape.states.len();
     let uic = c.tran.as_ref().is_some_and(|t| t.uic);
-    // Element initial conditions, and `.ic` node voltages for capacitors.
-    let ic_node = |node: crate::elab::NodeId| -> Option<f64> {
-        if node == GROUND {
-            return Some(0.0);
-        }
-        c.ics.iter().find(|i| i.node == node).map(|i| i.value)
-    };
-    let mut y = vec![0.0; n];
-    let mut from_ic = vec![false; n];
-    let mut held_ics = vec![false; c.ics.len()];
-    // The element of each variable, once (not a search per state).
-    let mut owner: HashMap<VarId, usize> = HashMap::new();
-    for (e, ev) in sorted.built.elem_vars.iter().enumerate() {
-        if let Some(ev) = ev {
-            owner.insert(ev.u, e);
-            owner.insert(ev.i, e);
+    let mut warnings = Vec::new();
+    if !uic && !c.ics.is_empty() {
+        match ic::held_operating_point(sorted, &tape.states, outputs, opts) {
+            Ok(held) => {
+                return Ok(Start {
+                    y: held.y,
+                    warnings: held.warnings,
+                    row: Some(held.row),
+                });
+            }
+            Err(ic::Unheld::Sim(e)) => return Err(e),
+            Err(ic::Unheld::Structure(why)) => warnings.push(ic::unheld_warning(c, &why)),
         }
     }
-    for (k, &s) in tape.states.iter().enumerate() {
-        let Some(&e) = owner.get(&s) else {
-            continue;
-        };
-        let el = &c.elements.as_slice()[e];
-        match el.kind {
-            ElementKind::Capacitor { ic: Some(v), .. }
-            | ElementKind::Inductor { ic: Some(v), .. } => {
-                y[k] = v;
-                from_ic[k] = true;
+    let mut y = vec![0.0; n];
+    if uic {
+        // Element initial conditions, and `.ic` node voltages across
+        // capacitors whose other terminal is ground or named too.
+        let ic_node = |node: crate::elab::NodeId| -> Option<f64> {
+            if node == GROUND {
+                return Some(0.0);
             }
-            ElementKind::Capacitor { ic: None, .. } => {
-                // Held when `.ic` names one terminal and the other is named
-                // too or is ground (ground alone holds nothing).
-                let named = |node| node != GROUND && c.ics.iter().any(|i| i.node == node);
-                if (named(el.nodes[0]) || named(el.nodes[1]))
-                    && let (Some(a), Some(b)) = (ic_node(el.nodes[0]), ic_node(el.nodes[1]))
-                {
-                    y[k] = a - b;
-                    from_ic[k] = true;
-                    for (held, i) in held_ics.iter_mut().zip(&c.ics) {
-                        *held |= el.nodes.contains(&i.node);
+            c.ics.iter().find(|i| i.node == node).map(|i| i.value)
+        };
+        let owner = element_of_vars(sorted);
+        for (k, &s) in tape.states.iter().enumerate() {
+            let Some(&e) = owner.get(&s) else {
+                continue;
+            };
+            let el = &c.elements[e];
+            match el.kind {
+                ElementKind::Capacitor { ic: Some(v), .. }
+                | ElementKind::Inductor { ic: Some(v), .. } => y[k] = v,
+                ElementKind::Capacitor { ic: None, .. } => {
+                    let named = |node| node != GROUND && c.ics.iter().any(|i| i.node == node);
+                    if (named(el.nodes[0]) || named(el.nodes[1]))
+                        && let (Some(a), Some(b)) = (ic_node(el.nodes[0]), ic_node(el.nodes[1]))
+                    {
+                        y[k] = a - b;
                     }
                 }
+                _ => {}
             }
-            _ => {}
         }
+        return Ok(Start {
+            y,
+            warnings,
+            row: None,
+        });
     }
-    if uic {
-        return Ok((y, Vec::new()));
-    }
-    // ngspice holds every `.ic` node during the operating point; kausal holds
-    // the capacitors it joins to ground or another `.ic` node. Say so when
-    // that leaves one out, rather than ignore it.
-    let warnings = c
-        .ics
-        .iter()
-        .zip(&held_ics)
-        .filter(|(_, held)| !**held)
-        .map(|(i, _)| {
-            let name = &c.nodes[i.node].name;
-            crate::diag::Diagnostic::warning(
-                "K0408",
-                format!(
-                    "`.ic v({name})` is not held in the DC operating point: no capacitor joins `{name}` to ground or to another `.ic` node"
-                ),
-            )
-            .with_label(i.span, "the node takes its DC value instead")
-            .with_help("put the initial condition on a capacitor (`ic=`), or use `.tran ... uic`")
-        })
-        .collect();
     tape.dc.set(true);
-    let r = dc_point::<M>(c, ode, t0, y, &from_ic, atol);
+    let r = dc_point::<M>(ode, t0, y, atol);
     tape.dc.set(false);
-    Ok((r?, warnings))
+    Ok(Start {
+        y: r?,
+        warnings,
+        row: None,
+    })
 }
 
 /// Why a DC Newton step could not be computed.
@@ -409,11 +418,9 @@ const DC_SINGULAR: &str = "the DC Jacobian is singular: a node or loop has no DC
 /// steps (as ngspice limits junction voltages); when Newton still fails,
 /// the sources are ramped up from zero (source stepping).
 fn dc_point<M: Matrix<T = f64>>(
-    c: &Circuit,
     ode: &CircuitOde<M>,
     t0: f64,
     y: Vec<f64>,
-    from_ic: &[bool],
     atol: &[f64],
 ) -> Result<Vec<f64>, SimError>
 where
@@ -422,15 +429,9 @@ where
     use diffsol::{OdeEquations, Op, Vector};
     let n = y.len();
     let tape = &ode.tape;
-    let fix: Vec<bool> = from_ic.iter().map(|&b| b && !c.ics.is_empty()).collect();
     let resid = |y: &[f64], f: &mut Vec<f64>| -> Result<f64, SimError> {
         ode.eval(t0, y, f)
             .map_err(|error| SimError::Eval { error })?;
-        for k in 0..n {
-            if fix[k] {
-                f[k] = 0.0;
-            }
-        }
         Ok(f.iter().map(|x| x.abs()).fold(0.0, f64::max))
     };
     // The junction of each charge state (one pass over the tape: a search
@@ -475,13 +476,11 @@ where
         message: DC_SINGULAR.into(),
     };
     let mut jacobian: Box<JacobianAt<'_>> = if n > DENSE_STATES {
-        // The coloured sparse Jacobian; rows of states fixed by `.ic` become
-        // identity rows (their residual is zero, so they do not move).
+        // The coloured sparse Jacobian.
         use diffsol::NonLinearOpJacobian;
         let op = ode.rhs();
         let ctx = ode.context().clone();
         let mut jm = M::new_from_sparsity(n, n, op.jacobian_sparsity(), ctx.clone());
-        let fix = fix.clone();
         Box::new(move |y: &[f64]| {
             let yv = M::V::from_vec(y.to_vec(), ctx.clone());
             op.jacobian_inplace(&yv, t0, &mut jm);
@@ -489,12 +488,8 @@ where
                 return Err(SimError::Eval { error });
             }
             let (at, vals) = jm.triplet_iter();
-            let mut entries: Vec<(usize, usize, f64)> = at
-                .zip(vals)
-                .filter(|&((i, _), _)| !fix[i])
-                .map(|((i, j), v)| (i, j, v))
-                .collect();
-            entries.extend((0..n).filter(|&k| fix[k]).map(|k| (k, k, 1.0)));
+            let entries: Vec<(usize, usize, f64)> =
+                at.zip(vals).map(|((i, j), v)| (i, j, v)).collect();
             sparse_lu::TripletLu::new(n, entries)
                 .map(DcJacobian::Sparse)
                 .ok_or_else(singular)
@@ -502,20 +497,10 @@ where
     } else {
         let (mut cols, mut fy) = (vec![0.0; n * n], vec![0.0; n]);
         let all: Vec<usize> = (0..n).collect();
-        let fix = fix.clone();
         Box::new(move |y: &[f64]| {
             ode.jacobian_columns(Regs::Solver, t0, y, &all, &mut cols, &mut fy)
                 .map_err(|error| SimError::Eval { error })?;
-            let mut lu = vec![0.0; n * n];
-            for i in 0..n {
-                for j in 0..n {
-                    lu[i * n + j] = if fix[i] {
-                        if i == j { 1.0 } else { 0.0 }
-                    } else {
-                        cols[i * n + j]
-                    };
-                }
-            }
+            let mut lu = cols.clone();
             let mut perm = vec![0; n];
             if !(lu.iter().all(|v| v.is_finite()) && tape::lu_factor(n, &mut lu, &mut perm)) {
                 return Err(singular());
@@ -710,8 +695,8 @@ fn simulate_rows(
     let c = &sorted.elaborated.circuit;
     let tran = c.tran.clone().ok_or(SimError::NoTran)?;
     let sys = sorted.system();
-    let outs = outputs(sorted, &opts.probes)?;
-    let refs: Vec<OutputRef> = outs.iter().map(|o| o.1).collect();
+    let list = output_list(c, &opts.probes)?;
+    let refs: Vec<OutputRef> = list.iter().map(|o| output_ref(&sorted.built, o)).collect();
     let tape = Rc::new(tape::compile(
         sys,
         &sorted.causal.graph,
@@ -721,13 +706,14 @@ fn simulate_rows(
     let n = tape.states.len();
     let method = opts.method.unwrap_or(Method::Bdf);
     let mut w = if n == 0 {
-        algebraic(sys, tape.clone(), &tran, opts, sink)?
+        algebraic(sorted, tape.clone(), &tran, &list, opts, sink)?
     } else if n <= DENSE_STATES {
         run::<NalgebraMat<f64>, NalgebraLU<f64>>(
             sorted,
             sys,
             tape.clone(),
             &tran,
+            &list,
             opts,
             method,
             false,
@@ -739,13 +725,14 @@ fn simulate_rows(
             sys,
             tape.clone(),
             &tran,
+            &list,
             opts,
             method,
             true,
             sink,
         )?
     };
-    w.names = outs.into_iter().map(|o| o.0).collect();
+    w.names = list.iter().map(|o| c.output_name(o)).collect();
     w.stats.method = Some(method);
     w.stats.states = n;
     w.stats.in_f = tape.n_in_f;
@@ -758,12 +745,28 @@ fn simulate_rows(
 /// A circuit without states: every output is a function of time alone, so
 /// it is evaluated on the grid (and at the source corners with `--all-steps`).
 fn algebraic(
-    sys: &EquationSystem,
+    sorted: &Sorted,
     tape: Rc<Tape>,
     tran: &crate::elab::Tran,
+    outputs: &[Output],
     opts: &Options,
     sink: Option<RowSink<'_>>,
 ) -> Result<Waveforms, SimError> {
+    let sys = sorted.system();
+    let c = &sorted.elaborated.circuit;
+    // The operating point with the `.ic` nodes held, output at t = 0.
+    let mut warnings = Vec::new();
+    let mut held = None;
+    if !tran.uic && !c.ics.is_empty() {
+        match ic::held_operating_point(sorted, &[], outputs, opts) {
+            Ok(h) => {
+                held = Some(h.row);
+                warnings = h.warnings;
+            }
+            Err(ic::Unheld::Sim(e)) => return Err(e),
+            Err(ic::Unheld::Structure(why)) => warnings.push(ic::unheld_warning(c, &why)),
+        }
+    }
     let mut times = opts
         .times
         .clone()
@@ -782,15 +785,22 @@ fn algebraic(
     let mut stats = Stats::default();
     for k in 0..times.len() {
         let t = times.at(k);
+        let first = k == 0 && t == 0.0;
+        if first && let Some(row) = held.take() {
+            rows.push(t, &row)?;
+            continue;
+        }
         // The first point is the DC operating point unless `uic`.
-        tape.dc.set(k == 0 && t == 0.0 && !tran.uic);
+        tape.dc.set(first && !tran.uic);
         let r = tape.outputs(&mut regs, t, &[], &mut out);
         tape.dc.set(false);
         r.map_err(|error| SimError::Eval { error })?;
         stats.rhs_evals += 1;
         rows.push(t, &out)?;
     }
-    Ok(rows.into_waveforms(stats))
+    let mut w = rows.into_waveforms(stats);
+    w.warnings = warnings;
+    Ok(w)
 }
 
 /// Output times: `.tran`'s uniform grid, computed point by point (a long
@@ -916,6 +926,9 @@ where
     /// The first point is the DC operating point (no `uic`): it is output in
     /// DC mode, as ngspice reports its operating point at t = 0.
     dc_start: bool,
+    /// The first point's outputs when they are not the initial state's (the
+    /// `.ic` nodes held; see [`Start::row`]).
+    first: Option<Vec<f64>>,
     /// The junction-charge states (indices in `y`).
     charges: Vec<usize>,
     /// The factored shifted Jacobian of the charges in the current step.
@@ -1014,6 +1027,7 @@ fn run<M, LS>(
     sys: &EquationSystem,
     tape: Rc<Tape>,
     tran: &crate::elab::Tran,
+    outputs: &[Output],
     opts: &Options,
     method: Method,
     sparse: bool,
@@ -1030,14 +1044,14 @@ where
     let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; tape.states.len()], sparse);
     let c = &sorted.elaborated.circuit;
     let atol = atols(sys, &tape.states, opts, c);
-    let (y0, warnings) = initial_state::<M>(sorted, &ode, t0, &atol)?;
-    *ode.y0.borrow_mut() = y0;
+    let start = initial_state::<M>(sorted, &ode, t0, &atol, outputs, opts)?;
+    *ode.y0.borrow_mut() = start.y;
     let rtol = opts.rtol.unwrap_or_else(|| {
         c.options
             .reltol
             .map_or(DEFAULT_RTOL, |r| r.min(DEFAULT_RTOL * 1e3))
     });
-    let mut warnings = warnings;
+    let mut warnings = start.warnings;
     if method == Method::Bdf
         && let Some(d) = oscillation_at_loose_rtol(sys, &ode, tran, rtol, t0, &ode.y0.borrow())
     {
@@ -1095,6 +1109,7 @@ where
         rows: Rows::new(tape.out_regs.len(), sink),
         out: vec![0.0; tape.out_regs.len()],
         dc_start: !tran.uic,
+        first: start.row,
         charges,
         settle: None,
         last: Vec::new(),
@@ -1409,11 +1424,15 @@ where
         let st = solver.state();
         let (t, y) = (st.t, st.y.slice().to_vec());
         if rec.grid.first() == Some(t) {
-            let tape = &problem.eqn.tape;
-            tape.dc.set(rec.dc_start);
-            let r = rec.record(t, &y);
-            tape.dc.set(false);
-            r?;
+            if let Some(row) = rec.first.take() {
+                rec.rows.push(t, &row)?;
+            } else {
+                let tape = &problem.eqn.tape;
+                tape.dc.set(rec.dc_start);
+                let r = rec.record(t, &y);
+                tape.dc.set(false);
+                r?;
+            }
             rec.next = 1;
         }
     }

@@ -1,0 +1,296 @@
+//! `.ic` without `uic`: the operating point with every `.ic` node held at
+//! its value, as ngspice computes it (a 1e10 S Norton source loaded at the
+//! node), from which the transient starts with the nodes released.
+//!
+//! It is solved on the circuit's DC image: capacitors open (0 A sources,
+//! whose branch voltages are the capacitors' voltages), inductors shorted
+//! (0 V sources carrying the inductors' currents), couplings dropped (they
+//! carry nothing at DC), and an ideal voltage source on each `.ic` node. A
+//! capacitor's `ic=` is not used, as ngspice does not use it without `uic`.
+
+use std::rc::Rc;
+
+use diffsol::{FaerSparseMat, Matrix, NalgebraMat};
+
+use super::ode::{CircuitOde, HostVec};
+use super::{DENSE_STATES, Options, SimError, atols, dc_point, output_ref};
+use crate::back::tape;
+use crate::diag::Diagnostic;
+use crate::elab::{Circuit, ElemId, Element, ElementKind, GROUND, Output};
+use crate::ir::{IdVec, VarId, VarKind, Waveform};
+use crate::pipeline::{Elaborated, SortOptions, Sorted};
+
+/// The held operating point.
+pub(super) struct Held {
+    /// K0408 for each `.ic` that could not be held.
+    pub warnings: Vec<Diagnostic>,
+    /// The circuit's states there (one per state of the sorted system).
+    pub y: Vec<f64>,
+    /// The outputs there: the `.ic` nodes at their values, as ngspice
+    /// reports its operating point at t = 0.
+    pub row: Vec<f64>,
+}
+
+/// Why the `.ic` nodes could not be held.
+pub(super) enum Unheld {
+    /// The DC image has no solution structure (an `.ic` on a node that a
+    /// voltage source or an inductor ties to another fixed potential): the
+    /// message of its first error.
+    Structure(String),
+    /// The held operating point was set up but not found.
+    Sim(SimError),
+}
+
+/// Which `.ic` nodes can be held: not those that voltage sources, inductors
+/// (shorts at DC) and controlled voltage sources tie to ground or to a node
+/// held before (the node would have two potentials; ngspice's finite
+/// conductance gives way to the source there too).
+fn holdable(c: &Circuit) -> Vec<bool> {
+    let mut parent: Vec<usize> = (0..c.nodes.len()).collect();
+    fn find(parent: &mut [usize], mut x: usize) -> usize {
+        while parent[x] != x {
+            parent[x] = parent[parent[x]];
+            x = parent[x];
+        }
+        x
+    }
+    for e in c.elements.values() {
+        if let ElementKind::VSource { .. }
+        | ElementKind::Inductor { .. }
+        | ElementKind::Vcvs { .. }
+        | ElementKind::Ccvs { .. } = e.kind
+        {
+            let (a, b) = (
+                find(&mut parent, e.nodes[0].0 as usize),
+                find(&mut parent, e.nodes[1].0 as usize),
+            );
+            parent[a] = b;
+        }
+    }
+    let mut fixed = vec![false; c.nodes.len()];
+    let ground = find(&mut parent, GROUND.0 as usize);
+    fixed[ground] = true;
+    c.ics
+        .iter()
+        .map(|ic| {
+            let r = find(&mut parent, ic.node.0 as usize);
+            !std::mem::replace(&mut fixed[r], true)
+        })
+        .collect()
+}
+
+/// The DC image of `c` (see the module documentation), holding the `.ic`
+/// nodes marked in `hold`, and, for each element of `c`, its element in the
+/// image (`None` for couplings).
+fn dc_image(c: &Circuit, hold: &[bool]) -> (Circuit, Vec<Option<ElemId>>) {
+    let zero = || Box::new(Waveform::Dc { value: 0.0 });
+    let mut elements = IdVec::with_capacity(c.elements.len() + c.ics.len());
+    let mut map = Vec::with_capacity(c.elements.len());
+    for e in c.elements.values() {
+        let kind = match &e.kind {
+            ElementKind::Coupling { .. } => {
+                map.push(None);
+                continue;
+            }
+            ElementKind::Capacitor { .. } => ElementKind::ISource { wave: zero() },
+            ElementKind::Inductor { .. } => ElementKind::VSource { wave: zero() },
+            k => k.clone(),
+        };
+        map.push(Some(elements.push(Element {
+            name: e.name.clone(),
+            kind,
+            nodes: e.nodes.clone(),
+            span: e.span,
+        })));
+    }
+    for e in elements.values_mut() {
+        if let ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } = &mut e.kind {
+            // A controlling element is a voltage source, never a coupling.
+            if let Some(to) = map[ctrl.0 as usize] {
+                *ctrl = to;
+            }
+        }
+    }
+    for ic in c.ics.iter().zip(hold).filter(|h| *h.1).map(|h| h.0) {
+        elements.push(Element {
+            name: format!(".ic v({})", c.nodes[ic.node].name),
+            kind: ElementKind::VSource {
+                wave: Box::new(Waveform::Dc { value: ic.value }),
+            },
+            nodes: vec![ic.node, GROUND],
+            span: ic.span,
+        });
+    }
+    let image = Circuit {
+        title: c.title.clone(),
+        nodes: c.nodes.clone(),
+        elements,
+        tran: c.tran.clone(),
+        ics: Vec::new(),
+        options: c.options.clone(),
+        outputs: Vec::new(),
+    };
+    (image, map)
+}
+
+/// The operating point of `sorted`'s circuit with its `.ic` nodes held:
+/// the values of `states` (the states of the sorted system, in order) and
+/// of `outputs` there.
+pub(super) fn held_operating_point(
+    sorted: &Sorted,
+    states: &[VarId],
+    outputs: &[Output],
+    opts: &Options,
+) -> Result<Held, Unheld> {
+    let c = &sorted.elaborated.circuit;
+    let hold = holdable(c);
+    let warnings = c
+        .ics
+        .iter()
+        .zip(&hold)
+        .filter(|h| !*h.1)
+        .map(|(ic, _)| {
+            let name = &c.nodes[ic.node].name;
+            Diagnostic::warning(
+                "K0408",
+                format!(
+                    "`.ic v({name})` cannot be held in the DC operating point: a voltage source or inductor ties `{name}` to ground or to another `.ic` node"
+                ),
+            )
+            .with_label(ic.span, "the node takes the value the circuit gives it")
+            .with_help("remove this `.ic`, or put it on a node that no voltage source fixes")
+        })
+        .collect();
+    let (image, map) = dc_image(c, &hold);
+    let el = Elaborated {
+        sources: sorted.elaborated.sources.clone(),
+        circuit: image,
+        warnings: Vec::new(),
+    };
+    let built = crate::build::build(&el.circuit, Default::default());
+    let dc = crate::pipeline::sort_built(el, built, &SortOptions::default()).map_err(|f| {
+        Unheld::Structure(
+            f.errors()
+                .next()
+                .map_or_else(|| "it cannot be sorted".into(), |d| d.message.clone()),
+        )
+    })?;
+    let sys = dc.system();
+    let dc_states: Vec<VarId> = sys.states().collect();
+    // What each of the circuit's states is in the image: a capacitor's
+    // voltage across its open terminals, an inductor's current through its
+    // short, a junction's charge the image's own state of that name.
+    let owner = super::element_of_vars(sorted);
+    let image_elem = |e: ElemId| map[e.0 as usize].expect("a two-terminal element");
+    let unmapped = |v: VarId| {
+        Unheld::Structure(format!(
+            "kausal cannot map the state `{}` onto the operating point",
+            sorted.system().vars[v].name
+        ))
+    };
+    enum From {
+        Output(usize),
+        State(usize),
+    }
+    let mut refs = Vec::new();
+    let mut from = Vec::with_capacity(states.len());
+    for &s in states {
+        let var = &sorted.system().vars[s];
+        if var.kind == VarKind::Charge {
+            let k = dc_states
+                .iter()
+                .position(|&d| sys.vars[d].name == var.name)
+                .ok_or_else(|| unmapped(s))?;
+            from.push(From::State(k));
+            continue;
+        }
+        let e = *owner.get(&s).ok_or_else(|| unmapped(s))?;
+        let el = &c.elements[e];
+        let out = match el.kind {
+            ElementKind::Capacitor { .. } => Output::Voltage {
+                pos: el.nodes[0],
+                neg: el.nodes[1],
+            },
+            ElementKind::Inductor { .. } => Output::Current {
+                elem: image_elem(e),
+            },
+            _ => return Err(unmapped(s)),
+        };
+        from.push(From::Output(refs.len()));
+        refs.push(output_ref(&dc.built, &out));
+    }
+    let first_output = refs.len();
+    for o in outputs {
+        let o = match *o {
+            Output::Current { elem } => Output::Current {
+                elem: image_elem(elem),
+            },
+            ref v => v.clone(),
+        };
+        refs.push(output_ref(&dc.built, &o));
+    }
+    let tape = Rc::new(tape::compile(sys, &dc.causal.graph, &dc.schedule, &refs));
+    let atol = atols(sys, &dc_states, opts, &dc.elaborated.circuit);
+    let (y, values) = if dc_states.len() > DENSE_STATES {
+        solve::<FaerSparseMat<f64>>(tape, &atol, true)
+    } else {
+        solve::<NalgebraMat<f64>>(tape, &atol, false)
+    }
+    .map_err(Unheld::Sim)?;
+    let y = from
+        .iter()
+        .map(|f| match *f {
+            From::Output(k) => values[k],
+            From::State(k) => y[k],
+        })
+        .collect();
+    Ok(Held {
+        warnings,
+        y,
+        row: values[first_output..].to_vec(),
+    })
+}
+
+/// The image's operating point: its states (junction charges) and the
+/// values of the tape's outputs there.
+fn solve<M: Matrix<T = f64>>(
+    tape: Rc<tape::Tape>,
+    atol: &[f64],
+    sparse: bool,
+) -> Result<(Vec<f64>, Vec<f64>), SimError>
+where
+    M::V: HostVec,
+{
+    let n = tape.states.len();
+    let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; n], sparse);
+    tape.dc.set(true);
+    let result = (|| {
+        let y = dc_point::<M>(&ode, 0.0, vec![0.0; n], atol)?;
+        let mut out = vec![0.0; tape.out_regs.len()];
+        ode.outputs(0.0, &y, &mut out)
+            .map_err(|error| SimError::Eval { error })?;
+        Ok((y, out))
+    })();
+    tape.dc.set(false);
+    result
+}
+
+/// K0408: the `.ic` nodes could not be held, and why.
+pub(super) fn unheld_warning(c: &Circuit, why: &str) -> Diagnostic {
+    let names: Vec<String> = c
+        .ics
+        .iter()
+        .map(|i| format!("`v({})`", c.nodes[i.node].name))
+        .collect();
+    let mut d = Diagnostic::warning(
+        "K0408",
+        format!(
+            "{} cannot be held in the DC operating point ({why})",
+            names.join(", ")
+        ),
+    );
+    if let Some(first) = c.ics.first() {
+        d = d.with_label(first.span, "the nodes take their DC values instead");
+    }
+    d.with_help("remove the conflicting `.ic`, or give capacitors `ic=` and use `.tran ... uic`")
+}
