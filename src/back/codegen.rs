@@ -1,7 +1,9 @@
 //! Generated source: the schedule as a standalone Rust or C function
 //! `rhs(t, y, p, v, dy)` — "the code of the function f(t, y) of the
-//! simulation model" — and `jac_mul(t, y, p, v, w, jw)` (J·w by a central
-//! directional difference; the in-process evaluator has the analytic one).
+//! simulation model" — and `jac_mul(t, y, p, v, dv, w, jw)`, the exact J·w:
+//! each assignment's tangent `dv` from its operands' (forward-mode automatic
+//! differentiation), a loop's tangents by implicit differentiation of its
+//! residuals (affine in the tears' tangents: one small dense solve).
 //!
 //! Every statement is commented with the equation and element it comes from.
 //! Values live in one array `v` indexed by variable. Runs of assignments of
@@ -136,6 +138,19 @@ struct Gen<'a> {
 enum Leaf {
     Var(u32),
     Param(u32),
+    /// A variable's tangent `dv[k]`.
+    Tan(u32),
+}
+
+impl Leaf {
+    /// The array and index of the operand.
+    fn parts(self) -> (&'static str, u32) {
+        match self {
+            Leaf::Var(v) => ("v", v),
+            Leaf::Param(p) => ("p", p),
+            Leaf::Tan(v) => ("dv", v),
+        }
+    }
 }
 
 /// Placeholder for an index in an expression shape.
@@ -143,10 +158,197 @@ const HOLE: char = '#';
 
 impl Gen<'_> {
     fn expr(&self, e: ExprId) -> String {
-        self.expr_with(e, &mut |leaf| match leaf {
-            Leaf::Var(v) => format!("v[{v}]"),
-            Leaf::Param(p) => format!("p[{p}]"),
+        self.expr_with(e, &mut |leaf| {
+            let (a, k) = leaf.parts();
+            format!("{a}[{k}]")
         })
+    }
+
+    /// The tangent of `e` with plain indices (see [`Gen::tangent_with`]).
+    fn tangent(&self, e: ExprId) -> String {
+        self.tangent_with(e, &mut |leaf| {
+            let (a, k) = leaf.parts();
+            format!("{a}[{k}]")
+        })
+        .unwrap_or_else(|| "0.0".into())
+    }
+
+    /// Whether `e` reads an unknown (else its tangent is zero).
+    fn varies(&self, e: ExprId) -> bool {
+        match self.x.get(e) {
+            Expr::Var(_) => true,
+            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => false,
+            Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => self.varies(a),
+            Expr::Add(a, b)
+            | Expr::Sub(a, b)
+            | Expr::Mul(a, b)
+            | Expr::Div(a, b)
+            | Expr::Pow(a, b) => self.varies(a) || self.varies(b),
+        }
+    }
+
+    /// `f(arg)` for a function of the C library, as Rust writes it.
+    fn call(&self, f: &str, arg: String) -> String {
+        match self.lang {
+            Lang::Rust => format!("{arg}.{}()", if f == "log" { "ln" } else { f }),
+            Lang::C => format!("{f}({arg})"),
+        }
+    }
+
+    /// The tangent of `e`, `Σ ∂e/∂x · dx` over the unknowns `x` read (the
+    /// forward mode of automatic differentiation), its operands written by
+    /// `leaf` in the order they appear; `None` when `e` reads no unknown.
+    fn tangent_with(&self, e: ExprId, leaf: &mut dyn FnMut(Leaf) -> String) -> Option<String> {
+        if !self.varies(e) {
+            return None;
+        }
+        let rust = self.lang == Lang::Rust;
+        let (pow, ln) = (
+            |_: &Self, a: String, b: String| {
+                if rust {
+                    format!("{a}.powf({b})")
+                } else {
+                    format!("pow({a}, {b})")
+                }
+            },
+            |g: &Self, a: String| g.call("log", a),
+        );
+        let d = match self.x.get(e) {
+            Expr::Var(v) => leaf(Leaf::Tan(v.0)),
+            Expr::Neg(a) => format!("(-{})", self.tangent_with(a, leaf)?),
+            Expr::Add(a, b) | Expr::Sub(a, b) => {
+                let minus = matches!(self.x.get(e), Expr::Sub(..));
+                match (self.varies(a), self.varies(b)) {
+                    (true, true) => {
+                        let da = self.tangent_with(a, leaf)?;
+                        let db = self.tangent_with(b, leaf)?;
+                        format!("({da} {} {db})", if minus { '-' } else { '+' })
+                    }
+                    (true, false) => self.tangent_with(a, leaf)?,
+                    _ => {
+                        let db = self.tangent_with(b, leaf)?;
+                        if minus { format!("(-{db})") } else { db }
+                    }
+                }
+            }
+            Expr::Mul(a, b) => match (self.varies(a), self.varies(b)) {
+                (true, true) => {
+                    let da = self.tangent_with(a, leaf)?;
+                    let eb = self.expr_with(b, leaf);
+                    let ea = self.expr_with(a, leaf);
+                    let db = self.tangent_with(b, leaf)?;
+                    format!("({da} * {eb} + {ea} * {db})")
+                }
+                (true, false) => {
+                    let da = self.tangent_with(a, leaf)?;
+                    format!("({da} * {})", self.expr_with(b, leaf))
+                }
+                _ => {
+                    let ea = self.expr_with(a, leaf);
+                    format!("({ea} * {})", self.tangent_with(b, leaf)?)
+                }
+            },
+            Expr::Div(a, b) => match (self.varies(a), self.varies(b)) {
+                (true, false) => {
+                    let da = self.tangent_with(a, leaf)?;
+                    format!("({da} / {})", self.expr_with(b, leaf))
+                }
+                (false, _) => {
+                    let ea = self.expr_with(a, leaf);
+                    let db = self.tangent_with(b, leaf)?;
+                    let eb = self.expr_with(b, leaf);
+                    format!("(-{ea} * {db} / ({eb} * {}))", self.expr_with(b, leaf))
+                }
+                (true, true) => {
+                    let da = self.tangent_with(a, leaf)?;
+                    let ea = self.expr_with(a, leaf);
+                    let eb = self.expr_with(b, leaf);
+                    let db = self.tangent_with(b, leaf)?;
+                    format!(
+                        "(({da} - {ea} / {eb} * {db}) / {})",
+                        self.expr_with(b, leaf)
+                    )
+                }
+            },
+            // d(a^b) = b a^(b-1) da + a^b ln(a) db.
+            Expr::Pow(a, b) => match (self.varies(a), self.varies(b)) {
+                (true, false) => {
+                    let eb = self.expr_with(b, leaf);
+                    let ea = self.expr_with(a, leaf);
+                    let p = pow(self, ea, format!("{} - 1.0", self.expr_with(b, leaf)));
+                    format!("({eb} * {p} * {})", self.tangent_with(a, leaf)?)
+                }
+                (false, _) => {
+                    let p = pow(self, self.expr_with(a, leaf), self.expr_with(b, leaf));
+                    let l = ln(self, self.expr_with(a, leaf));
+                    format!("({p} * {l} * {})", self.tangent_with(b, leaf)?)
+                }
+                (true, true) => {
+                    let p = pow(self, self.expr_with(a, leaf), self.expr_with(b, leaf));
+                    let db = self.tangent_with(b, leaf)?;
+                    let l = ln(self, self.expr_with(a, leaf));
+                    let eb = self.expr_with(b, leaf);
+                    let da = self.tangent_with(a, leaf)?;
+                    format!(
+                        "({p} * ({db} * {l} + {eb} * {da} / {}))",
+                        self.expr_with(a, leaf)
+                    )
+                }
+            },
+            Expr::Call(f, a) => {
+                let x = |g: &Self, leaf: &mut dyn FnMut(Leaf) -> String| g.expr_with(a, leaf);
+                let slope = match f {
+                    Func::Exp => self.call("exp", x(self, leaf)),
+                    Func::Ln => format!("(1.0 / {})", x(self, leaf)),
+                    Func::Sqrt => format!("(0.5 / {})", self.call("sqrt", x(self, leaf))),
+                    Func::Sin => self.call("cos", x(self, leaf)),
+                    Func::Cos => format!("(-{})", self.call("sin", x(self, leaf))),
+                    Func::Tan => {
+                        let c1 = self.call("cos", x(self, leaf));
+                        format!("(1.0 / ({c1} * {}))", self.call("cos", x(self, leaf)))
+                    }
+                    Func::Atan => {
+                        let x1 = x(self, leaf);
+                        format!("(1.0 / (1.0 + {x1} * {}))", x(self, leaf))
+                    }
+                    Func::Sinh => self.call("cosh", x(self, leaf)),
+                    Func::Cosh => self.call("sinh", x(self, leaf)),
+                    Func::Tanh => {
+                        let t1 = self.call("tanh", x(self, leaf));
+                        format!("(1.0 - {t1} * {})", self.call("tanh", x(self, leaf)))
+                    }
+                    // Rust's signum: ±1 by the sign bit, as copysign.
+                    Func::Abs => {
+                        if rust {
+                            format!("{}.signum()", x(self, leaf))
+                        } else {
+                            format!("copysign(1.0, {})", x(self, leaf))
+                        }
+                    }
+                };
+                format!("({slope} * {})", self.tangent_with(a, leaf)?)
+            }
+            Expr::Device(f, a) => {
+                let part = match f.part {
+                    DiodePart::Current => 0,
+                    DiodePart::Charge => 1,
+                };
+                if f.order >= 2 {
+                    // The model gives two derivatives (as the evaluator: NaN).
+                    "(0.0 / 0.0)".to_string()
+                } else {
+                    let x = self.expr_with(a, leaf);
+                    format!(
+                        "(diode_{}({part}, {}, {x}) * {})",
+                        f.diode,
+                        f.order + 1,
+                        self.tangent_with(a, leaf)?
+                    )
+                }
+            }
+            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => return None,
+        };
+        Some(d)
     }
 
     /// The expression with its indexed operands written by `leaf`.
@@ -214,20 +416,33 @@ impl Gen<'_> {
     /// each index, and the indices that fill the holes.
     fn shaped(&self, a: &Assignment, e: ExprId) -> Shaped {
         let mut leaves = vec![i64::from(a.var.0)];
-        let rhs = self.expr_with(e, &mut |leaf| match leaf {
-            Leaf::Var(v) => {
-                leaves.push(i64::from(v));
-                format!("v[{HOLE}]")
-            }
-            Leaf::Param(p) => {
-                leaves.push(i64::from(p));
-                format!("p[{HOLE}]")
-            }
+        let rhs = self.expr_with(e, &mut |leaf| {
+            let (arr, k) = leaf.parts();
+            leaves.push(i64::from(k));
+            format!("{arr}[{HOLE}]")
         });
         Shaped {
             template: format!("v[{HOLE}] = {rhs};"),
             leaves,
             var: self.sys.vars[a.var].name.clone(),
+            comment: self.comment(a),
+        }
+    }
+
+    /// The tangent of an explicit assignment as a shape, `dv[#] = ...;`.
+    fn tangent_shaped(&self, a: &Assignment, e: ExprId) -> Shaped {
+        let mut leaves = vec![i64::from(a.var.0)];
+        let rhs = self
+            .tangent_with(e, &mut |leaf| {
+                let (arr, k) = leaf.parts();
+                leaves.push(i64::from(k));
+                format!("{arr}[{HOLE}]")
+            })
+            .unwrap_or_else(|| "0.0".into());
+        Shaped {
+            template: format!("dv[{HOLE}] = {rhs};"),
+            leaves,
+            var: format!("d {}", self.sys.vars[a.var].name),
             comment: self.comment(a),
         }
     }
@@ -258,9 +473,14 @@ impl Gen<'_> {
         }
     }
 
-    /// The residual function and Newton driver of a block.
-    fn block_fns(&self, step: &Step, k: usize, out: &mut String) {
-        let rust = self.lang == Lang::Rust;
+    /// A block's Newton unknowns, its assignments, and its residual
+    /// equations (`lhs - rhs`). Implicit equations inside a loop join the
+    /// Newton solve.
+    #[allow(clippy::type_complexity)]
+    fn block_parts<'s>(
+        &self,
+        step: &'s Step,
+    ) -> (Vec<u32>, Vec<&'s Assignment>, Vec<(ExprId, ExprId)>) {
         let (mut tears, inner, mut residuals): (Vec<u32>, Vec<&Assignment>, Vec<(ExprId, ExprId)>) =
             match step {
                 Step::Assign(a) => {
@@ -276,7 +496,6 @@ impl Gen<'_> {
                         .collect(),
                 ),
             };
-        // Implicit equations inside the loop join the Newton solve.
         for a in &inner {
             if matches!(a.solved, Solved::Implicit(_)) {
                 let eq = &self.sys.eqs[a.eq];
@@ -284,6 +503,13 @@ impl Gen<'_> {
                 residuals.push((eq.lhs, eq.rhs));
             }
         }
+        (tears, inner, residuals)
+    }
+
+    /// The residual function and Newton driver of a block.
+    fn block_fns(&self, step: &Step, k: usize, out: &mut String) {
+        let rust = self.lang == Lang::Rust;
+        let (tears, inner, residuals) = self.block_parts(step);
         let n = tears.len();
         if rust {
             let _ = writeln!(
@@ -346,6 +572,74 @@ impl Gen<'_> {
             );
             let _ = writeln!(out, "    static const int tears[{n}] = {{{tear_list}}};");
             let _ = writeln!(out, "    newton({n}, tears, t, y, p, v, resid_{k});");
+        }
+        let _ = writeln!(out, "}}\n");
+    }
+
+    /// The tangent of a block: the tangents of its assignments and
+    /// residuals (`resid_k_tan`), and their solve (`block_k_tan`).
+    fn block_tan_fns(&self, step: &Step, k: usize, out: &mut String) {
+        let rust = self.lang == Lang::Rust;
+        let (tears, inner, residuals) = self.block_parts(step);
+        if rust {
+            let _ = writeln!(
+                out,
+                "fn resid_{k}_tan(t: f64, y: &[f64], p: &[f64], v: &[f64], dv: &mut [f64], dr: &mut [f64]) {{"
+            );
+            let _ = writeln!(out, "    let _ = (t, y, p, v);");
+        } else {
+            let _ = writeln!(
+                out,
+                "static void resid_{k}_tan(double t, const double *y, const double *p, const double *v, double *dv, double *dr) {{"
+            );
+            let _ = writeln!(out, "    (void)t; (void)y; (void)p; (void)v;");
+        }
+        for a in inner {
+            if let Solved::Explicit(e) = a.solved {
+                let _ = writeln!(
+                    out,
+                    "    dv[{}] = {}; // d {}",
+                    a.var.0,
+                    self.tangent(e),
+                    self.sys.vars[a.var].name
+                );
+            }
+        }
+        for (i, (l, r)) in residuals.iter().enumerate() {
+            let _ = writeln!(
+                out,
+                "    dr[{i}] = {} - {};",
+                self.tangent(*l),
+                self.tangent(*r)
+            );
+        }
+        let _ = writeln!(out, "}}\n");
+        let n = tears.len();
+        let tear_list = tears
+            .iter()
+            .map(|t| t.to_string())
+            .collect::<Vec<_>>()
+            .join(", ");
+        if rust {
+            let _ = writeln!(
+                out,
+                "fn block_{k}_tan(t: f64, y: &[f64], p: &[f64; NP], v: &[f64; N_VARS], dv: &mut [f64; N_VARS]) {{"
+            );
+            let _ = writeln!(out, "    const TEARS: [usize; {n}] = [{tear_list}];");
+            let _ = writeln!(
+                out,
+                "    tangent_solve(&TEARS, dv, &mut |dv: &mut [f64], dr: &mut [f64]| resid_{k}_tan(t, y, p, v, dv, dr));"
+            );
+        } else {
+            let _ = writeln!(
+                out,
+                "static void block_{k}_tan(double t, const double *y, const double *p, const double *v, double *dv) {{"
+            );
+            let _ = writeln!(out, "    static const int tears[{n}] = {{{tear_list}}};");
+            let _ = writeln!(
+                out,
+                "    tangent_solve({n}, tears, t, y, p, v, dv, resid_{k}_tan);"
+            );
         }
         let _ = writeln!(out, "}}\n");
     }
@@ -415,6 +709,17 @@ fn diode(part: u8, o: u8, v: f64, is: f64, vte: f64, bv: f64, g: f64, cjo: f64, 
     q[o as usize]
 }
 
+/// Solve a x = b in place (`b` becomes x): Gaussian elimination with partial pivoting.
+fn lin_solve(n: usize, a: &mut [f64], b: &mut [f64]) {
+    for k in 0..n {
+        let piv = (k..n).max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs())).unwrap_or(k);
+        for j in 0..n { a.swap(k * n + j, piv * n + j); }
+        b.swap(k, piv);
+        for i in k + 1..n { let q = a[i * n + k] / a[k * n + k]; for j in k..n { a[i * n + j] -= q * a[k * n + j]; } b[i] -= q * b[k]; }
+    }
+    for k in (0..n).rev() { let mut s = b[k]; for j in k + 1..n { s -= a[k * n + j] * b[j]; } b[k] = s / a[k * n + k]; }
+}
+
 /// Damped Newton on `tears` (finite-difference Jacobian, dense solve).
 fn newton(tears: &[usize], v: &mut [f64], f: &mut dyn FnMut(&mut [f64], &mut [f64])) {
     let n = tears.len();
@@ -434,13 +739,7 @@ fn newton(tears: &[usize], v: &mut [f64], f: &mut dyn FnMut(&mut [f64], &mut [f6
             for i in 0..n { a[i * n + j] = (r1[i] - r[i]) / h; }
         }
         let mut dx = r.clone();
-        for k in 0..n {
-            let piv = (k..n).max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs())).unwrap_or(k);
-            for j in 0..n { a.swap(k * n + j, piv * n + j); }
-            dx.swap(k, piv);
-            for i in k + 1..n { let q = a[i * n + k] / a[k * n + k]; for j in k..n { a[i * n + j] -= q * a[k * n + j]; } dx[i] -= q * dx[k]; }
-        }
-        for k in (0..n).rev() { let mut s = dx[k]; for j in k + 1..n { s -= a[k * n + j] * dx[j]; } dx[k] = s / a[k * n + k]; }
+        lin_solve(n, &mut a, &mut dx);
         let x0: Vec<f64> = tears.iter().map(|&t| v[t]).collect();
         let mut lambda = 1.0;
         loop {
@@ -452,10 +751,30 @@ fn newton(tears: &[usize], v: &mut [f64], f: &mut dyn FnMut(&mut [f64], &mut [f6
         if dx.iter().zip(&x0).all(|(d, x)| (lambda * d).abs() <= 1e-14 * (1.0 + x.abs())) { return; }
     }
 }
+
+/// The tangents of a loop's unknowns `tears` by implicit differentiation:
+/// `f(dv, dr)` writes the tangents inside the loop and of its residuals,
+/// which are affine in the tears' tangents; they are solved for dr = 0.
+fn tangent_solve(tears: &[usize], dv: &mut [f64], f: &mut dyn FnMut(&mut [f64], &mut [f64])) {
+    let n = tears.len();
+    let (mut b, mut c, mut a) = (vec![0.0; n], vec![0.0; n], vec![0.0; n * n]);
+    for &k in tears { dv[k] = 0.0; }
+    f(dv, &mut b);
+    for j in 0..n {
+        dv[tears[j]] = 1.0;
+        f(dv, &mut c);
+        dv[tears[j]] = 0.0;
+        for i in 0..n { a[i * n + j] = c[i] - b[i]; }
+    }
+    lin_solve(n, &mut a, &mut b);
+    for j in 0..n { dv[tears[j]] = -b[j]; }
+    f(dv, &mut c);
+}
 "#;
 
 const C_PRELUDE: &str = r#"
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 static double pulse(double t, int o, double v1, double v2, double td, double tr, double tf, double pw, double per) {
@@ -515,27 +834,33 @@ static double diode(int part, int o, double v, double is, double vte, double bv,
 
 typedef void (*resid_fn)(double, const double *, const double *, double *, double *);
 
+/* Solve a x = b in place (b becomes x): Gaussian elimination with partial pivoting. */
+static void lin_solve(int n, double *a, double *b) {
+    for (int k = 0; k < n; k++) {
+        int piv = k; for (int i = k + 1; i < n; i++) if (fabs(a[i * n + k]) > fabs(a[piv * n + k])) piv = i;
+        for (int j = 0; j < n; j++) { double s = a[k * n + j]; a[k * n + j] = a[piv * n + j]; a[piv * n + j] = s; }
+        double s = b[k]; b[k] = b[piv]; b[piv] = s;
+        for (int i = k + 1; i < n; i++) { double q = a[i * n + k] / a[k * n + k]; for (int j = k; j < n; j++) a[i * n + j] -= q * a[k * n + j]; b[i] -= q * b[k]; }
+    }
+    for (int k = n - 1; k >= 0; k--) { double s = b[k]; for (int j = k + 1; j < n; j++) s -= a[k * n + j] * b[j]; b[k] = s / a[k * n + k]; }
+}
+
 /* Damped Newton on the tearing variables (finite-difference Jacobian). */
 static void newton(int n, const int *tears, double t, const double *y, const double *p, double *v, resid_fn f) {
-    double r[64], r1[64], a[64 * 64], dx[64], x0[64];
-    if (n > 64) return;
+    double *r = malloc(sizeof(double) * (size_t)(4 * n + n * n));
+    if (!r) { for (int j = 0; j < n; j++) v[tears[j]] = NAN; return; }
+    double *r1 = r + n, *dx = r + 2 * n, *x0 = r + 3 * n, *a = r + 4 * n;
     for (int it = 0; it < 100; it++) {
         f(t, y, p, v, r);
         double base = 0.0; for (int i = 0; i < n; i++) base += r[i] * r[i];
-        if (base == 0.0) return;
+        if (base == 0.0) break;
         for (int j = 0; j < n; j++) {
             double xj = v[tears[j]], h = 1e-7 * (1.0 + fabs(xj));
             v[tears[j]] = xj + h; f(t, y, p, v, r1); v[tears[j]] = xj;
             for (int i = 0; i < n; i++) a[i * n + j] = (r1[i] - r[i]) / h;
         }
-        memcpy(dx, r, sizeof(double) * n);
-        for (int k = 0; k < n; k++) {
-            int piv = k; for (int i = k + 1; i < n; i++) if (fabs(a[i * n + k]) > fabs(a[piv * n + k])) piv = i;
-            for (int j = 0; j < n; j++) { double s = a[k * n + j]; a[k * n + j] = a[piv * n + j]; a[piv * n + j] = s; }
-            double s = dx[k]; dx[k] = dx[piv]; dx[piv] = s;
-            for (int i = k + 1; i < n; i++) { double q = a[i * n + k] / a[k * n + k]; for (int j = k; j < n; j++) a[i * n + j] -= q * a[k * n + j]; dx[i] -= q * dx[k]; }
-        }
-        for (int k = n - 1; k >= 0; k--) { double s = dx[k]; for (int j = k + 1; j < n; j++) s -= a[k * n + j] * dx[j]; dx[k] = s / a[k * n + k]; }
+        memcpy(dx, r, sizeof(double) * (size_t)n);
+        lin_solve(n, a, dx);
         for (int j = 0; j < n; j++) x0[j] = v[tears[j]];
         double lambda = 1.0;
         for (;;) {
@@ -546,8 +871,30 @@ static void newton(int n, const int *tears, double t, const double *y, const dou
             lambda *= 0.5;
         }
         int small = 1; for (int j = 0; j < n; j++) if (fabs(lambda * dx[j]) > 1e-14 * (1.0 + fabs(x0[j]))) small = 0;
-        if (small) return;
+        if (small) break;
     }
+    free(r);
+}
+
+typedef void (*tan_fn)(double, const double *, const double *, const double *, double *, double *);
+
+/* The tangents of a loop's unknowns by implicit differentiation: f writes the
+   tangents inside the loop and of its residuals, which are affine in the
+   tears' tangents; they are solved for dr = 0. */
+static void tangent_solve(int n, const int *tears, double t, const double *y, const double *p, const double *v, double *dv, tan_fn f) {
+    double *b = malloc(sizeof(double) * (size_t)(2 * n + n * n));
+    if (!b) { for (int j = 0; j < n; j++) dv[tears[j]] = NAN; return; }
+    double *c = b + n, *a = b + 2 * n;
+    for (int j = 0; j < n; j++) dv[tears[j]] = 0.0;
+    f(t, y, p, v, dv, b);
+    for (int j = 0; j < n; j++) {
+        dv[tears[j]] = 1.0; f(t, y, p, v, dv, c); dv[tears[j]] = 0.0;
+        for (int i = 0; i < n; i++) a[i * n + j] = c[i] - b[i];
+    }
+    lin_solve(n, a, b);
+    for (int j = 0; j < n; j++) dv[tears[j]] = -b[j];
+    f(t, y, p, v, dv, c);
+    free(b);
 }
 "#;
 
@@ -759,6 +1106,7 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
         if is_block {
             out.push('\n');
             g.block_fns(step, k, &mut out);
+            g.block_tan_fns(step, k, &mut out);
         }
     }
     // Statements, in chunks; repeated sections as loops.
@@ -776,6 +1124,40 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
         g.step(step, k, &mut stmts);
     }
     reroll(&run, lang, &mut stmts);
+    // Their tangents, in the same order: dv of every assignment from the
+    // tangents of its operands; a block's by its tangent solve.
+    let mut tstmts = Vec::new();
+    run.clear();
+    for (k, step) in sched.steps.iter().enumerate() {
+        if let Step::Assign(a) = step
+            && let Solved::Explicit(e) = a.solved
+        {
+            run.push(g.tangent_shaped(a, e));
+            continue;
+        }
+        reroll(&run, lang, &mut tstmts);
+        run.clear();
+        tstmts.push(format!("    block_{k}_tan(t, y, p, v, dv);"));
+    }
+    reroll(&run, lang, &mut tstmts);
+    let tchunks: Vec<&[String]> = tstmts.chunks(CHUNK).collect();
+    for (c, chunk) in tchunks.iter().enumerate() {
+        if rust {
+            let _ = writeln!(
+                out,
+                "\n#[inline(never)]\nfn tan_{c}(t: f64, y: &[f64], p: &[f64; NP], v: &[f64; N_VARS], dv: &mut [f64; N_VARS]) {{\n    let _ = (t, y, p, v);"
+            );
+        } else {
+            let _ = writeln!(
+                out,
+                "\n__attribute__((noinline)) static void tan_{c}(double t, const double *y, const double *p, const double *v, double *dv) {{\n    (void)t; (void)y; (void)p; (void)v;"
+            );
+        }
+        for s in chunk.iter() {
+            let _ = writeln!(out, "{s}");
+        }
+        out.push_str("}\n");
+    }
     let chunks: Vec<&[String]> = stmts.chunks(CHUNK).collect();
     for (c, chunk) in chunks.iter().enumerate() {
         if rust {
@@ -803,6 +1185,30 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
             _ => unreachable!("states have derivatives"),
         })
         .collect();
+    // States in and derivatives out through index tables (loops, not one
+    // statement each: a big circuit's rhs stays small).
+    let table = |ids: Vec<u32>| {
+        ids.iter()
+            .map(|i| i.to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let st = table(states.iter().map(|s| s.0).collect());
+    let dt = table(ders.clone());
+    let ns = states.len().max(1);
+    if rust {
+        let _ = writeln!(
+            out,
+            "\n/// The variable of each state, and of its derivative.\nconst STATE_VAR: [usize; {}] = [{st}];\nconst DER_VAR: [usize; {}] = [{dt}];",
+            states.len(),
+            states.len()
+        );
+    } else {
+        let _ = writeln!(
+            out,
+            "\n/* The variable of each state, and of its derivative. */\nstatic const int STATE_VAR[{ns}] = {{{st}}};\nstatic const int DER_VAR[{ns}] = {{{dt}}};"
+        );
+    }
     if rust {
         let _ = writeln!(
             out,
@@ -822,36 +1228,13 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
             "void rhs(double t, const double *y, const double *p, double *v, double *dy) {{"
         );
     }
-    // States in and derivatives out through index tables (loops, not one
-    // statement each: a big circuit's rhs stays small).
-    let table = |ids: Vec<u32>| {
-        ids.iter()
-            .map(|i| i.to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    let st = table(states.iter().map(|s| s.0).collect());
-    let dt = table(ders.clone());
-    let ns = states.len().max(1);
     if rust {
         out.push_str(RUST_ARRAY_VIEWS);
-        let _ = writeln!(
-            out,
-            "    const STATE_VAR: [usize; {}] = [{st}];",
-            states.len()
-        );
-        let _ = writeln!(
-            out,
-            "    const DER_VAR: [usize; {}] = [{dt}];",
-            states.len()
-        );
         let _ = writeln!(
             out,
             "    for k in 0..N_STATES {{ v[STATE_VAR[k]] = y[k]; }}"
         );
     } else {
-        let _ = writeln!(out, "    static const int STATE_VAR[{ns}] = {{{st}}};");
-        let _ = writeln!(out, "    static const int DER_VAR[{ns}] = {{{dt}}};");
         let _ = writeln!(
             out,
             "    for (int k = 0; k < N_STATES; k++) v[STATE_VAR[k]] = y[k];"
@@ -869,16 +1252,54 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
         );
     }
     out.push_str("}\n");
-    // jac_mul by a directional difference (exact enough for Newton; the
-    // in-process evaluator has the analytic one).
+    // jac_mul: the values at (t, y) by rhs, then the tangent sweep.
     if rust {
-        out.push_str(
-            "\n/// J(t, y) w by a central directional difference.\npub fn jac_mul(t: f64, y: &[f64], p: &[f64], v: &mut [f64], w: &[f64], jw: &mut [f64]) {\n    let n = y.len();\n    let norm = w.iter().fold(0.0f64, |m, x| m.max(x.abs()));\n    if norm == 0.0 { jw.iter_mut().for_each(|x| *x = 0.0); return; }\n    let ys = y.iter().fold(1.0f64, |m, x| m.max(x.abs()));\n    let h = 1e-6 * ys / norm;\n    let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);\n    let yp: Vec<f64> = y.iter().zip(w).map(|(y, w)| y + h * w).collect();\n    let ym: Vec<f64> = y.iter().zip(w).map(|(y, w)| y - h * w).collect();\n    rhs(t, &yp, p, v, &mut a);\n    rhs(t, &ym, p, v, &mut b);\n    for k in 0..n { jw[k] = (a[k] - b[k]) / (2.0 * h); }\n}\n",
+        let _ = writeln!(
+            out,
+            "\n/// J(t, y) w, exact: the tangents of the sorted assignments (forward mode),\n/// loops by implicit differentiation. `v` and `dv` are scratch of N_VARS values."
+        );
+        let _ = writeln!(
+            out,
+            "pub fn jac_mul(t: f64, y: &[f64], p: &[f64], v: &mut [f64], dv: &mut [f64], w: &[f64], jw: &mut [f64]) {{"
+        );
+        let _ = writeln!(out, "    rhs(t, y, p, v, jw);");
+        let _ = writeln!(
+            out,
+            "    let v: &[f64; N_VARS] = (&*v).try_into().expect(\"N_VARS values in v\");\n    let dv: &mut [f64; N_VARS] = dv.try_into().expect(\"N_VARS values in dv\");\n    let p: &[f64; NP] = p.try_into().expect(\"NP parameters\");"
+        );
+        let _ = writeln!(
+            out,
+            "    for k in 0..N_STATES {{ dv[STATE_VAR[k]] = w[k]; }}"
         );
     } else {
-        out.push_str(
-            "\n/* J(t, y) w by a central directional difference. */\nvoid jac_mul(double t, const double *y, const double *p, double *v, const double *w, double *jw) {\n    int n = N_STATES; double norm = 0.0, ys = 1.0;\n    for (int k = 0; k < n; k++) { if (fabs(w[k]) > norm) norm = fabs(w[k]); if (fabs(y[k]) > ys) ys = fabs(y[k]); }\n    if (norm == 0.0) { for (int k = 0; k < n; k++) jw[k] = 0.0; return; }\n    double h = 1e-6 * ys / norm, yp[N_STATES + 1], ym[N_STATES + 1], a[N_STATES + 1], b[N_STATES + 1];\n    for (int k = 0; k < n; k++) { yp[k] = y[k] + h * w[k]; ym[k] = y[k] - h * w[k]; }\n    rhs(t, yp, p, v, a); rhs(t, ym, p, v, b);\n    for (int k = 0; k < n; k++) jw[k] = (a[k] - b[k]) / (2.0 * h);\n}\n",
+        let _ = writeln!(
+            out,
+            "\n/* J(t, y) w, exact: the tangents of the sorted assignments (forward mode),\n   loops by implicit differentiation. v and dv are scratch of N_VARS values. */"
+        );
+        let _ = writeln!(
+            out,
+            "void jac_mul(double t, const double *y, const double *p, double *v, double *dv, const double *w, double *jw) {{"
+        );
+        let _ = writeln!(out, "    rhs(t, y, p, v, jw);");
+        let _ = writeln!(
+            out,
+            "    for (int k = 0; k < N_STATES; k++) dv[STATE_VAR[k]] = w[k];"
         );
     }
+    for c in 0..tchunks.len() {
+        let _ = writeln!(out, "    tan_{c}(t, y, p, v, dv);");
+    }
+    if rust {
+        let _ = writeln!(
+            out,
+            "    for k in 0..N_STATES {{ jw[k] = dv[DER_VAR[k]]; }}"
+        );
+    } else {
+        let _ = writeln!(
+            out,
+            "    for (int k = 0; k < N_STATES; k++) jw[k] = dv[DER_VAR[k]];"
+        );
+    }
+    out.push_str("}\n");
     out
 }

@@ -1,5 +1,5 @@
-//! Generated Rust and C compile (rustc, cc) and compute the same f(t, y) as
-//! the in-process evaluator on random inputs.
+//! Generated Rust and C compile (rustc, cc) and compute the same f(t, y) and
+//! J(t, y)·w as the in-process evaluator on random inputs.
 
 use std::io::Write;
 use std::process::{Command, Stdio};
@@ -17,11 +17,13 @@ fn main() {
     let mut s = String::new();
     std::io::stdin().read_to_string(&mut s).unwrap();
     let nums: Vec<f64> = s.split_whitespace().map(|x| x.parse().unwrap()).collect();
-    let mut v = vec![0.0; N_VARS];
-    for chunk in nums.chunks(N_STATES + 1) {
-        let mut dy = vec![0.0; N_STATES];
-        rhs(chunk[0], &chunk[1..], &P, &mut v, &mut dy);
-        let out: Vec<String> = dy.iter().map(|x| format!("{x:e}")).collect();
+    let (mut v, mut dv) = (vec![0.0; N_VARS], vec![0.0; N_VARS]);
+    for chunk in nums.chunks(2 * N_STATES + 1) {
+        let (y, w) = chunk[1..].split_at(N_STATES);
+        let (mut dy, mut jw) = (vec![0.0; N_STATES], vec![0.0; N_STATES]);
+        rhs(chunk[0], y, &P, &mut v, &mut dy);
+        jac_mul(chunk[0], y, &P, &mut v, &mut dv, w, &mut jw);
+        let out: Vec<String> = dy.iter().chain(&jw).map(|x| format!("{x:e}")).collect();
         println!("{}", out.join(" "));
     }
 }
@@ -30,12 +32,15 @@ fn main() {
 const C_MAIN: &str = r#"
 #include <stdio.h>
 int main(void) {
-    static double v[N_VARS], y[N_STATES + 1], dy[N_STATES + 1];
+    static double v[N_VARS], dv[N_VARS], y[N_STATES + 1], w[N_STATES + 1], dy[N_STATES + 1], jw[N_STATES + 1];
     double t;
     while (scanf("%lf", &t) == 1) {
         for (int k = 0; k < N_STATES; k++) if (scanf("%lf", &y[k]) != 1) return 1;
+        for (int k = 0; k < N_STATES; k++) if (scanf("%lf", &w[k]) != 1) return 1;
         rhs(t, y, P, v, dy);
-        for (int k = 0; k < N_STATES; k++) printf("%.17e%s", dy[k], k + 1 < N_STATES ? " " : "\n");
+        jac_mul(t, y, P, v, dv, w, jw);
+        for (int k = 0; k < N_STATES; k++) printf("%.17e ", dy[k]);
+        for (int k = 0; k < N_STATES; k++) printf("%.17e%s", jw[k], k + 1 < N_STATES ? " " : "\n");
     }
     return 0;
 }
@@ -110,26 +115,33 @@ fn generated_rust_and_c_agree_with_the_evaluator() {
         let mut input = String::new();
         let mut expected = Vec::new();
         let mut regs = t.registers();
+        let mut dregs = vec![0.0; t.n_regs];
+        // A state's typical size: junction charges are ~1e-11 C.
+        let scale: Vec<f64> = t
+            .states
+            .iter()
+            .map(|&v| {
+                if sys.vars[v].kind == kausal::ir::VarKind::Charge {
+                    1e-11
+                } else {
+                    1.0
+                }
+            })
+            .collect();
         for _ in 0..5 {
             let time = (rand() + 1.0) * 1e-3;
-            let y: Vec<f64> = t
-                .states
-                .iter()
-                .map(|&v| {
-                    if sys.vars[v].kind == kausal::ir::VarKind::Charge {
-                        rand() * 1e-11
-                    } else {
-                        rand()
-                    }
-                })
-                .collect();
-            let mut dy = vec![0.0; n];
+            let y: Vec<f64> = scale.iter().map(|s| rand() * s).collect();
+            let w: Vec<f64> = scale.iter().map(|s| rand() * s).collect();
+            let (mut dy, mut jw) = (vec![0.0; n], vec![0.0; n]);
             t.rhs(&mut regs, time, &y, &mut dy).unwrap();
+            t.jac_mul(&mut regs, &mut dregs, time, &y, &w, &mut jw, None)
+                .unwrap();
             input.push_str(&format!("{time:e}"));
-            for v in &y {
+            for v in y.iter().chain(&w) {
                 input.push_str(&format!(" {v:e}"));
             }
             input.push('\n');
+            dy.extend(jw);
             expected.push(dy);
         }
         for lang in [Lang::Rust, Lang::C] {
@@ -164,11 +176,14 @@ fn generated_rust_and_c_agree_with_the_evaluator() {
                 .collect();
             assert_eq!(rows.len(), expected.len(), "{file} {lang:?}: {text}");
             for (row, exp) in rows.iter().zip(&expected) {
-                for (a, b) in row.iter().zip(exp) {
+                assert_eq!(row.len(), 2 * n, "{file} {lang:?}: f and J·w");
+                for (k, (a, b)) in row.iter().zip(exp).enumerate() {
+                    let what = if k < n { "f" } else { "J·w" };
                     let scale = a.abs().max(b.abs()).max(1e-9);
                     assert!(
                         (a - b).abs() <= 1e-8 * scale,
-                        "{file} {lang:?}: generated {a:e}, evaluator {b:e}"
+                        "{file} {lang:?}: {what}[{}]: generated {a:e}, evaluator {b:e}",
+                        k % n
                     );
                 }
             }
