@@ -188,7 +188,7 @@ pub(super) fn held_operating_point(
             sorted.system().vars[v].name
         ))
     };
-    enum From {
+    enum Read {
         Output(usize),
         State(usize),
     }
@@ -201,7 +201,7 @@ pub(super) fn held_operating_point(
                 .iter()
                 .position(|&d| sys.vars[d].name == var.name)
                 .ok_or_else(|| unmapped(s))?;
-            from.push(From::State(k));
+            from.push(Read::State(k));
             continue;
         }
         let e = *owner.get(&s).ok_or_else(|| unmapped(s))?;
@@ -216,7 +216,7 @@ pub(super) fn held_operating_point(
             },
             _ => return Err(unmapped(s)),
         };
-        from.push(From::Output(refs.len()));
+        from.push(Read::Output(refs.len()));
         refs.push(output_ref(&dc.built, &out));
     }
     let first_output = refs.len();
@@ -240,8 +240,8 @@ pub(super) fn held_operating_point(
     let y = from
         .iter()
         .map(|f| match *f {
-            From::Output(k) => values[k],
-            From::State(k) => y[k],
+            Read::Output(k) => values[k],
+            Read::State(k) => y[k],
         })
         .collect();
     Ok(Held {

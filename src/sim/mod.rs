@@ -23,7 +23,7 @@ use diffsol::{
 use crate::back::tape::{self, EvalError, OutputRef, Tape};
 use crate::build::Built;
 use crate::elab::{Circuit, ElementKind, GROUND, Output};
-use crate::ir::{EquationSystem, VarId, Waveform};
+use crate::ir::{EquationSystem, VarId};
 use crate::pipeline::Sorted;
 use ode::{CircuitOde, EvalCounts, HostVec, Regs};
 
@@ -273,40 +273,20 @@ fn atols(sys: &EquationSystem, states: &[VarId], opts: &Options, c: &Circuit) ->
         .collect()
 }
 
-/// Hard breakpoints (where a source's slope jumps) and soft ones (a cap on
-/// the step: ngspice's TMAX, and eight points a period on sine sources so
-/// that no diode conduction window is stepped over).
-fn breakpoints(sys: &EquationSystem, t0: f64, t1: f64, tmax: Option<f64>) -> (Vec<f64>, Vec<f64>) {
-    let mut hard = Vec::new();
-    let mut soft = Vec::new();
-    for s in sys.sources.values() {
-        hard.extend(s.wave.breakpoints(t1));
-        if let Waveform::Sin { freq, td, .. } = s.wave
-            && freq > 0.0
-        {
-            let dt = 1.0 / freq / 8.0;
-            let mut t = td;
-            while t < t1 && soft.len() < 10_000_000 {
-                if t > t0 {
-                    soft.push(t);
-                }
-                t += dt;
-            }
-        }
-    }
-    let cap = tmax.unwrap_or((t1 - t0) / 50.0);
-    if cap > 0.0 {
-        let n = ((t1 - t0) / cap).ceil() as usize;
-        soft.extend((1..n).map(|k| t0 + k as f64 * cap));
-    }
-    let clean = |v: &mut Vec<f64>| {
-        v.retain(|&t| t > t0 && t < t1);
-        v.sort_by(f64::total_cmp);
-        v.dedup_by(|a, b| (*a - *b).abs() <= 1e-12 * t1.abs().max(1e-30));
-    };
-    clean(&mut hard);
-    clean(&mut soft);
-    (hard, soft)
+/// The breakpoints: where a source's value or slope jumps, inside (t0, t1).
+/// The integrator stops and restarts at each. There is no step cap (TMAX):
+/// error control keeps the accuracy, and diffsol's stop handling can leave
+/// a sub-ulp step after a stop.
+fn breakpoints(sys: &EquationSystem, t0: f64, t1: f64) -> Vec<f64> {
+    let mut hard: Vec<f64> = sys
+        .sources
+        .values()
+        .flat_map(|s| s.wave.breakpoints(t1))
+        .filter(|&t| t > t0 && t < t1)
+        .collect();
+    hard.sort_by(f64::total_cmp);
+    hard.dedup_by(|a, b| (*a - *b).abs() <= 1e-12 * t1.abs().max(1e-30));
+    hard
 }
 
 /// The start of a run.
@@ -772,7 +752,7 @@ fn algebraic(
         .clone()
         .map_or_else(|| Grid::of(tran), Grid::Times);
     if opts.all_steps {
-        let (hard, _) = breakpoints(sys, 0.0, tran.tstop, tran.tmax);
+        let hard = breakpoints(sys, 0.0, tran.tstop);
         let mut all: Vec<f64> = (0..times.len()).map(|k| times.at(k)).collect();
         all.extend(hard.into_iter().filter(|&t| t >= tran.tstart));
         all.sort_by(f64::total_cmp);
@@ -1114,10 +1094,7 @@ where
         settle: None,
         last: Vec::new(),
     };
-    // Soft stops (a step cap) are not used: diffsol's stop handling can
-    // leave a sub-ulp step after them; error control keeps the accuracy.
-    let (hard, _soft) = breakpoints(sys, t0, tran.tstop, tran.tmax);
-    let soft: Vec<f64> = Vec::new();
+    let hard = breakpoints(sys, t0, tran.tstop);
     let mut stats = Stats::default();
     let rec = match method {
         Method::Bdf => {
@@ -1129,7 +1106,6 @@ where
                 |p, st| p.bdf_solver::<LS>(st),
                 rec,
                 &hard,
-                &soft,
                 opts,
                 &mut stats,
                 1,
@@ -1144,7 +1120,6 @@ where
                 |p, st| p.tr_bdf2_solver::<LS>(st),
                 rec,
                 &hard,
-                &soft,
                 opts,
                 &mut stats,
                 2,
@@ -1159,7 +1134,6 @@ where
                 |p, st| p.esdirk34_solver::<LS>(st),
                 rec,
                 &hard,
-                &soft,
                 opts,
                 &mut stats,
                 3,
@@ -1174,7 +1148,6 @@ where
                 |p, st| p.tsit45_solver(st),
                 rec,
                 &hard,
-                &soft,
                 opts,
                 &mut stats,
                 4,
@@ -1390,7 +1363,6 @@ fn drive<'p, 's, M, S>(
     make: impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, S::State) -> Result<S, diffsol::DiffsolError>,
     mut rec: Recorder<'p, 's, M>,
     hard: &[f64],
-    soft: &[f64],
     opts: &Options,
     stats: &mut Stats,
     order: usize,
@@ -1402,22 +1374,9 @@ where
 {
     let t_end = rec.grid.last().unwrap_or(0.0);
     let tstart = rec.grid.first().unwrap_or(0.0);
-    // Stop points in order, marking the hard ones.
-    let mut stops: Vec<(f64, bool)> = hard
-        .iter()
-        .map(|&t| (t, true))
-        .chain(soft.iter().map(|&t| (t, false)))
-        .collect();
-    stops.sort_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
-    stops.dedup_by(|a, b| {
-        if (a.0 - b.0).abs() <= 1e-12 * t_end.abs().max(1e-30) {
-            b.1 |= a.1;
-            true
-        } else {
-            false
-        }
-    });
-    stops.push((t_end, true));
+    // Stop points in order: the breakpoints, then the end.
+    let mut stops: Vec<f64> = hard.to_vec();
+    stops.push(t_end);
     let mut k = 0;
     // The initial point.
     {
@@ -1440,7 +1399,7 @@ where
     // Restarts after too many error-test failures: (time, how many there).
     let mut rescues: Option<(f64, usize)> = None;
     loop {
-        let (stop, is_hard) = stops[k];
+        let stop = stops[k];
         solver
             .set_stop_time(stop)
             .map_err(|e| solver_err(stop, e))?;
@@ -1457,7 +1416,7 @@ where
                     // A remainder far below the step would be a sub-ulp
                     // step: take the stop as reached (restarted from here).
                     let h = solver.state().h.abs();
-                    if is_hard && stop - t <= 1e-6 * h && stop > t {
+                    if stop - t <= 1e-6 * h && stop > t {
                         emit_grid(&solver, &mut rec, t, false)?;
                         break stop;
                     }
@@ -1519,11 +1478,9 @@ where
             add_solver_stats(stats, &solver);
             break;
         }
-        if is_hard {
-            // Restart after a corner: fresh history, recomputed slope and step.
-            stats.restarts += 1;
-            solver = restart(problem, solver, &make, reason, stats, order)?;
-        }
+        // Restart after a corner: fresh history, recomputed slope and step.
+        stats.restarts += 1;
+        solver = restart(problem, solver, &make, reason, stats, order)?;
         k += 1;
     }
     Ok(rec)

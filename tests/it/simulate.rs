@@ -385,3 +385,14 @@ fn an_ic_that_cannot_be_held_is_reported() {
     let w = sim::simulate(&sort_text(&uic), &sim::Options::default()).unwrap();
     assert!(w.warnings.is_empty(), "{:?}", w.warnings);
 }
+
+/// A `.tran` TMAX far below the run (here 1e-308 s, found by fuzzing) is no
+/// step cap to precompute: kausal has no step cap (error control), and it
+/// allocated one stop per TMAX.
+#[test]
+fn a_tiny_tmax_runs() {
+    let text = "tmax\nV1 a 0 SIN(0 1 1k)\nR1 a b 1k\nC1 b 0 1u\n.tran 10u 2m 0 1e-308\n.end\n";
+    let (t, y) = run(text, "v(b)", None, 1e-7);
+    assert_eq!(t.len(), 201);
+    assert!(y.iter().all(|v| v.abs() < 1.0), "{y:?}");
+}
