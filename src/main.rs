@@ -88,11 +88,11 @@ enum Command {
         /// The netlist file.
         netlist: PathBuf,
         /// Largest normalized error (over the reference's range) that passes.
-        #[arg(long, default_value_t = 1e-3)]
+        #[arg(long, default_value_t = 1e-3, value_parser = positive)]
         tol: f64,
         /// ngspice's reltol for the reference run (a netlist may ask for a
         /// tighter one: `* kausal-validate: ref-tol=3e-9`).
-        #[arg(long, default_value_t = 1e-8)]
+        #[arg(long, default_value_t = 1e-8, value_parser = relative_tolerance)]
         ref_tol: f64,
         /// Write an SVG per signal (both waveforms and the error) here.
         #[arg(long)]
@@ -107,7 +107,7 @@ enum Command {
         #[arg(long, visible_alias = "solver", value_enum)]
         method: Option<Method>,
         /// kausal's relative tolerance.
-        #[arg(long)]
+        #[arg(long, value_parser = relative_tolerance)]
         rtol: Option<f64>,
     },
     /// Speed against error: kausal's solvers and ngspice's integrators at a
@@ -172,10 +172,10 @@ enum Command {
         /// Relative tolerance (default 1e-7: within 1e-3 of a tight
         /// reference on every circuit of the benchmark set). At 1e-2 the
         /// local error allowed is 1 % a step: expect visible error.
-        #[arg(long)]
+        #[arg(long, value_parser = relative_tolerance)]
         rtol: Option<f64>,
         /// Absolute tolerance for voltages (currents: 1e-3 of it).
-        #[arg(long)]
+        #[arg(long, value_parser = positive)]
         atol: Option<f64>,
         /// Also output every accepted step.
         #[arg(long)]
@@ -636,7 +636,7 @@ struct BenchArgs {
     netlists: Vec<PathBuf>,
     /// Relative tolerances (kausal's rtol and ngspice's reltol). The loosest, 1e-2,
     /// reaches the error of ngspice's defaults where that error is large.
-    #[arg(long, value_delimiter = ',', default_values_t = [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7])]
+    #[arg(long, value_delimiter = ',', value_parser = relative_tolerance, default_values_t = [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7])]
     tolerances: Vec<f64>,
     /// kausal's solvers.
     #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Bdf, Method::TrBdf2, Method::Esdirk34])]
@@ -772,4 +772,24 @@ fn cmd_bench(a: BenchArgs) -> Result<ExitCode, String> {
     } else {
         ExitCode::FAILURE
     })
+}
+
+/// A relative tolerance: a number in (0, 1).
+fn relative_tolerance(s: &str) -> Result<f64, String> {
+    let x: f64 = s.trim().parse().map_err(|e| format!("`{s}`: {e}"))?;
+    if x > 0.0 && x < 1.0 {
+        Ok(x)
+    } else {
+        Err(format!("{s} is not in (0, 1): e.g. 1e-6"))
+    }
+}
+
+/// An absolute tolerance or bound: a finite number above 0.
+fn positive(s: &str) -> Result<f64, String> {
+    let x: f64 = s.trim().parse().map_err(|e| format!("`{s}`: {e}"))?;
+    if x > 0.0 && x.is_finite() {
+        Ok(x)
+    } else {
+        Err(format!("{s} is not a finite number above 0"))
+    }
 }

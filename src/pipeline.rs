@@ -153,6 +153,23 @@ pub fn sort_built(el: Elaborated, built: Built, opts: &SortOptions) -> Result<So
     let mut keep = Vec::new();
     for name in &opts.prefer_state {
         match c.find_element(name) {
+            Some(e)
+                if !matches!(
+                    c.elements[e].kind,
+                    crate::elab::ElementKind::Capacitor { .. }
+                        | crate::elab::ElementKind::Inductor { .. }
+                ) =>
+            {
+                let d = Diagnostic::error(
+                    "K0321",
+                    format!(
+                        "--prefer-state names `{name}`, which is not a capacitor or inductor: it has no state"
+                    ),
+                )
+                .with_label(c.elements[e].span, "this element")
+                .with_help("name a capacitor or inductor, e.g. --prefer-state C1");
+                return Err(fail(el, vec![d]));
+            }
             Some(e) => keep.push(e),
             None => {
                 let d = Diagnostic::error(

@@ -87,6 +87,14 @@ pub enum ElabError {
     },
     #[error("`i({name})` names no voltage source, inductor or controlled source")]
     UnknownCurrent { span: Span, name: String },
+    #[error("option `{name}` is {value}; it must be {range}")]
+    BadOption {
+        span: Span,
+        name: String,
+        /// As written.
+        value: String,
+        range: &'static str,
+    },
     #[error("`.tran` needs 0 < TSTEP and TSTART < TSTOP")]
     BadTran { span: Span },
     #[error("unknown parameter `{name}` on model `{model}`")]
@@ -131,6 +139,7 @@ impl ElabError {
         match self {
             UndefinedParam { span, .. }
             | BadValue { span, .. }
+            | BadOption { span, .. }
             | UndefinedModel { span, .. }
             | WrongModelType { span, .. }
             | UndefinedSubckt { span, .. }
@@ -191,6 +200,7 @@ impl ToDiagnostic for ElabError {
             UnscalableElement { .. } => ("K0217", "cannot be multiplied", "give the instance no `m=`, or write the parallel copies out".into()),
             UnknownNode { .. } => ("K0214", "no such node", "check the node name".into()),
             UnknownCurrent { .. } => ("K0215", "no such source", "ngspice names currents of V sources, e.g. `i(v1)`".into()),
+            BadOption { .. } => ("K0218", "out of range", "tolerances are positive and reltol below 1 (ngspice's defaults: reltol=1e-3 abstol=1e-12 vntol=1e-6 chgtol=1e-14 trtol=7); maxord is 1 to 6".into()),
             BadTran { .. } => ("K0216", "here", "write `.tran TSTEP TSTOP [TSTART [TMAX]] [uic]`".into()),
             UnknownModelParam { .. } => ("K0290", "unknown", "it is not a level-1 diode parameter of ngspice".into()),
             IgnoredModelParam { .. } => ("K0291", "ignored", "temperature and noise parameters do not affect kausal's transient run".into()),

@@ -271,6 +271,38 @@ impl Elab {
                             ast::OptValue::Value(v) => self.value(v, scope),
                             _ => None,
                         };
+                        // Out-of-range tolerances would stall or void the
+                        // error control (reltol 0 with abstol 0 never ends).
+                        let range = match key.as_str() {
+                            "reltol" => Some((
+                                "a number in (0, 1)",
+                                num.is_some_and(|x| x > 0.0 && x < 1.0),
+                            )),
+                            "maxord" => {
+                                Some(("1 to 6", num.is_some_and(|x| (1.0..=6.0).contains(&x))))
+                            }
+                            "abstol" | "vntol" | "chgtol" | "trtol" => {
+                                Some(("above 0", num.is_some_and(|x| x > 0.0 && x.is_finite())))
+                            }
+                            _ => None,
+                        };
+                        if let (Some((range, false)), Some(_), ast::OptValue::Value(v)) =
+                            (range, num, &o.value)
+                        {
+                            let value = match v {
+                                Value::Num { text, .. } | Value::Expr { text, .. } => {
+                                    text.to_string()
+                                }
+                                Value::Ident(n) => n.text.to_string(),
+                            };
+                            self.errors.push(ElabError::BadOption {
+                                span: v.span(),
+                                name: key.clone(),
+                                value,
+                                range,
+                            });
+                            continue;
+                        }
                         let opt = &mut self.circuit.options;
                         let slot = match key.as_str() {
                             "reltol" => Some(&mut opt.reltol),

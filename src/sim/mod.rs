@@ -128,6 +128,12 @@ pub enum SimError {
     DcFailed { message: String },
     #[error("cannot write the waveforms: {message}")]
     Write { message: String },
+    #[error("{what} is {value}; it must be {range}")]
+    BadTolerance {
+        what: &'static str,
+        value: f64,
+        range: &'static str,
+    },
 }
 
 impl crate::diag::ToDiagnostic for SimError {
@@ -155,6 +161,7 @@ impl crate::diag::ToDiagnostic for SimError {
                 ("K0406", "give initial conditions and use `.tran ... uic`")
             }
             SimError::Write { .. } => ("K0407", "check the output path and free space"),
+            SimError::BadTolerance { .. } => ("K0411", "e.g. rtol 1e-6, atol 1e-9"),
         };
         crate::diag::Diagnostic::error(code, self.to_string()).with_help(help)
     }
@@ -674,6 +681,25 @@ fn simulate_rows(
     let start = Instant::now();
     let c = &sorted.elaborated.circuit;
     let tran = c.tran.clone().ok_or(SimError::NoTran)?;
+    // A tolerance out of range stalls the error control or voids it.
+    if let Some(r) = opts.rtol
+        && !(r > 0.0 && r < 1.0)
+    {
+        return Err(SimError::BadTolerance {
+            what: "rtol",
+            value: r,
+            range: "in (0, 1)",
+        });
+    }
+    if let Some(a) = opts.atol
+        && !(a > 0.0 && a.is_finite())
+    {
+        return Err(SimError::BadTolerance {
+            what: "atol",
+            value: a,
+            range: "finite and above 0",
+        });
+    }
     let sys = sorted.system();
     let list = output_list(c, &opts.probes)?;
     let refs: Vec<OutputRef> = list.iter().map(|o| output_ref(&sorted.built, o)).collect();

@@ -396,3 +396,44 @@ fn a_tiny_tmax_runs() {
     assert_eq!(t.len(), 201);
     assert!(y.iter().all(|v| v.abs() < 1.0), "{y:?}");
 }
+
+/// Tolerances out of range are errors, not a run that never ends (rtol
+/// NaN stalled the step control) or one without error control.
+#[test]
+fn tolerances_out_of_range_are_rejected() {
+    let text = "tol\nV1 a 0 SIN(0 1 1k)\nR1 a b 1k\nC1 b 0 1u\n.tran 10u 2m\n.end\n";
+    let s = sort_text(text);
+    for (rtol, atol) in [
+        (Some(f64::NAN), None),
+        (Some(0.0), None),
+        (Some(2.0), None),
+        (None, Some(0.0)),
+        (None, Some(f64::INFINITY)),
+    ] {
+        let opts = sim::Options {
+            rtol,
+            atol,
+            ..Default::default()
+        };
+        let e = sim::simulate(&s, &opts).unwrap_err();
+        assert!(matches!(e, SimError::BadTolerance { .. }), "{e}");
+    }
+    let cli = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let net = root().join("netlists/rc_lowpass_step.cir");
+    let net = net.to_str().unwrap();
+    for (bad, flag) in [
+        ("--rtol=nan", "--rtol"),
+        ("--rtol=1", "--rtol"),
+        ("--atol=-1e-9", "--atol"),
+    ] {
+        let out = cli(&["sim", net, bad]);
+        assert!(!out.status.success(), "{bad}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(flag) && err.contains("invalid value"), "{err}");
+    }
+}

@@ -180,6 +180,14 @@ fn prefer_state_chooses_which_capacitor_keeps_its_state() {
     );
     let f = sort("netlists/parallel_caps.cir", &["C9"]).err().unwrap();
     assert!(f.errors().any(|d| d.message.contains("C9")));
+    // An element without a state is named, not silently passed over.
+    let f = sort("netlists/parallel_caps.cir", &["R1"]).err().unwrap();
+    assert!(
+        f.errors()
+            .any(|d| d.code == "K0321" && d.message.contains("`R1`")),
+        "{:?}",
+        f.errors().map(|d| &d.message).collect::<Vec<_>>()
+    );
 }
 
 #[test]
