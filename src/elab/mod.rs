@@ -1114,7 +1114,7 @@ fn call_func(
     scope: &Scope<'_, '_>,
     name: &str,
     args: &[f64],
-    depth: usize,
+    chain: &std::cell::RefCell<Vec<String>>,
     calls: &std::cell::Cell<usize>,
 ) -> Option<Result<f64, crate::front::expr::EvalError>> {
     use crate::front::expr::EvalError;
@@ -1123,12 +1123,21 @@ fn call_func(
         return Some(Err(EvalError::Arity(name.to_string(), f.params.len())));
     }
     calls.set(calls.get() + 1);
-    if depth >= 64 {
-        return Some(Err(EvalError::Recursive(name.to_string())));
+    // The calls in progress: a name among them is a recursion; a chain
+    // longer than MAX_CALL_DEPTH is refused before the stack runs out.
+    {
+        let chain = chain.borrow();
+        if chain.iter().any(|c| c.eq_ignore_ascii_case(name)) {
+            return Some(Err(EvalError::Recursive(name.to_string())));
+        }
+        if chain.len() >= MAX_CALL_DEPTH {
+            return Some(Err(EvalError::TooDeep(name.to_string())));
+        }
     }
     if calls.get() > 100_000 {
         return Some(Err(EvalError::TooManyCalls));
     }
+    chain.borrow_mut().push(name.to_string());
     let bound = |p: &str| {
         f.params
             .iter()
@@ -1136,13 +1145,18 @@ fn call_func(
             .map(|k| args[k])
             .or_else(|| scope.param(p))
     };
-    let inner = |n: &str, a: &[f64]| call_func(scope, n, a, depth + 1, calls);
-    Some(match &f.body {
+    let inner = |n: &str, a: &[f64]| call_func(scope, n, a, chain, calls);
+    let value = match &f.body {
         Value::Num { value, .. } => Ok(*value),
         Value::Ident(n) => bound(&n.key()).ok_or_else(|| EvalError::Undefined(n.text.to_string())),
         Value::Expr { expr, .. } => expr.eval_with(&bound, &inner),
-    })
+    };
+    chain.borrow_mut().pop();
+    Some(value)
 }
+
+/// `.func` calls nested deeper than this are refused (evaluation recurses).
+const MAX_CALL_DEPTH: usize = 64;
 
 fn try_value(v: &Value<'_>, scope: &Scope<'_, '_>) -> Result<f64, ElabError> {
     use crate::front::expr::EvalError;
@@ -1156,7 +1170,8 @@ fn try_value(v: &Value<'_>, scope: &Scope<'_, '_>) -> Result<f64, ElabError> {
             }),
         Value::Expr { expr, text, span } => {
             let calls = std::cell::Cell::new(0);
-            let user = |name: &str, args: &[f64]| call_func(scope, name, args, 0, &calls);
+            let chain = std::cell::RefCell::new(Vec::new());
+            let user = |name: &str, args: &[f64]| call_func(scope, name, args, &chain, &calls);
             expr.eval_with(&|name| scope.param(name), &user)
                 .map_err(|e| {
                     let reason = match e {
@@ -1164,6 +1179,9 @@ fn try_value(v: &Value<'_>, scope: &Scope<'_, '_>) -> Result<f64, ElabError> {
                             return ElabError::UndefinedParam { span: *span, name };
                         }
                         EvalError::Recursive(f) => format!("`.func {f}` calls itself"),
+                        EvalError::TooDeep(f) => format!(
+                            "`.func` calls are nested more than {MAX_CALL_DEPTH} deep (at `{f}`)"
+                        ),
                         EvalError::TooManyCalls => {
                             "its functions call each other more than 10^5 times".into()
                         }

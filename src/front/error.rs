@@ -37,6 +37,8 @@ pub enum ParseError {
     BadNumber { span: Span, text: String },
     #[error("cannot parse expression `{text}`")]
     BadExpression { span: Span, text: String },
+    #[error("expression too complex: {why}")]
+    ComplexExpression { span: Span, why: String },
     #[error("`.subckt {name}` has no matching `.ends`")]
     UnclosedSubckt { span: Span, name: String },
     #[error("`.ends` without a `.subckt`")]
@@ -95,6 +97,7 @@ impl ParseError {
             | MissingValue { span, .. }
             | BadNumber { span, .. }
             | BadExpression { span, .. }
+            | ComplexExpression { span, .. }
             | UnclosedSubckt { span, .. }
             | StrayEnds { span }
             | UnclosedControl { span }
@@ -134,6 +137,7 @@ impl ParseError {
             MissingNode { expected, .. } => ("K0106", "missing node", format!("write {expected} node names after the element name")),
             MissingValue { .. } => ("K0107", "value missing", "add the value after the nodes, e.g. `R1 a b 1k`".into()),
             BadNumber { .. } => ("K0108", "bad number", "numbers look like `10`, `1.5e-3`, `4.7k`, `10uF` or `3meg`".into()),
+            ComplexExpression { .. } => ("K0122", "here", "split it with `.param`s or `.func`s".into()),
             BadExpression { .. } => ("K0109", "bad expression", "expressions use numbers, parameters, + - * / ** and functions like sqrt()".into()),
             UnclosedSubckt { .. } => ("K0110", "opened here", "end the subcircuit with `.ends`".into()),
             StrayEnds { .. } => ("K0111", "no open subcircuit", "remove it, or add the `.subckt` line it closes".into()),

@@ -205,8 +205,40 @@ fn sum(input: &str) -> IResult<&str, PExpr> {
     }
 }
 
+/// Nested parentheses an expression may have (see [`too_complex`]).
+pub const MAX_NESTING: usize = 64;
+/// Operators an expression may have (see [`too_complex`]).
+pub const MAX_OPERATORS: usize = 1000;
+
+/// Where `s` first has more than [`MAX_NESTING`] nested parentheses or
+/// [`MAX_OPERATORS`] operators, and which: parsing, evaluating, printing
+/// and dropping an expression recurse over its tree, whose depth these
+/// bound (a 10^5-term sum overflowed the stack).
+pub fn too_complex(s: &str) -> Option<(usize, String)> {
+    let (mut depth, mut ops) = (0usize, 0usize);
+    for (k, c) in s.char_indices() {
+        match c {
+            '(' => {
+                depth += 1;
+                if depth > MAX_NESTING {
+                    return Some((k, format!("more than {MAX_NESTING} nested parentheses")));
+                }
+            }
+            ')' => depth = depth.saturating_sub(1),
+            '+' | '-' | '*' | '/' | '^' | ',' => {
+                ops += 1;
+                if ops > MAX_OPERATORS {
+                    return Some((k, format!("more than {MAX_OPERATORS} operators")));
+                }
+            }
+            _ => {}
+        }
+    }
+    None
+}
+
 /// Parse a whole parameter expression; on failure, the byte offset where
-/// parsing stopped.
+/// parsing stopped. The caller checks [`too_complex`] first.
 pub fn parse_expr(s: &str) -> Result<PExpr, usize> {
     match sum(s) {
         Ok((rest, e)) if rest.trim().is_empty() => Ok(e),
@@ -225,6 +257,8 @@ pub enum EvalError {
     NotFinite,
     /// A `.func` that calls itself, directly or not.
     Recursive(String),
+    /// `.func`s that call each other more deeply than the evaluator allows.
+    TooDeep(String),
     /// `.func`s that call each other more than 10^5 times in one expression.
     TooManyCalls,
 }
@@ -365,6 +399,38 @@ impl std::fmt::Display for PExpr {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The most deeply recursive expressions within the bounds parse,
+    /// evaluate, print and drop on a test thread's 2 MiB stack; one more
+    /// operator or parenthesis is refused.
+    #[test]
+    fn expressions_at_the_bounds_fit_the_stack() {
+        let n = MAX_OPERATORS;
+        let parens = MAX_NESTING;
+        let cases = [
+            format!("{}1", "-".repeat(n)),
+            format!("{}1", "2^".repeat(n)),
+            std::iter::repeat_n("1", n + 1)
+                .collect::<Vec<_>>()
+                .join("+"),
+            format!("{}1{}", "(".repeat(parens), ")".repeat(parens)),
+            format!(
+                "{}{}1{}",
+                "(-".repeat(parens),
+                "-".repeat(n - parens),
+                ")".repeat(parens)
+            ),
+        ];
+        for s in &cases {
+            assert_eq!(too_complex(s), None, "{}", &s[..20]);
+            let e = parse_expr(s).unwrap_or_else(|at| panic!("{} at {at}", &s[..20]));
+            let _ = e.eval(&|_| None);
+            assert!(!format!("{e:?}").is_empty());
+            drop(e.clone());
+        }
+        assert!(too_complex(&format!("{}1", "-".repeat(n + 1))).is_some());
+        assert!(too_complex(&format!("{}1", "(".repeat(parens + 1))).is_some());
+    }
 
     #[test]
     fn engineering_suffixes() {

@@ -2,7 +2,7 @@
 
 use super::ast::*;
 use super::error::ParseError;
-use super::expr::{parse_expr, parse_number};
+use super::expr::{parse_expr, parse_number, too_complex};
 use super::lex::{LogicalLine, TokKind, Token, lex_file};
 use super::resolve_include;
 use crate::diag::{FileId, SourceMap, Span};
@@ -1075,6 +1075,14 @@ pub(super) fn name_of<'a>(t: &Token<'a>) -> Name<'a> {
 /// Interpret one token as a value.
 pub(super) fn value_of<'a>(t: &Token<'a>) -> Result<Value<'a>, ParseError> {
     match t.kind {
+        TokKind::Expr if let Some((at, why)) = too_complex(t.text) => {
+            let start = t.span.start as usize + 1 + at;
+            let end = (start + 1).min(t.span.end as usize);
+            Err(ParseError::ComplexExpression {
+                span: Span::new(t.span.file, start.min(end), end),
+                why,
+            })
+        }
         TokKind::Expr => match parse_expr(t.text) {
             Ok(expr) => Ok(Value::Expr {
                 expr: Box::new(expr),

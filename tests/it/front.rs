@@ -242,3 +242,50 @@ proptest! {
         run_all("random.cir", s);
     }
 }
+
+/// Expressions too deep for a recursive parser and evaluator are refused
+/// with a diagnostic (they overflowed the stack and aborted): nesting,
+/// operator count, and `.func` chains, which are not called recursive.
+#[test]
+fn deep_expressions_are_refused() {
+    let n = 100_000;
+    let wrap = |param: &str| format!("deep\n{param}\nR1 a 0 {{p}}\nV1 a 0 1\n.tran 1u 10u\n.end\n");
+    let funcs: String = (1..70)
+        .map(|k| format!(".func f{k}(x) {{f{}(x)+1}}\n", k - 1))
+        .collect();
+    let cases = [
+        (
+            wrap(&format!(".param p={{{}1{}}}", "(".repeat(n), ")".repeat(n))),
+            "K0122",
+            "nested parentheses",
+        ),
+        (
+            wrap(&format!(".param p={{{}}}", vec!["1"; n].join("+"))),
+            "K0122",
+            "operators",
+        ),
+        (
+            wrap(&format!(".param p={{{}1}}", "-".repeat(n))),
+            "K0122",
+            "operators",
+        ),
+        (
+            wrap(&format!(".func f0(x) {{x}}\n{funcs}.param p={{f69(1)}}")),
+            "K0201",
+            "nested more than 64 deep",
+        ),
+    ];
+    for (text, code, words) in cases {
+        let path = std::path::Path::new("deep.cir");
+        let f = match kausal::pipeline::elaborate_text("deep.cir", path, text, &FsLoader) {
+            Ok(_) => panic!("{code} expected"),
+            Err(f) => f,
+        };
+        assert!(
+            f.errors()
+                .any(|d| d.code == code && d.message.contains(words)),
+            "{code}: {:?}",
+            f.errors().map(|d| &d.message).collect::<Vec<_>>()
+        );
+    }
+}
