@@ -30,6 +30,12 @@ pub enum ElabError {
         name: String,
         chain: String,
     },
+    #[error("instantiating `{name}` nests subcircuits more than {limit} deep")]
+    DeepHierarchy {
+        span: Span,
+        name: String,
+        limit: usize,
+    },
     #[error("`{instance}` connects {found} nodes, but subcircuit `{name}` has {expected} ports")]
     PortMismatch {
         span: Span,
@@ -144,6 +150,7 @@ impl ElabError {
             | WrongModelType { span, .. }
             | UndefinedSubckt { span, .. }
             | RecursiveSubckt { span, .. }
+            | DeepHierarchy { span, .. }
             | PortMismatch { span, .. }
             | DuplicateElement { span, .. }
             | SingleNode { span, .. }
@@ -189,6 +196,7 @@ impl ToDiagnostic for ElabError {
             WrongModelType { .. } => ("K0203", "wrong model type", "diodes need a model of type `D`".into()),
             UndefinedSubckt { .. } => ("K0204", "no such subcircuit", "define it with `.subckt NAME ports ... .ends`".into()),
             RecursiveSubckt { .. } => ("K0205", "recursive instance", "a subcircuit may not contain itself, directly or indirectly".into()),
+            DeepHierarchy { .. } => ("K0219", "too deep", "flatten some levels of the hierarchy".into()),
             PortMismatch { expected, .. } => ("K0206", "wrong node count", format!("connect exactly {expected} nodes")),
             DuplicateElement { .. } => ("K0207", "second definition", "rename one of them".into()),
             SingleNode { .. } => ("K0208", "both terminals here", "an element must connect two different nodes".into()),

@@ -849,6 +849,14 @@ impl Elab {
             });
             return;
         };
+        if stack.len() >= MAX_HIERARCHY {
+            self.errors.push(ElabError::DeepHierarchy {
+                span: subckt.span,
+                name: subckt.text.to_string(),
+                limit: MAX_HIERARCHY,
+            });
+            return;
+        }
         if stack.contains(&key) {
             let mut chain = stack.clone();
             chain.push(key.clone());
@@ -1154,6 +1162,10 @@ fn call_func(
     chain.borrow_mut().pop();
     Some(value)
 }
+
+/// Subcircuit instances nested deeper than this are refused (flattening
+/// recurses; 2·10^4 levels overflowed the stack).
+const MAX_HIERARCHY: usize = 100;
 
 /// `.func` calls nested deeper than this are refused (evaluation recurses).
 const MAX_CALL_DEPTH: usize = 64;

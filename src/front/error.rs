@@ -65,6 +65,12 @@ pub enum ParseError {
     },
     #[error("`{path}` includes itself")]
     IncludeCycle { span: Span, path: String },
+    #[error("{what} nested more than {limit} deep")]
+    TooDeep {
+        span: Span,
+        what: &'static str,
+        limit: usize,
+    },
     #[error("`{path}` has no library section `{section}`")]
     LibSectionNotFound {
         span: Span,
@@ -107,6 +113,7 @@ impl ParseError {
             | BehavioralSource { span, .. }
             | IncludeNotFound { span, .. }
             | IncludeCycle { span, .. }
+            | TooDeep { span, .. }
             | LibSectionNotFound { span, .. }
             | UnclosedLib { span, .. }
             | Expected { span, .. }
@@ -137,6 +144,7 @@ impl ParseError {
             MissingNode { expected, .. } => ("K0106", "missing node", format!("write {expected} node names after the element name")),
             MissingValue { .. } => ("K0107", "value missing", "add the value after the nodes, e.g. `R1 a b 1k`".into()),
             BadNumber { .. } => ("K0108", "bad number", "numbers look like `10`, `1.5e-3`, `4.7k`, `10uF` or `3meg`".into()),
+            TooDeep { .. } => ("K0123", "too deep", "flatten the nesting: subcircuits can instantiate each other without being defined inside each other".into()),
             ComplexExpression { .. } => ("K0122", "here", "split it with `.param`s or `.func`s".into()),
             BadExpression { .. } => ("K0109", "bad expression", "expressions use numbers, parameters, + - * / ** and functions like sqrt()".into()),
             UnclosedSubckt { .. } => ("K0110", "opened here", "end the subcircuit with `.ends`".into()),

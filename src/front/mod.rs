@@ -94,6 +94,11 @@ fn load_includes(
             }
             continue;
         }
+        // Reading includes recurses: a chain deeper than the parser reads is
+        // not loaded (the parser says so where it stops).
+        if stack.len() > parse::MAX_NESTING {
+            continue;
+        }
         match loader.load(&resolved) {
             Ok(text) => {
                 let id = sources.add(resolved.display().to_string(), resolved, text);

@@ -14,7 +14,14 @@ pub(super) struct Parser<'a> {
     /// The library sections being read (file, lower-case name): a section
     /// may use another of its own file, but not itself.
     lib_stack: Vec<(FileId, String)>,
+    /// Subcircuit definitions, includes and library sections being read.
+    depth: usize,
 }
+
+/// Subcircuit definitions, includes and library sections nested deeper than
+/// this are refused (reading them recurses; 10^4 nested `.subckt`s
+/// overflowed the stack).
+pub const MAX_NESTING: usize = 64;
 
 /// Why a block of lines ended.
 enum BlockEnd {
@@ -30,6 +37,7 @@ impl<'a> Parser<'a> {
             errors: Vec::new(),
             include_stack: Vec::new(),
             lib_stack: Vec::new(),
+            depth: 0,
         }
     }
 
@@ -51,8 +59,53 @@ impl<'a> Parser<'a> {
         Netlist { title, stmts }
     }
 
-    /// Parse lines from `*idx` until EOF, `.end`, or (inside a subcircuit) `.ends`.
+    /// Parse lines from `*idx` until EOF, `.end`, or (inside a subcircuit)
+    /// `.ends`, one nesting level deeper.
     fn block(
+        &mut self,
+        lines: &[LogicalLine<'_, 'a>],
+        idx: &mut usize,
+        in_subckt: bool,
+    ) -> (Vec<Stmt<'a>>, BlockEnd) {
+        self.depth += 1;
+        let r = self.block_lines(lines, idx, in_subckt);
+        self.depth -= 1;
+        r
+    }
+
+    /// Whether a block opened at `span` would nest too deeply (then said).
+    fn too_deep(&mut self, span: Span, what: &'static str) -> bool {
+        let deep = self.depth > MAX_NESTING;
+        if deep {
+            self.errors.push(ParseError::TooDeep {
+                span,
+                what,
+                limit: MAX_NESTING,
+            });
+        }
+        deep
+    }
+
+    /// Skip a subcircuit's body up to its matching `.ends`, without reading it.
+    fn skip_subckt(lines: &[LogicalLine<'_, 'a>], idx: &mut usize) {
+        let mut open = 1usize;
+        while *idx < lines.len() {
+            let first = &lines[*idx].tokens[0];
+            *idx += 1;
+            if first.is_word(".subckt") {
+                open += 1;
+            } else if first.is_word(".ends") {
+                open -= 1;
+                if open == 0 {
+                    return;
+                }
+            } else if first.is_word(".end") {
+                return;
+            }
+        }
+    }
+
+    fn block_lines(
         &mut self,
         lines: &[LogicalLine<'_, 'a>],
         idx: &mut usize,
@@ -180,6 +233,10 @@ impl<'a> Parser<'a> {
         }
         let params = self.assigns(&mut c);
         self.rest_unexpected(&c);
+        if self.too_deep(line.span(), "subcircuit definitions") {
+            Self::skip_subckt(lines, idx);
+            return None;
+        }
         let (body, end) = self.block(lines, idx, true);
         if !matches!(end, BlockEnd::Ends(_)) {
             self.errors.push(ParseError::UnclosedSubckt {
@@ -386,6 +443,9 @@ impl<'a> Parser<'a> {
                     });
                     return None;
                 };
+                if self.too_deep(t.span, "includes") {
+                    return None;
+                }
                 // The loader reported why it could not read a missing file.
                 let (path, file) = self.loaded(t)?;
                 if self.include_stack.contains(&file) {
@@ -508,6 +568,9 @@ impl<'a> Parser<'a> {
             let s = e.span();
             s.file == file && s.start > lo && s.start < hi
         }));
+        if self.too_deep(t.span, "library sections") {
+            return None;
+        }
         self.lib_stack.push(key);
         let mut i = 0;
         let (body, end) = self.block(&lines[open + 1..close], &mut i, false);

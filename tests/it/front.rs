@@ -289,3 +289,76 @@ fn deep_expressions_are_refused() {
         );
     }
 }
+
+/// Nesting that reading recurses over is bounded with a diagnostic (10^4
+/// levels overflowed the stack): subcircuit definitions (64), includes (64)
+/// and instance hierarchies (100). At the bounds, on a test thread's stack,
+/// the netlists elaborate.
+#[test]
+fn deep_nesting_is_refused_at_its_bounds() {
+    let dir = tempfile::tempdir().unwrap();
+    let elaborate = |text: String| {
+        let path = dir.path().join("top.cir");
+        kausal::pipeline::elaborate_text("top.cir", &path, text, &FsLoader)
+    };
+    let tail = "V1 in 0 1\n.tran 1u 10u\n.end\n";
+    // Definitions nested inside each other.
+    let defs = |n: usize| {
+        let mut t = String::from("defs\n");
+        for k in 0..n {
+            t.push_str(&format!(".subckt s{k} a b\n"));
+        }
+        t.push_str("R1 a b 1k\n");
+        t.push_str(&".ends\n".repeat(n));
+        t + "X0 in 0 s0\n" + tail
+    };
+    // Instances, each of the next subcircuit.
+    let chain = |n: usize| {
+        let mut t = String::from("chain\n");
+        for k in 0..n {
+            t.push_str(&format!(".subckt s{k} a b\n"));
+            if k + 1 < n {
+                t.push_str(&format!("X1 a b s{}\n", k + 1));
+            } else {
+                t.push_str("R1 a b 1k\n");
+            }
+            t.push_str(".ends\n");
+        }
+        t + "X0 in 0 s0\n" + tail
+    };
+    // Files including each other in a chain (in a directory of its own).
+    let includes = |n: usize| {
+        let sub = dir.path().join(format!("chain{n}"));
+        std::fs::create_dir(&sub).unwrap();
+        for k in 1..n {
+            std::fs::write(
+                sub.join(format!("inc{k}.cir")),
+                format!(".include inc{}.cir\n", k + 1),
+            )
+            .unwrap();
+        }
+        std::fs::write(sub.join(format!("inc{n}.cir")), "R1 in 0 1k\n").unwrap();
+        format!("includes\n.include chain{n}/inc1.cir\n{tail}")
+    };
+    for (what, ok, deep, code) in [
+        ("definitions", defs(63), defs(200), "K0123"),
+        ("instances", chain(100), chain(300), "K0219"),
+        ("includes", includes(63), includes(200), "K0123"),
+    ] {
+        if let Err(f) = elaborate(ok) {
+            panic!(
+                "{what} at the bound: {:?}",
+                f.errors().map(|d| &d.message).collect::<Vec<_>>()
+            );
+        }
+        let f = elaborate(deep)
+            .err()
+            .unwrap_or_else(|| panic!("{what}: {code}"));
+        assert!(
+            f.errors()
+                .any(|d| d.code == code && d.message.contains("deep")),
+            "{what}: {:?}",
+            f.errors().map(|d| &d.message).collect::<Vec<_>>()
+        );
+    }
+}
