@@ -1,9 +1,8 @@
 //! The bipartite structure graph (equations × unknowns) in compressed
-//! adjacency form, and the petgraph boundary: strongly connected components
-//! of dependency graphs. petgraph stays inside this file; callers get typed
-//! ids back.
-
-use petgraph::graph::{DiGraph, NodeIndex};
+//! adjacency form, and strongly connected components of dependency graphs
+//! (an iterative Tarjan: petgraph's `tarjan_scc` recurses once per node and
+//! overflowed the stack on a 10^5-element loop; its `kosaraju_scc` takes two
+//! passes and orders independent components differently).
 
 use crate::ir::{EqId, EquationSystem, VarId};
 
@@ -113,23 +112,83 @@ impl StructureGraph {
 
 /// Strongly connected components of a digraph on `n` nodes given by
 /// `succ(i)`, in topological order (sources first), each sorted ascending.
+///
+/// Tarjan's algorithm with an explicit stack (a recursive search overflowed
+/// the thread's stack on a 10^5-element algebraic loop). Roots are taken in
+/// node order and each node's successors in reverse insertion order, the
+/// order of petgraph's adjacency lists that this replaced: it fixes the
+/// order of independent components, which the schedule follows.
 pub fn strong_components(n: usize, edges: impl Iterator<Item = (u32, u32)>) -> Vec<Vec<u32>> {
-    let mut g: DiGraph<(), ()> = DiGraph::with_capacity(n, 0);
-    for _ in 0..n {
-        g.add_node(());
+    let edges: Vec<(u32, u32)> = edges.collect();
+    // Successor lists (CSR), each filled from its end: reverse insertion order.
+    let mut start = vec![0usize; n + 1];
+    for &(a, _) in &edges {
+        start[a as usize + 1] += 1;
     }
-    for (a, b) in edges {
-        g.add_edge(NodeIndex::new(a as usize), NodeIndex::new(b as usize), ());
+    for k in 0..n {
+        start[k + 1] += start[k];
     }
-    // tarjan_scc returns components in reverse topological order.
-    let mut comps: Vec<Vec<u32>> = petgraph::algo::tarjan_scc(&g)
-        .into_iter()
-        .map(|c| {
-            let mut v: Vec<u32> = c.into_iter().map(|i| i.index() as u32).collect();
-            v.sort_unstable();
-            v
-        })
-        .collect();
+    let mut fill: Vec<usize> = start[1..].to_vec();
+    let mut succ = vec![0u32; edges.len()];
+    for &(a, b) in &edges {
+        fill[a as usize] -= 1;
+        succ[fill[a as usize]] = b;
+    }
+    const UNSEEN: u32 = u32::MAX;
+    let mut index = vec![UNSEEN; n];
+    let mut low = vec![0u32; n];
+    let mut on_stack = vec![false; n];
+    let mut stack: Vec<u32> = Vec::new();
+    // The search path: a node and the position of its next successor.
+    let mut path: Vec<(u32, usize)> = Vec::new();
+    let mut counter = 0u32;
+    let mut comps: Vec<Vec<u32>> = Vec::new();
+    for root in 0..n as u32 {
+        if index[root as usize] != UNSEEN {
+            continue;
+        }
+        macro_rules! enter {
+            ($v:expr) => {{
+                let v: u32 = $v;
+                index[v as usize] = counter;
+                low[v as usize] = counter;
+                counter += 1;
+                stack.push(v);
+                on_stack[v as usize] = true;
+                path.push((v, start[v as usize]));
+            }};
+        }
+        enter!(root);
+        while let Some(&mut (v, ref mut next)) = path.last_mut() {
+            let vi = v as usize;
+            if *next < start[vi + 1] {
+                let w = succ[*next];
+                *next += 1;
+                if index[w as usize] == UNSEEN {
+                    enter!(w);
+                } else if on_stack[w as usize] {
+                    low[vi] = low[vi].min(index[w as usize]);
+                }
+                continue;
+            }
+            path.pop();
+            if let Some(&(u, _)) = path.last() {
+                low[u as usize] = low[u as usize].min(low[vi]);
+            }
+            if low[vi] == index[vi] {
+                let mut comp = Vec::new();
+                while let Some(w) = stack.pop() {
+                    on_stack[w as usize] = false;
+                    comp.push(w);
+                    if w == v {
+                        break;
+                    }
+                }
+                comp.sort_unstable();
+                comps.push(comp);
+            }
+        }
+    }
     comps.reverse();
     comps
 }
@@ -137,6 +196,27 @@ pub fn strong_components(n: usize, edges: impl Iterator<Item = (u32, u32)>) -> V
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 10^6-node cycle and chain on a test thread's 2 MiB stack (the
+    /// recursive search it replaced overflowed at ~10^4 here).
+    #[test]
+    fn deep_graphs_need_no_stack() {
+        let n = 1_000_000u32;
+        let cycle = strong_components(n as usize, (0..n).map(|k| (k, (k + 1) % n)));
+        assert_eq!(cycle.len(), 1);
+        assert_eq!(cycle[0].len(), n as usize);
+        let chain = strong_components(n as usize, (1..n).map(|k| (k - 1, k)));
+        assert_eq!(chain.len(), n as usize);
+        assert!(chain.iter().enumerate().all(|(k, c)| c == &[k as u32]));
+    }
+
+    /// Independent components keep the order of the recursive search:
+    /// roots in node order, successors in reverse insertion order.
+    #[test]
+    fn independent_components_keep_their_order() {
+        let comps = strong_components(5, [(0, 3), (0, 1), (2, 4)].into_iter());
+        assert_eq!(comps, vec![vec![2], vec![4], vec![0], vec![3], vec![1]]);
+    }
 
     #[test]
     fn components_come_in_topological_order() {

@@ -230,12 +230,15 @@ fn block(
         let f = x.sub(eq.lhs, eq.rhs);
         solve::is_linear_in(x, f, &|v| block_vars.contains(&v))
     });
+    // The elements in equation order, each once (a set: a loop can hold
+    // 10^5 of them).
     let mut elements: Vec<String> = Vec::new();
+    let mut seen: std::collections::HashSet<&str> = std::collections::HashSet::new();
     let mut sorted: Vec<u32> = comp.to_vec();
     sorted.sort_unstable();
     for e in sorted {
         for name in sys.eqs[EqId(e)].origin.elements() {
-            if !elements.iter().any(|n| n == name) {
+            if seen.insert(name) {
                 elements.push(name.to_string());
             }
         }

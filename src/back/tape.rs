@@ -519,11 +519,13 @@ fn step_vars(
         Step::Block(b) => b.inner.iter().chain(&b.residuals).collect(),
     };
     let writes: Vec<VarId> = assigns.iter().map(|a| a.var).collect();
+    // A block can write 10^5 variables: look them up in a set, not a scan.
+    let written: std::collections::HashSet<VarId> = writes.iter().copied().collect();
     let mut reads = Vec::new();
     let (mut vars, mut stack) = (Vec::new(), Vec::new());
     for a in &assigns {
         sys.eq_vars(a.eq, &mut vars, &mut stack);
-        reads.extend(vars.iter().copied().filter(|v| !writes.contains(v)));
+        reads.extend(vars.iter().copied().filter(|v| !written.contains(v)));
     }
     let _ = c;
     (writes, reads)

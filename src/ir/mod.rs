@@ -1,7 +1,7 @@
 //! The equation IR: typed ids, interned symbols, a deduplicating expression
 //! arena and the acausal [`EquationSystem`].
 //!
-//! The IR knows nothing of netlist syntax, petgraph or simulation; the only
+//! The IR knows nothing of netlist syntax, graph algorithms or simulation; the only
 //! thing it takes from the rest of the crate is [`crate::diag::Span`], so that
 //! each equation can say which netlist line it came from.
 
