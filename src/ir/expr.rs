@@ -135,6 +135,9 @@ pub struct ExprArena {
     param_nodes: Vec<u32>,
 }
 
+/// Terms of a sum written as one left-to-right chain (see [`ExprArena::sum`]).
+pub const SUM_CHAIN: usize = 64;
+
 impl ExprArena {
     pub fn new() -> ExprArena {
         ExprArena::default()
@@ -380,25 +383,56 @@ impl ExprArena {
     }
 
     /// Sum of many terms (an empty sum is 0).
+    ///
+    /// Up to [`SUM_CHAIN`] terms make a left-to-right chain, `((a + b) + c)`,
+    /// which prints as written; longer sums (a node with 10^5 elements) are
+    /// chains of that length added pairwise, so that no expression is deeper
+    /// than `SUM_CHAIN + log2(terms)` for the recursive passes over it.
     pub fn sum(&mut self, terms: impl IntoIterator<Item = ExprId>) -> ExprId {
-        let mut acc: Option<ExprId> = None;
-        for t in terms {
-            acc = Some(match acc {
-                None => t,
-                Some(a) => self.add(a, t),
-            });
+        let terms: Vec<ExprId> = terms.into_iter().collect();
+        let mut level: Vec<ExprId> = terms
+            .chunks(SUM_CHAIN)
+            .map(|chunk| {
+                let mut acc = chunk[0];
+                for &t in &chunk[1..] {
+                    acc = self.add(acc, t);
+                }
+                acc
+            })
+            .collect();
+        while level.len() > 1 {
+            level = level
+                .chunks(2)
+                .map(|p| {
+                    if p.len() == 2 {
+                        self.add(p[0], p[1])
+                    } else {
+                        p[0]
+                    }
+                })
+                .collect();
         }
-        acc.unwrap_or_else(|| self.constant(0.0))
+        level.pop().unwrap_or_else(|| self.constant(0.0))
     }
 
-    /// The distinct variables of an expression, in first-occurrence order.
+    /// The distinct variables of an expression, in first-occurrence order
+    /// (after those already in `out`).
     pub fn vars_into(&self, root: ExprId, out: &mut Vec<VarId>, stack: &mut Vec<ExprId>) {
         stack.clear();
         stack.push(root);
+        // Repeats are found by scanning while `out` is short, then by a set
+        // (a KCL sum can read 10^5 currents).
+        let mut seen: Option<std::collections::HashSet<VarId>> = None;
         while let Some(e) = stack.pop() {
             match self.get(e) {
                 Expr::Var(v) => {
-                    if !out.contains(&v) {
+                    let new = if out.len() < 32 {
+                        !out.contains(&v)
+                    } else {
+                        seen.get_or_insert_with(|| out.iter().copied().collect())
+                            .insert(v)
+                    };
+                    if new {
                         out.push(v);
                     }
                 }

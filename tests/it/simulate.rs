@@ -482,3 +482,22 @@ fn a_long_series_chain_sorts_and_runs() {
         }
     }
 }
+
+/// A node with 3·10^4 elements: its KCL sum is chains of 64 terms added
+/// pairwise, not one chain 3·10^4 deep (which overflowed the stack of the
+/// recursive passes over expressions at 10^5); the divider's value is exact.
+#[test]
+fn a_node_with_many_elements_sorts_and_runs() {
+    let n = 30_000;
+    let mut text = String::from("star\nV1 in 0 1\nR0 in a 1k\n");
+    for k in 1..=n {
+        text.push_str(&format!("R{k} a 0 30meg\n"));
+    }
+    text.push_str("C1 a 0 1u\n.tran 1m 2m\n.end\n");
+    let (_, y) = run(&text, "v(a)", None, 1e-7);
+    let parallel = 30e6 / n as f64;
+    let exact = parallel / (1e3 + parallel);
+    for v in y {
+        assert!((v - exact).abs() < 1e-9, "v(a) = {v}, want {exact}");
+    }
+}
