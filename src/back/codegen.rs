@@ -466,8 +466,8 @@ impl Gen<'_> {
                     .collect();
                 out.push(format!(
                     "    block_{k}(t, y, p, v); // algebraic loop through {} (tearing {})",
-                    b.elements.join(", "),
-                    tears.join(", ")
+                    super::listing::shortened(&b.elements, super::listing::ELEMENTS_SHOWN),
+                    super::listing::shortened(&tears, super::listing::ELEMENTS_SHOWN)
                 ));
             }
         }

@@ -65,9 +65,27 @@ fn block_header(b: &Block) -> String {
     let kind = if b.linear { "linear" } else { "nonlinear" };
     format!(
         "algebraic loop through {} ({} equations, {kind})",
-        b.elements.join(", "),
+        shortened(&b.elements, ELEMENTS_SHOWN),
         b.n_eqs()
     )
+}
+
+/// Elements a block header names before "and N more" (a loop of 10^5
+/// resistors printed a 600 kB line).
+pub const ELEMENTS_SHOWN: usize = 24;
+
+/// The first `shown` names joined, then how many more there are.
+pub fn shortened<S: AsRef<str>>(names: &[S], shown: usize) -> String {
+    let mut out = names
+        .iter()
+        .take(shown)
+        .map(AsRef::as_ref)
+        .collect::<Vec<_>>()
+        .join(", ");
+    if names.len() > shown {
+        let _ = write!(out, ", and {} more", names.len() - shown);
+    }
+    out
 }
 
 /// The numbered sorted assignments with blocks marked, then a summary.
@@ -94,7 +112,7 @@ pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
                         "       block {}: {}; tearing: {}",
                         b.index,
                         block_header(b),
-                        tears.join(", ")
+                        shortened(&tears, ELEMENTS_SHOWN)
                     ),
                     String::new(),
                     String::new(),
@@ -155,12 +173,7 @@ pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
         }
     );
     if !sm.tearing_variables.is_empty() {
-        const SHOWN: usize = 8;
-        let mut names = sm.tearing_variables[..sm.tearing_variables.len().min(SHOWN)].join(", ");
-        if sm.tearing_variables.len() > SHOWN {
-            let _ = write!(names, ", and {} more", sm.tearing_variables.len() - SHOWN);
-        }
-        let _ = write!(out, " ({names})");
+        let _ = write!(out, " ({})", shortened(&sm.tearing_variables, 8));
     }
     if sm.implicit > 0 {
         let _ = write!(out, ", {} implicit", sm.implicit);
