@@ -210,3 +210,25 @@ fn index_reduction_is_bounded() {
         .unwrap();
     assert_eq!(red.removed.len(), 2);
 }
+
+/// A chain of 30 inductors in a cutset with a current source gives 30
+/// K0310 warnings: the CLI shows ten and counts the rest.
+#[test]
+fn repeated_warnings_are_counted_not_repeated() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut text = String::from("cutset chain\nI1 0 n0 1m\n");
+    for k in 1..=30 {
+        text.push_str(&format!("L{k} n{} n{k} 1u\n", k - 1));
+    }
+    text.push_str("R0 n30 0 1\n.tran 1u 10u\n.end\n");
+    let net = dir.path().join("chain.cir");
+    std::fs::write(&net, text).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+        .args(["sort", net.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(err.matches("⚠").count(), 10, "{err}");
+    assert!(err.contains("K0310: 20 more like the 10 above"), "{err}");
+}
