@@ -550,30 +550,39 @@ impl Gen<'_> {
             let _ = writeln!(out, "    r[{i}] = {} - {};", self.expr(*l), self.expr(*r));
         }
         let _ = writeln!(out, "}}\n");
-        let tear_list = tears
+        if rust {
+            self.block_driver(
+                out,
+                &format!("fn block_{k}(t: f64, y: &[f64], p: &[f64; NP], v: &mut [f64; N_VARS])"),
+                &tears,
+                &format!("newton(&TEARS, v, &mut |v: &mut [f64], r: &mut [f64]| resid_{k}(t, y, p, v, r));"),
+            );
+        } else {
+            self.block_driver(
+                out,
+                &format!(
+                    "static void block_{k}(double t, const double *y, const double *p, double *v)"
+                ),
+                &tears,
+                &format!("newton({n}, tears, t, y, p, v, resid_{k});"),
+            );
+        }
+    }
+
+    /// A block's driver function: `head`, its tears as a constant table
+    /// (`TEARS` in Rust, `tears` in C), then `call`.
+    fn block_driver(&self, out: &mut String, head: &str, tears: &[u32], call: &str) {
+        let n = tears.len();
+        let list = tears
             .iter()
             .map(|t| t.to_string())
             .collect::<Vec<_>>()
             .join(", ");
-        if rust {
-            let _ = writeln!(
-                out,
-                "fn block_{k}(t: f64, y: &[f64], p: &[f64; NP], v: &mut [f64; N_VARS]) {{"
-            );
-            let _ = writeln!(out, "    const TEARS: [usize; {n}] = [{tear_list}];");
-            let _ = writeln!(
-                out,
-                "    newton(&TEARS, v, &mut |v: &mut [f64], r: &mut [f64]| resid_{k}(t, y, p, v, r));"
-            );
-        } else {
-            let _ = writeln!(
-                out,
-                "static void block_{k}(double t, const double *y, const double *p, double *v) {{"
-            );
-            let _ = writeln!(out, "    static const int tears[{n}] = {{{tear_list}}};");
-            let _ = writeln!(out, "    newton({n}, tears, t, y, p, v, resid_{k});");
-        }
-        let _ = writeln!(out, "}}\n");
+        let table = match self.lang {
+            Lang::Rust => format!("const TEARS: [usize; {n}] = [{list}];"),
+            Lang::C => format!("static const int tears[{n}] = {{{list}}};"),
+        };
+        let _ = writeln!(out, "{head} {{\n    {table}\n    {call}\n}}\n");
     }
 
     /// The tangent of a block: the tangents of its assignments and
@@ -615,33 +624,21 @@ impl Gen<'_> {
         }
         let _ = writeln!(out, "}}\n");
         let n = tears.len();
-        let tear_list = tears
-            .iter()
-            .map(|t| t.to_string())
-            .collect::<Vec<_>>()
-            .join(", ");
         if rust {
-            let _ = writeln!(
+            self.block_driver(
                 out,
-                "fn block_{k}_tan(t: f64, y: &[f64], p: &[f64; NP], v: &[f64; N_VARS], dv: &mut [f64; N_VARS]) {{"
-            );
-            let _ = writeln!(out, "    const TEARS: [usize; {n}] = [{tear_list}];");
-            let _ = writeln!(
-                out,
-                "    tangent_solve(&TEARS, dv, &mut |dv: &mut [f64], dr: &mut [f64]| resid_{k}_tan(t, y, p, v, dv, dr));"
+                &format!("fn block_{k}_tan(t: f64, y: &[f64], p: &[f64; NP], v: &[f64; N_VARS], dv: &mut [f64; N_VARS])"),
+                &tears,
+                &format!("tangent_solve(&TEARS, dv, &mut |dv: &mut [f64], dr: &mut [f64]| resid_{k}_tan(t, y, p, v, dv, dr));"),
             );
         } else {
-            let _ = writeln!(
+            self.block_driver(
                 out,
-                "static void block_{k}_tan(double t, const double *y, const double *p, const double *v, double *dv) {{"
-            );
-            let _ = writeln!(out, "    static const int tears[{n}] = {{{tear_list}}};");
-            let _ = writeln!(
-                out,
-                "    tangent_solve({n}, tears, t, y, p, v, dv, resid_{k}_tan);"
+                &format!("static void block_{k}_tan(double t, const double *y, const double *p, const double *v, double *dv)"),
+                &tears,
+                &format!("tangent_solve({n}, tears, t, y, p, v, dv, resid_{k}_tan);"),
             );
         }
-        let _ = writeln!(out, "}}\n");
     }
 }
 
@@ -898,6 +895,66 @@ static void tangent_solve(int n, const int *tears, double t, const double *y, co
 }
 "#;
 
+/// A function that sweeps the chunk functions: `sig` with `doc`, then
+/// `prologue`, the states' values (`src`) into their variables of `regs`,
+/// the calls `name_k(args)`, and the derivatives' values out into `dst`;
+/// `arrays` is `(regs, src, dst)`.
+fn sweep_fn(
+    out: &mut String,
+    lang: Lang,
+    doc: &str,
+    sig: &str,
+    prologue: &str,
+    arrays: (&str, &str, &str),
+    calls: (&str, usize, &str),
+) {
+    let (regs, src, dst) = arrays;
+    let (name, n, args) = calls;
+    match lang {
+        Lang::Rust => {
+            out.push('\n');
+            for line in doc.lines() {
+                let _ = writeln!(out, "/// {line}");
+            }
+        }
+        Lang::C => {
+            let _ = writeln!(out, "\n/* {} */", doc.replace('\n', "\n   "));
+        }
+    }
+    let _ = writeln!(out, "{sig} {{");
+    out.push_str(prologue);
+    let (load, store) = match lang {
+        Lang::Rust => (
+            format!("    for k in 0..N_STATES {{ {regs}[STATE_VAR[k]] = {src}[k]; }}"),
+            format!("    for k in 0..N_STATES {{ {dst}[k] = {regs}[DER_VAR[k]]; }}"),
+        ),
+        Lang::C => (
+            format!("    for (int k = 0; k < N_STATES; k++) {regs}[STATE_VAR[k]] = {src}[k];"),
+            format!("    for (int k = 0; k < N_STATES; k++) {dst}[k] = {regs}[DER_VAR[k]];"),
+        ),
+    };
+    let _ = writeln!(out, "{load}");
+    for c in 0..n {
+        let _ = writeln!(out, "    {name}_{c}({args});");
+    }
+    let _ = writeln!(out, "{store}\n}}");
+}
+
+/// The statements as functions of at most [`CHUNK`] each, opened by
+/// `head(k)`; how many.
+fn chunk_fns(out: &mut String, stmts: &[String], head: impl Fn(usize) -> String) -> usize {
+    let mut n = 0;
+    for (c, chunk) in stmts.chunks(CHUNK).enumerate() {
+        let _ = writeln!(out, "\n{}", head(c));
+        for s in chunk {
+            let _ = writeln!(out, "{s}");
+        }
+        out.push_str("}\n");
+        n += 1;
+    }
+    n
+}
+
 /// The generated source.
 pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
     let g = Gen {
@@ -1109,74 +1166,45 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
             g.block_tan_fns(step, k, &mut out);
         }
     }
-    // Statements, in chunks; repeated sections as loops.
-    let mut stmts = Vec::new();
-    let mut run = Vec::new();
+    // Statements, in chunks; repeated sections as loops. Beside them their
+    // tangents, in the same order: dv of every assignment from the tangents
+    // of its operands; a block's by its tangent solve.
+    let (mut stmts, mut tstmts) = (Vec::new(), Vec::new());
+    let (mut run, mut trun) = (Vec::new(), Vec::new());
     for (k, step) in sched.steps.iter().enumerate() {
         if let Step::Assign(a) = step
             && let Solved::Explicit(e) = a.solved
         {
             run.push(g.shaped(a, e));
+            trun.push(g.tangent_shaped(a, e));
             continue;
         }
         reroll(&run, lang, &mut stmts);
+        reroll(&trun, lang, &mut tstmts);
         run.clear();
+        trun.clear();
         g.step(step, k, &mut stmts);
-    }
-    reroll(&run, lang, &mut stmts);
-    // Their tangents, in the same order: dv of every assignment from the
-    // tangents of its operands; a block's by its tangent solve.
-    let mut tstmts = Vec::new();
-    run.clear();
-    for (k, step) in sched.steps.iter().enumerate() {
-        if let Step::Assign(a) = step
-            && let Solved::Explicit(e) = a.solved
-        {
-            run.push(g.tangent_shaped(a, e));
-            continue;
-        }
-        reroll(&run, lang, &mut tstmts);
-        run.clear();
         tstmts.push(format!("    block_{k}_tan(t, y, p, v, dv);"));
     }
-    reroll(&run, lang, &mut tstmts);
-    let tchunks: Vec<&[String]> = tstmts.chunks(CHUNK).collect();
-    for (c, chunk) in tchunks.iter().enumerate() {
-        if rust {
-            let _ = writeln!(
-                out,
-                "\n#[inline(never)]\nfn tan_{c}(t: f64, y: &[f64], p: &[f64; NP], v: &[f64; N_VARS], dv: &mut [f64; N_VARS]) {{\n    let _ = (t, y, p, v);"
-            );
-        } else {
-            let _ = writeln!(
-                out,
-                "\n__attribute__((noinline)) static void tan_{c}(double t, const double *y, const double *p, const double *v, double *dv) {{\n    (void)t; (void)y; (void)p; (void)v;"
-            );
-        }
-        for s in chunk.iter() {
-            let _ = writeln!(out, "{s}");
-        }
-        out.push_str("}\n");
-    }
-    let chunks: Vec<&[String]> = stmts.chunks(CHUNK).collect();
-    for (c, chunk) in chunks.iter().enumerate() {
-        if rust {
-            // Fixed-size arrays: constant indices need no bounds checks.
-            let _ = writeln!(
-                out,
-                "\n#[inline(never)]\nfn part_{c}(t: f64, y: &[f64], p: &[f64; NP], v: &mut [f64; N_VARS]) {{\n    let _ = (t, y, p);"
-            );
-        } else {
-            let _ = writeln!(
-                out,
-                "\n__attribute__((noinline)) static void part_{c}(double t, const double *y, const double *p, double *v) {{\n    (void)t; (void)y; (void)p;"
-            );
-        }
-        for s in chunk.iter() {
-            let _ = writeln!(out, "{s}");
-        }
-        out.push_str("}\n");
-    }
+    reroll(&run, lang, &mut stmts);
+    reroll(&trun, lang, &mut tstmts);
+    // Fixed-size arrays: constant indices need no bounds checks.
+    let tchunks = chunk_fns(&mut out, &tstmts, |c| match lang {
+        Lang::Rust => format!(
+            "#[inline(never)]\nfn tan_{c}(t: f64, y: &[f64], p: &[f64; NP], v: &[f64; N_VARS], dv: &mut [f64; N_VARS]) {{\n    let _ = (t, y, p, v);"
+        ),
+        Lang::C => format!(
+            "__attribute__((noinline)) static void tan_{c}(double t, const double *y, const double *p, const double *v, double *dv) {{\n    (void)t; (void)y; (void)p; (void)v;"
+        ),
+    });
+    let chunks = chunk_fns(&mut out, &stmts, |c| match lang {
+        Lang::Rust => format!(
+            "#[inline(never)]\nfn part_{c}(t: f64, y: &[f64], p: &[f64; NP], v: &mut [f64; N_VARS]) {{\n    let _ = (t, y, p);"
+        ),
+        Lang::C => format!(
+            "__attribute__((noinline)) static void part_{c}(double t, const double *y, const double *p, double *v) {{\n    (void)t; (void)y; (void)p;"
+        ),
+    });
     // rhs: load states, run the chunks, store derivatives.
     let ders: Vec<u32> = states
         .iter()
@@ -1209,97 +1237,46 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
             "\n/* The variable of each state, and of its derivative. */\nstatic const int STATE_VAR[{ns}] = {{{st}}};\nstatic const int DER_VAR[{ns}] = {{{dt}}};"
         );
     }
-    if rust {
-        let _ = writeln!(
-            out,
-            "\n/// dy/dt = f(t, y): `v` is scratch of N_VARS values (it keeps Newton's warm start)."
-        );
-        let _ = writeln!(
-            out,
-            "pub fn rhs(t: f64, y: &[f64], p: &[f64], v: &mut [f64], dy: &mut [f64]) {{"
-        );
-    } else {
-        let _ = writeln!(
-            out,
-            "\n/* dy/dt = f(t, y): v is scratch of N_VARS values (it keeps Newton's warm start). */"
-        );
-        let _ = writeln!(
-            out,
-            "void rhs(double t, const double *y, const double *p, double *v, double *dy) {{"
-        );
+    match lang {
+        Lang::Rust => sweep_fn(
+            &mut out,
+            lang,
+            "dy/dt = f(t, y): `v` is scratch of N_VARS values (it keeps Newton's warm start).",
+            "pub fn rhs(t: f64, y: &[f64], p: &[f64], v: &mut [f64], dy: &mut [f64])",
+            RUST_ARRAY_VIEWS,
+            ("v", "y", "dy"),
+            ("part", chunks, "t, y, p, v"),
+        ),
+        Lang::C => sweep_fn(
+            &mut out,
+            lang,
+            "dy/dt = f(t, y): v is scratch of N_VARS values (it keeps Newton's warm start).",
+            "void rhs(double t, const double *y, const double *p, double *v, double *dy)",
+            "",
+            ("v", "y", "dy"),
+            ("part", chunks, "t, y, p, v"),
+        ),
     }
-    if rust {
-        out.push_str(RUST_ARRAY_VIEWS);
-        let _ = writeln!(
-            out,
-            "    for k in 0..N_STATES {{ v[STATE_VAR[k]] = y[k]; }}"
-        );
-    } else {
-        let _ = writeln!(
-            out,
-            "    for (int k = 0; k < N_STATES; k++) v[STATE_VAR[k]] = y[k];"
-        );
-    }
-    for c in 0..chunks.len() {
-        let _ = writeln!(out, "    part_{c}(t, y, p, v);");
-    }
-    if rust {
-        let _ = writeln!(out, "    for k in 0..N_STATES {{ dy[k] = v[DER_VAR[k]]; }}");
-    } else {
-        let _ = writeln!(
-            out,
-            "    for (int k = 0; k < N_STATES; k++) dy[k] = v[DER_VAR[k]];"
-        );
-    }
-    out.push_str("}\n");
     // jac_mul: the values at (t, y) by rhs, then the tangent sweep.
-    if rust {
-        let _ = writeln!(
-            out,
-            "\n/// J(t, y) w, exact: the tangents of the sorted assignments (forward mode),\n/// loops by implicit differentiation. `v` and `dv` are scratch of N_VARS values."
-        );
-        let _ = writeln!(
-            out,
-            "pub fn jac_mul(t: f64, y: &[f64], p: &[f64], v: &mut [f64], dv: &mut [f64], w: &[f64], jw: &mut [f64]) {{"
-        );
-        let _ = writeln!(out, "    rhs(t, y, p, v, jw);");
-        let _ = writeln!(
-            out,
-            "    let v: &[f64; N_VARS] = (&*v).try_into().expect(\"N_VARS values in v\");\n    let dv: &mut [f64; N_VARS] = dv.try_into().expect(\"N_VARS values in dv\");\n    let p: &[f64; NP] = p.try_into().expect(\"NP parameters\");"
-        );
-        let _ = writeln!(
-            out,
-            "    for k in 0..N_STATES {{ dv[STATE_VAR[k]] = w[k]; }}"
-        );
-    } else {
-        let _ = writeln!(
-            out,
-            "\n/* J(t, y) w, exact: the tangents of the sorted assignments (forward mode),\n   loops by implicit differentiation. v and dv are scratch of N_VARS values. */"
-        );
-        let _ = writeln!(
-            out,
-            "void jac_mul(double t, const double *y, const double *p, double *v, double *dv, const double *w, double *jw) {{"
-        );
-        let _ = writeln!(out, "    rhs(t, y, p, v, jw);");
-        let _ = writeln!(
-            out,
-            "    for (int k = 0; k < N_STATES; k++) dv[STATE_VAR[k]] = w[k];"
-        );
+    match lang {
+        Lang::Rust => sweep_fn(
+            &mut out,
+            lang,
+            "J(t, y) w, exact: the tangents of the sorted assignments (forward mode),\nloops by implicit differentiation. `v` and `dv` are scratch of N_VARS values.",
+            "pub fn jac_mul(t: f64, y: &[f64], p: &[f64], v: &mut [f64], dv: &mut [f64], w: &[f64], jw: &mut [f64])",
+            "    rhs(t, y, p, v, jw);\n    let v: &[f64; N_VARS] = (&*v).try_into().expect(\"N_VARS values in v\");\n    let dv: &mut [f64; N_VARS] = dv.try_into().expect(\"N_VARS values in dv\");\n    let p: &[f64; NP] = p.try_into().expect(\"NP parameters\");\n",
+            ("dv", "w", "jw"),
+            ("tan", tchunks, "t, y, p, v, dv"),
+        ),
+        Lang::C => sweep_fn(
+            &mut out,
+            lang,
+            "J(t, y) w, exact: the tangents of the sorted assignments (forward mode),\nloops by implicit differentiation. v and dv are scratch of N_VARS values.",
+            "void jac_mul(double t, const double *y, const double *p, double *v, double *dv, const double *w, double *jw)",
+            "    rhs(t, y, p, v, jw);\n",
+            ("dv", "w", "jw"),
+            ("tan", tchunks, "t, y, p, v, dv"),
+        ),
     }
-    for c in 0..tchunks.len() {
-        let _ = writeln!(out, "    tan_{c}(t, y, p, v, dv);");
-    }
-    if rust {
-        let _ = writeln!(
-            out,
-            "    for k in 0..N_STATES {{ jw[k] = dv[DER_VAR[k]]; }}"
-        );
-    } else {
-        let _ = writeln!(
-            out,
-            "    for (int k = 0; k < N_STATES; k++) jw[k] = dv[DER_VAR[k]];"
-        );
-    }
-    out.push_str("}\n");
     out
 }
