@@ -346,7 +346,7 @@ where
                     row: Some(held.row),
                 });
             }
-            Err(ic::Unheld::Sim(e)) => return Err(e),
+            Err(ic::Unheld::Sim(e)) => return Err(name_dc_failure(c, e)),
             Err(ic::Unheld::Structure(why)) => warnings.push(ic::unheld_warning(c, &why)),
         }
     }
@@ -390,10 +390,108 @@ where
     let r = dc_point::<M>(ode, t0, y, atol);
     tape.dc.set(false);
     Ok(Start {
-        y: r?,
+        y: r.map_err(|e| name_dc_failure(c, e))?,
         warnings,
         row: None,
     })
+}
+
+/// The nodes with no DC path to ground (joined to the rest only through
+/// capacitors and current sources), in islands, each with the elements that
+/// touch it.
+fn floating_islands(c: &Circuit) -> Vec<(Vec<crate::elab::NodeId>, Vec<String>)> {
+    let mut parent: Vec<usize> = (0..c.nodes.len()).collect();
+    fn find(p: &mut [usize], mut x: usize) -> usize {
+        while p[x] != x {
+            p[x] = p[p[x]];
+            x = p[x];
+        }
+        x
+    }
+    for e in c.elements.values() {
+        let conducts = match e.kind {
+            ElementKind::Resistor { .. }
+            | ElementKind::Inductor { .. }
+            | ElementKind::VSource { .. }
+            | ElementKind::Diode { .. }
+            | ElementKind::Vcvs { .. }
+            | ElementKind::Ccvs { .. } => true,
+            ElementKind::Capacitor { .. }
+            | ElementKind::ISource { .. }
+            | ElementKind::Vccs { .. }
+            | ElementKind::Cccs { .. }
+            | ElementKind::Coupling { .. } => false,
+        };
+        if conducts {
+            let (a, b) = (
+                find(&mut parent, e.nodes[0].0 as usize),
+                find(&mut parent, e.nodes[1].0 as usize),
+            );
+            parent[a] = b;
+        }
+    }
+    let ground = find(&mut parent, GROUND.0 as usize);
+    let mut islands: Vec<(usize, Vec<crate::elab::NodeId>, Vec<String>)> = Vec::new();
+    for id in c.nodes.ids() {
+        let r = find(&mut parent, id.0 as usize);
+        if r == ground {
+            continue;
+        }
+        match islands.iter_mut().find(|i| i.0 == r) {
+            Some(i) => i.1.push(id),
+            None => islands.push((r, vec![id], Vec::new())),
+        }
+    }
+    for e in c.elements.values() {
+        let n = e.nodes.len().min(2);
+        for island in &mut islands {
+            if e.nodes[..n].iter().any(|x| island.1.contains(x)) && !island.2.contains(&e.name) {
+                island.2.push(e.name.clone());
+            }
+        }
+    }
+    islands.into_iter().map(|(_, n, e)| (n, e)).collect()
+}
+
+/// A singular DC Jacobian explained by the nodes that have no DC path.
+fn name_dc_failure(c: &Circuit, e: SimError) -> SimError {
+    match &e {
+        SimError::DcFailed { message } if message == DC_SINGULAR => {
+            let islands = floating_islands(c);
+            if islands.is_empty() {
+                return e;
+            }
+            let text: Vec<String> = islands
+                .iter()
+                .take(3)
+                .map(|(nodes, elems)| {
+                    let names: Vec<String> = nodes
+                        .iter()
+                        .map(|&n| format!("`{}`", c.nodes[n].name))
+                        .collect();
+                    format!(
+                        "{} {} no DC path to ground (only {} {} {})",
+                        crate::back::listing::shortened(&names, 8),
+                        if nodes.len() == 1 { "has" } else { "have" },
+                        crate::back::listing::shortened(elems, 8),
+                        if elems.len() == 1 {
+                            "connects"
+                        } else {
+                            "connect"
+                        },
+                        if nodes.len() == 1 { "it" } else { "them" }
+                    )
+                })
+                .collect();
+            SimError::DcFailed {
+                message: format!(
+                    "the DC Jacobian is singular: {}; use `.tran ... uic`, or give the node a DC path (a large resistor to ground)",
+                    text.join("; ")
+                ),
+            }
+        }
+        _ => e,
+    }
 }
 
 /// Why a DC Newton step could not be computed.

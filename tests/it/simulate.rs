@@ -501,3 +501,33 @@ fn a_node_with_many_elements_sorts_and_runs() {
         assert!((v - exact).abs() < 1e-9, "v(a) = {v}, want {exact}");
     }
 }
+
+/// A node that only capacitors reach has no DC operating point: the error
+/// names it and the capacitors (it said "a node or loop has no DC path"),
+/// also when `.ic` holds another node, and for an island of two nodes.
+#[test]
+fn a_node_without_dc_path_is_named() {
+    let base = "float\nV1 a 0 1\nR1 a b 1k\nC1 b m 1u\nC2 m 0 1u\n";
+    let island = "island\nV1 a 0 1\nR1 a b 1k\nC1 b m 1u\nR2 m n 1k\nC2 n 0 1u\n";
+    for (text, words) in [
+        (
+            format!("{base}.tran 10u 1m\n.end\n"),
+            vec!["`m` has", "C1, C2 connect it"],
+        ),
+        (
+            format!("{base}.ic v(b)=0.5\n.tran 10u 1m\n.end\n"),
+            vec!["`m` has", "C1, C2 connect it"],
+        ),
+        (
+            format!("{island}.tran 10u 1m\n.end\n"),
+            vec!["`m`, `n` have", "C1, R2, C2 connect them"],
+        ),
+    ] {
+        let e = sim::simulate(&sort_text(&text), &sim::Options::default()).unwrap_err();
+        let msg = e.to_string();
+        assert!(matches!(e, SimError::DcFailed { .. }), "{msg}");
+        for w in words {
+            assert!(msg.contains(w), "`{w}` in: {msg}");
+        }
+    }
+}
