@@ -192,14 +192,18 @@ pub(super) fn held_operating_point(
         Output(usize),
         State(usize),
     }
+    let image_state: std::collections::HashMap<&str, usize> = dc_states
+        .iter()
+        .enumerate()
+        .map(|(k, &d)| (sys.vars[d].name.as_str(), k))
+        .collect();
     let mut refs = Vec::new();
     let mut from = Vec::with_capacity(states.len());
     for &s in states {
         let var = &sorted.system().vars[s];
         if var.kind == VarKind::Charge {
-            let k = dc_states
-                .iter()
-                .position(|&d| sys.vars[d].name == var.name)
+            let k = *image_state
+                .get(var.name.as_str())
                 .ok_or_else(|| unmapped(s))?;
             from.push(Read::State(k));
             continue;
