@@ -199,6 +199,8 @@ pub struct Circuit {
     pub elements: IdVec<ElemId, Element>,
     pub tran: Option<Tran>,
     pub ics: Vec<NodeIc>,
+    /// `.nodeset` guesses for the operating point.
+    pub nodesets: Vec<NodeIc>,
     pub options: SimOptions,
     pub outputs: Vec<Output>,
 }

@@ -998,36 +998,54 @@ impl Elab {
         }
     }
 
-    /// `.ic` and `.print`/`.save`/`.probe` (top level, through includes).
+    /// The node values of an `.ic` or `.nodeset` line.
+    fn node_values(
+        &mut self,
+        ics: &[(ast::OutVec<'_>, Value<'_>)],
+        scope: &Scope<'_, '_>,
+        directive: &'static str,
+    ) -> Vec<NodeIc> {
+        let mut out = Vec::new();
+        for (v, val) in ics {
+            let Some(value) = self.value(val, scope) else {
+                continue;
+            };
+            if v.kind != 'v' || v.args.len() != 1 {
+                self.errors.push(ElabError::UnknownNode {
+                    span: v.span,
+                    node: v.args.iter().map(|a| a.text).collect::<Vec<_>>().join(","),
+                    directive,
+                });
+                continue;
+            }
+            match self.circuit.find_node(v.args[0].text) {
+                Some(node) => out.push(NodeIc {
+                    node,
+                    value,
+                    span: v.span,
+                }),
+                None => self.errors.push(ElabError::UnknownNode {
+                    span: v.args[0].span,
+                    node: v.args[0].text.to_string(),
+                    directive,
+                }),
+            }
+        }
+        out
+    }
+
+    /// `.ic`, `.nodeset` and `.print`/`.save`/`.probe` (top level, through
+    /// includes).
     fn outputs(&mut self, stmts: &[Stmt<'_>], scope: &Scope<'_, '_>) {
         for s in stmts {
             match s {
                 Stmt::Ic(ics, _) => {
-                    for (v, val) in ics {
-                        let Some(value) = self.value(val, scope) else {
-                            continue;
-                        };
-                        if v.kind != 'v' || v.args.len() != 1 {
-                            self.errors.push(ElabError::UnknownNode {
-                                span: v.span,
-                                node: v.args.iter().map(|a| a.text).collect::<Vec<_>>().join(","),
-                                directive: ".ic",
-                            });
-                            continue;
-                        }
-                        match self.circuit.find_node(v.args[0].text) {
-                            Some(node) => self.circuit.ics.push(NodeIc {
-                                node,
-                                value,
-                                span: v.span,
-                            }),
-                            None => self.errors.push(ElabError::UnknownNode {
-                                span: v.args[0].span,
-                                node: v.args[0].text.to_string(),
-                                directive: ".ic",
-                            }),
-                        }
-                    }
+                    let values = self.node_values(ics, scope, ".ic");
+                    self.circuit.ics.extend(values);
+                }
+                Stmt::Nodeset(ics, _) => {
+                    let values = self.node_values(ics, scope, ".nodeset");
+                    self.circuit.nodesets.extend(values);
                 }
                 Stmt::Output { vectors, .. } => {
                     for v in vectors {

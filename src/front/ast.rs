@@ -201,6 +201,8 @@ pub enum Stmt<'a> {
     Param(Vec<Assign<'a>>, Span),
     /// `.ic v(node)=value ...`
     Ic(Vec<(OutVec<'a>, Value<'a>)>, Span),
+    /// `.nodeset v(n)=x ...`: initial guesses for the operating point.
+    Nodeset(Vec<(OutVec<'a>, Value<'a>)>, Span),
     /// `.global node ...`: these names mean the top-level node inside every
     /// subcircuit too.
     Global(Vec<Name<'a>>, Span),

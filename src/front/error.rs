@@ -163,7 +163,6 @@ impl ParseError {
             SkippedControl { .. } => ("K0191", "skipped", "use `.tran`, `.print` and `.options` instead of a control script".into()),
             IgnoredDirective { name, .. } => ("K0192", "ignored", match name.as_str() {
                 "temp" => "kausal's devices are at 27 °C (ngspice's default): at another .temp ngspice's diodes conduct differently".into(),
-                "nodeset" => "kausal finds the operating point without initial guesses; `.ic` holds a node through the operating point instead".into(),
                 _ => "it does not affect the transient run as kausal performs it".into(),
             }),
         }

@@ -320,8 +320,9 @@ impl<'a> Parser<'a> {
                 }
                 Some(Stmt::Global(names, span))
             }
-            "ic" => {
+            "ic" | "nodeset" => {
                 let mut ics = Vec::new();
+                let name = if d == "ic" { ".ic" } else { ".nodeset" };
                 while !c.done() {
                     let Some(v) = self.out_vec(&mut c) else {
                         break;
@@ -329,15 +330,19 @@ impl<'a> Parser<'a> {
                     if !c.eat(TokKind::Eq) {
                         self.errors.push(ParseError::Expected {
                             span: c.here(span),
-                            expected: "`=` after `v(node)` in `.ic`".into(),
+                            expected: format!("`=` after `v(node)` in `{name}`"),
                         });
                         return None;
                     }
-                    let val = self.value_tok(&mut c, ".ic", "value")?;
+                    let val = self.value_tok(&mut c, name, "value")?;
                     ics.push((v, val));
                 }
                 self.rest_unexpected(&c);
-                Some(Stmt::Ic(ics, span))
+                Some(if d == "ic" {
+                    Stmt::Ic(ics, span)
+                } else {
+                    Stmt::Nodeset(ics, span)
+                })
             }
             "tran" => {
                 let mut vals = Vec::new();
@@ -476,7 +481,7 @@ impl<'a> Parser<'a> {
                 });
                 None
             }
-            "temp" | "width" | "nodeset" | "csparam" | "title" | "save_all" => {
+            "temp" | "width" | "csparam" | "title" | "save_all" => {
                 self.errors.push(ParseError::IgnoredDirective {
                     span: toks[0].span,
                     name: d.to_string(),

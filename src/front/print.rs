@@ -84,8 +84,12 @@ fn stmt(s: &Stmt<'_>, out: &mut String) {
             }
             out.push('\n');
         }
-        Stmt::Ic(ics, _) => {
-            out.push_str(".ic");
+        Stmt::Ic(ics, _) | Stmt::Nodeset(ics, _) => {
+            out.push_str(if matches!(s, Stmt::Ic(..)) {
+                ".ic"
+            } else {
+                ".nodeset"
+            });
             for (v, val) in ics {
                 let _ = write!(out, " {}={}", out_vec(v), value(val));
             }

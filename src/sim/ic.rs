@@ -16,7 +16,7 @@ use super::ode::{CircuitOde, HostVec};
 use super::{DENSE_STATES, Options, SimError, atols, dc_point, output_ref};
 use crate::back::tape;
 use crate::diag::Diagnostic;
-use crate::elab::{Circuit, ElemId, Element, ElementKind, GROUND, Output};
+use crate::elab::{Circuit, ElemId, Element, ElementKind, GROUND, NodeIc, Output};
 use crate::ir::{IdVec, VarId, VarKind, Waveform};
 use crate::pipeline::{Elaborated, SortOptions, Sorted};
 
@@ -45,7 +45,7 @@ pub(super) enum Unheld {
 /// (shorts at DC) and controlled voltage sources tie to ground or to a node
 /// held before (the node would have two potentials; ngspice's finite
 /// conductance gives way to the source there too).
-fn holdable(c: &Circuit) -> Vec<bool> {
+fn holdable(c: &Circuit, ics: &[NodeIc]) -> Vec<bool> {
     let mut parent: Vec<usize> = (0..c.nodes.len()).collect();
     fn find(parent: &mut [usize], mut x: usize) -> usize {
         while parent[x] != x {
@@ -70,8 +70,7 @@ fn holdable(c: &Circuit) -> Vec<bool> {
     let mut fixed = vec![false; c.nodes.len()];
     let ground = find(&mut parent, GROUND.0 as usize);
     fixed[ground] = true;
-    c.ics
-        .iter()
+    ics.iter()
         .map(|ic| {
             let r = find(&mut parent, ic.node.0 as usize);
             !std::mem::replace(&mut fixed[r], true)
@@ -82,9 +81,14 @@ fn holdable(c: &Circuit) -> Vec<bool> {
 /// The DC image of `c` (see the module documentation), holding the `.ic`
 /// nodes marked in `hold`, and, for each element of `c`, its element in the
 /// image (`None` for couplings).
-fn dc_image(c: &Circuit, hold: &[bool]) -> (Circuit, Vec<Option<ElemId>>) {
+fn dc_image(
+    c: &Circuit,
+    ics: &[NodeIc],
+    directive: &str,
+    hold: &[bool],
+) -> (Circuit, Vec<Option<ElemId>>) {
     let zero = || Box::new(Waveform::Dc { value: 0.0 });
-    let mut elements = IdVec::with_capacity(c.elements.len() + c.ics.len());
+    let mut elements = IdVec::with_capacity(c.elements.len() + ics.len());
     let mut map = Vec::with_capacity(c.elements.len());
     for e in c.elements.values() {
         let kind = match &e.kind {
@@ -111,9 +115,9 @@ fn dc_image(c: &Circuit, hold: &[bool]) -> (Circuit, Vec<Option<ElemId>>) {
             }
         }
     }
-    for ic in c.ics.iter().zip(hold).filter(|h| *h.1).map(|h| h.0) {
+    for ic in ics.iter().zip(hold).filter(|h| *h.1).map(|h| h.0) {
         elements.push(Element {
-            name: format!(".ic v({})", c.nodes[ic.node].name),
+            name: format!("{directive} v({})", c.nodes[ic.node].name),
             kind: ElementKind::VSource {
                 wave: Box::new(Waveform::Dc { value: ic.value }),
             },
@@ -127,25 +131,28 @@ fn dc_image(c: &Circuit, hold: &[bool]) -> (Circuit, Vec<Option<ElemId>>) {
         elements,
         tran: c.tran.clone(),
         ics: Vec::new(),
+        nodesets: Vec::new(),
         options: c.options.clone(),
         outputs: Vec::new(),
     };
     (image, map)
 }
 
-/// The operating point of `sorted`'s circuit with its `.ic` nodes held:
-/// the values of `states` (the states of the sorted system, in order) and
-/// of `outputs` there.
+/// The operating point of `sorted`'s circuit with the nodes of `ics` held
+/// (its `.ic` or `.nodeset` values, as `directive` names them): the values
+/// of `states` (the states of the sorted system, in order) and of
+/// `outputs` there.
 pub(super) fn held_operating_point(
     sorted: &Sorted,
     states: &[VarId],
     outputs: &[Output],
     opts: &Options,
+    ics: &[NodeIc],
+    directive: &str,
 ) -> Result<Held, Unheld> {
     let c = &sorted.elaborated.circuit;
-    let hold = holdable(c);
-    let warnings = c
-        .ics
+    let hold = holdable(c, ics);
+    let warnings = ics
         .iter()
         .zip(&hold)
         .filter(|h| !*h.1)
@@ -154,14 +161,14 @@ pub(super) fn held_operating_point(
             Diagnostic::warning(
                 "K0408",
                 format!(
-                    "`.ic v({name})` cannot be held in the DC operating point: a voltage source or inductor ties `{name}` to ground or to another `.ic` node"
+                    "`{directive} v({name})` cannot be held in the DC operating point: a voltage source or inductor ties `{name}` to ground or to another {directive} node"
                 ),
             )
             .with_label(ic.span, "the node takes the value the circuit gives it")
             .with_help("remove this `.ic`, or put it on a node that no voltage source fixes")
         })
         .collect();
-    let (image, map) = dc_image(c, &hold);
+    let (image, map) = dc_image(c, ics, directive, &hold);
     let el = Elaborated {
         sources: sorted.elaborated.sources.clone(),
         circuit: image,

@@ -338,7 +338,7 @@ where
     let uic = c.tran.as_ref().is_some_and(|t| t.uic);
     let mut warnings = Vec::new();
     if !uic && !c.ics.is_empty() {
-        match ic::held_operating_point(sorted, &tape.states, outputs, opts) {
+        match ic::held_operating_point(sorted, &tape.states, outputs, opts, &c.ics, ".ic") {
             Ok(held) => {
                 return Ok(Start {
                     y: held.y,
@@ -385,6 +385,16 @@ where
             warnings,
             row: None,
         });
+    }
+    // `.nodeset`: the operating point with those nodes held is the first
+    // guess of the free one (ngspice holds them for its first iterations);
+    // where it cannot be had, the guess is zero as without.
+    if !c.nodesets.is_empty()
+        && let Ok(held) =
+            ic::held_operating_point(sorted, &tape.states, outputs, opts, &c.nodesets, ".nodeset")
+    {
+        y = held.y;
+        warnings.extend(held.warnings);
     }
     tape.dc.set(true);
     let r = dc_point::<M>(ode, t0, y, atol);
@@ -862,7 +872,7 @@ fn algebraic(
     let mut warnings = Vec::new();
     let mut held = None;
     if !tran.uic && !c.ics.is_empty() {
-        match ic::held_operating_point(sorted, &[], outputs, opts) {
+        match ic::held_operating_point(sorted, &[], outputs, opts, &c.ics, ".ic") {
             Ok(h) => {
                 held = Some(h.row);
                 warnings = h.warnings;

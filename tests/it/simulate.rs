@@ -531,3 +531,17 @@ fn a_node_without_dc_path_is_named() {
         }
     }
 }
+
+/// `.nodeset` picks the operating point: a bistable circuit stays at its
+/// unstable zero without it and sits on the upper clamp with it (ngspice
+/// 39.3: 5.861519 V; the validate suite compares the waveforms).
+#[test]
+fn nodeset_picks_the_operating_point() {
+    let text = std::fs::read_to_string(root().join("netlists/nodeset_bistable.cir")).unwrap();
+    let (_, with) = run(&text, "v(out)", None, 1e-7);
+    assert!((with[0] - 5.861519).abs() < 1e-5, "{}", with[0]);
+    assert!((with[with.len() - 1] - 5.861519).abs() < 1e-5);
+    let without = text.replace(".nodeset v(out)=6", "");
+    let (_, free) = run(&without, "v(out)", None, 1e-7);
+    assert!(free.iter().all(|v| v.abs() < 1e-9), "{free:?}");
+}
