@@ -65,7 +65,8 @@ impl BuildArgs {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Parse and check a netlist; print problems only.
+    /// Parse and check a netlist, through the structural analysis (loops of
+    /// sources, singular circuits); print problems only.
     Check {
         /// The netlist file.
         netlist: PathBuf,
@@ -379,19 +380,29 @@ fn emit(out: Option<&PathBuf>, text: &str) -> Result<(), String> {
 
 fn run(cli: Cli) -> Result<ExitCode, String> {
     match cli.command {
-        Command::Check { netlist } => match pipeline::elaborate_file(&netlist, &FsLoader) {
-            Ok(el) => {
-                print_diags(&el.sources, &el.warnings);
-                eprintln!(
-                    "{}: ok ({} elements, {} nodes)",
-                    netlist.display(),
-                    el.circuit.elements.len(),
-                    el.circuit.nodes.len() - 1
-                );
-                Ok(ExitCode::SUCCESS)
+        // Through the structural analysis too: a loop of voltage sources or
+        // a singular circuit is a problem `sim` would stop on.
+        Command::Check { netlist } => {
+            match pipeline::sort(&netlist, &FsLoader, &pipeline::SortOptions::default()) {
+                Ok(sorted) => {
+                    let el = &sorted.elaborated;
+                    print_diags(&el.sources, &el.warnings);
+                    let faults: Vec<Diagnostic> =
+                        sorted.faults.iter().map(|f| f.to_diagnostic()).collect();
+                    print_diags(&el.sources, &faults);
+                    eprintln!(
+                        "{}: ok ({} elements, {} nodes, {} equations, {} states)",
+                        netlist.display(),
+                        el.circuit.elements.len(),
+                        el.circuit.nodes.len() - 1,
+                        sorted.system().eqs.len(),
+                        sorted.system().states().count()
+                    );
+                    Ok(ExitCode::SUCCESS)
+                }
+                Err(f) => Ok(report_failure(&f)),
             }
-            Err(f) => Ok(report_failure(&f)),
-        },
+        }
         Command::Equations {
             netlist,
             build,

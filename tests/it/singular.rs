@@ -232,3 +232,25 @@ fn repeated_warnings_are_counted_not_repeated() {
     assert_eq!(err.matches("⚠").count(), 10, "{err}");
     assert!(err.contains("K0310: 20 more like the 10 above"), "{err}");
 }
+
+/// `kausal check` goes through the structural analysis: a loop of voltage
+/// sources is an error there (it said ok), a clean netlist reports its size.
+#[test]
+fn check_reports_structural_errors() {
+    let check = |file: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+            .args(["check", root().join(file).to_str().unwrap()])
+            .output()
+            .unwrap()
+    };
+    let bad = check("netlists/faults/shorted_v.cir");
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("error"));
+    let good = check("netlists/rc_with_ic.cir");
+    assert!(good.status.success());
+    let err = String::from_utf8_lossy(&good.stderr);
+    assert!(
+        err.contains("ok (5 elements, 3 nodes, 13 equations, 2 states)"),
+        "{err}"
+    );
+}
