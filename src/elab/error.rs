@@ -137,6 +137,12 @@ pub enum ElabError {
         points: f64,
         gigabytes: f64,
     },
+    #[error("`{name}` is a current source: ngspice takes PWL `{param}=` on voltage sources only")]
+    PwlParamOnCurrent {
+        span: Span,
+        name: String,
+        param: &'static str,
+    },
 }
 
 impl ElabError {
@@ -168,7 +174,8 @@ impl ElabError {
             | IgnoredElementParam { span, .. }
             | IgnoredOption { span, .. }
             | DanglingNode { span, .. }
-            | ManyOutputPoints { span, .. } => *span,
+            | ManyOutputPoints { span, .. }
+            | PwlParamOnCurrent { span, .. } => *span,
         }
     }
 
@@ -180,7 +187,8 @@ impl ElabError {
             | IgnoredElementParam { .. }
             | IgnoredOption { .. }
             | DanglingNode { .. }
-            | ManyOutputPoints { .. } => Severity::Warning,
+            | ManyOutputPoints { .. }
+            | PwlParamOnCurrent { .. } => Severity::Warning,
             _ => Severity::Error,
         }
     }
@@ -215,6 +223,7 @@ impl ToDiagnostic for ElabError {
             IgnoredElementParam { .. } => ("K0292", "ignored", "kausal does not model this instance parameter".into()),
             IgnoredOption { .. } => ("K0293", "ignored", "kausal honours reltol, abstol, vntol, chgtol, trtol, method and maxord".into()),
             DanglingNode { .. } => ("K0294", "dangling node", "a node with one connection carries no current".into()),
+            PwlParamOnCurrent { .. } => ("K0296", "not in ngspice", "kausal runs it; for ngspice (and `kausal validate`) write the repeated points out".into()),
             ManyOutputPoints { .. } => ("K0295", "TSTEP", "TSTEP is the output spacing, not the solver's step (which follows the tolerance): a larger TSTEP, `--times`, or `.save` of fewer vectors makes the file smaller".into()),
         };
         let mut d = Diagnostic::error(code, self.to_string())

@@ -572,6 +572,18 @@ impl Elab {
                         wave: Box::new(wave),
                     }
                 } else {
+                    // ngspice 39: "for now available only with the voltage source".
+                    if let Some(f) = tran {
+                        for (param, v) in [("r", &f.repeat), ("td", &f.delay)] {
+                            if let Some(v) = v {
+                                self.errors.push(ElabError::PwlParamOnCurrent {
+                                    span: v.span(),
+                                    name: name.to_string(),
+                                    param,
+                                });
+                            }
+                        }
+                    }
                     ElementKind::ISource {
                         wave: Box::new(wave),
                     }
