@@ -87,6 +87,8 @@ pub enum ParseError {
     SkippedControl { span: Span },
     #[error("`.{name}` is ignored by kausal")]
     IgnoredDirective { span: Span, name: String },
+    #[error("`.func {name}`'s arguments are not separated by commas")]
+    FuncArgsWithoutComma { span: Span, name: String },
 }
 
 impl ParseError {
@@ -119,7 +121,8 @@ impl ParseError {
             | Expected { span, .. }
             | SkippedAnalysis { span, .. }
             | SkippedControl { span }
-            | IgnoredDirective { span, .. } => *span,
+            | IgnoredDirective { span, .. }
+            | FuncArgsWithoutComma { span, .. } => *span,
         }
     }
 
@@ -127,7 +130,8 @@ impl ParseError {
         match self {
             ParseError::SkippedAnalysis { .. }
             | ParseError::SkippedControl { .. }
-            | ParseError::IgnoredDirective { .. } => Severity::Warning,
+            | ParseError::IgnoredDirective { .. }
+            | ParseError::FuncArgsWithoutComma { .. } => Severity::Warning,
             _ => Severity::Error,
         }
     }
@@ -145,6 +149,7 @@ impl ParseError {
             MissingValue { .. } => ("K0107", "value missing", "add the value after the nodes, e.g. `R1 a b 1k`".into()),
             BadNumber { .. } => ("K0108", "bad number", "numbers look like `10`, `1.5e-3`, `4.7k`, `10uF` or `3meg`".into()),
             TooDeep { .. } => ("K0123", "too deep", "flatten the nesting: subcircuits can instantiate each other without being defined inside each other".into()),
+            FuncArgsWithoutComma { .. } => ("K0124", "no comma", "kausal reads them; ngspice needs `f(x, y)`".into()),
             ComplexExpression { .. } => ("K0122", "here", "split it with `.param`s or `.func`s".into()),
             BadExpression { .. } => ("K0109", "bad expression", "expressions use numbers, parameters, + - * / ** and functions like sqrt()".into()),
             UnclosedSubckt { .. } => ("K0110", "opened here", "end the subcircuit with `.ends`".into()),

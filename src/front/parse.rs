@@ -1014,6 +1014,17 @@ impl<'a> Parser<'a> {
             expected(self, c, "`)` closing the argument names");
             return None;
         }
+        // The lexer takes commas as separators: look between the names.
+        let text = &self.sources.file(span.file).text;
+        if let Some(w) = params.windows(2).find(|w| {
+            let (a, b) = (w[0].span.end as usize, w[1].span.start as usize);
+            text.get(a..b).is_some_and(|between| !between.contains(','))
+        }) {
+            self.errors.push(ParseError::FuncArgsWithoutComma {
+                span: w[1].span,
+                name: name.text.to_string(),
+            });
+        }
         c.eat(TokKind::Eq);
         if c.done() {
             expected(self, c, "the function's `{expression}`");
