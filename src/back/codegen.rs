@@ -774,7 +774,15 @@ const C_PRELUDE: &str = r#"
 #include <stdlib.h>
 #include <string.h>
 
-static double pulse(double t, int o, double v1, double v2, double td, double tr, double tf, double pw, double per) {
+/* ISO C has no M_PI or M_E (POSIX does). */
+#ifndef M_PI
+#define M_PI 3.14159265358979323846
+#endif
+#ifndef M_E
+#define M_E 2.71828182845904523536
+#endif
+
+static inline double pulse(double t, int o, double v1, double v2, double td, double tr, double tf, double pw, double per) {
     if (t < td) return o == 0 ? v1 : 0.0;
     double tt = t - td;
     if (per > 0.0 && tt >= per) tt -= floor(tt / per) * per;
@@ -786,7 +794,7 @@ static double pulse(double t, int o, double v1, double v2, double td, double tr,
     return o == 0 ? val : (o == 1 ? s : 0.0);
 }
 
-static double sine(double t, int o, double vo, double va, double freq, double td, double theta, double phase) {
+static inline double sine(double t, int o, double vo, double va, double freq, double td, double theta, double phase) {
     double ph = phase * M_PI / 180.0;
     if (t < td) return o == 0 ? vo + va * sin(ph) : 0.0;
     double s = t - td, w = 2.0 * M_PI * freq, cr = 1.0, ci = 0.0;
@@ -795,14 +803,14 @@ static double sine(double t, int o, double vo, double va, double freq, double td
     return o == 0 ? vo + d : d;
 }
 
-static double expo(double t, int o, double v1, double v2, double td1, double tau1, double td2, double tau2) {
+static inline double expo(double t, int o, double v1, double v2, double td1, double tau1, double td2, double tau2) {
     double val = o == 0 ? v1 : 0.0;
     if (t >= td1) { double e = exp(-(t - td1) / tau1); val += o == 0 ? (v2 - v1) * (1.0 - e) : -(v2 - v1) * pow(-1.0 / tau1, o) * e; }
     if (t >= td2) { double e = exp(-(t - td2) / tau2); val += o == 0 ? (v1 - v2) * (1.0 - e) : -(v1 - v2) * pow(-1.0 / tau2, o) * e; }
     return val;
 }
 
-static double pwl(double t, int o, const double *ts, const double *ys, int n) {
+static inline double pwl(double t, int o, const double *ts, const double *ys, int n) {
     if (n == 0) return 0.0;
     if (t < ts[0]) return o == 0 ? ys[0] : 0.0;
     int k = 0;
@@ -812,7 +820,7 @@ static double pwl(double t, int o, const double *ts, const double *ys, int n) {
     return o == 0 ? ys[k - 1] + s * (t - ts[k - 1]) : (o == 1 ? s : 0.0);
 }
 
-static double diode(int part, int o, double v, double is, double vte, double bv, double g, double cjo, double vj, double m, double fc, double tt) {
+static inline double diode(int part, int o, double v, double is, double vte, double bv, double g, double cjo, double vj, double m, double fc, double tt) {
     double id[3], vlin = 50.0 * vte;
     if (v > vlin) { double e = exp(vlin / vte); id[0] = is * (e * (1.0 + (v - vlin) / vte) - 1.0) + g * v; id[1] = is * e / vte + g; id[2] = 0.0; }
     else if (v >= -3.0 * vte) { double e = exp(v / vte); id[0] = is * (e - 1.0) + g * v; id[1] = is * e / vte + g; id[2] = is * e / (vte * vte); }
@@ -832,7 +840,7 @@ static double diode(int part, int o, double v, double is, double vte, double bv,
 typedef void (*resid_fn)(double, const double *, const double *, double *, double *);
 
 /* Solve a x = b in place (b becomes x): Gaussian elimination with partial pivoting. */
-static void lin_solve(int n, double *a, double *b) {
+static inline void lin_solve(int n, double *a, double *b) {
     for (int k = 0; k < n; k++) {
         int piv = k; for (int i = k + 1; i < n; i++) if (fabs(a[i * n + k]) > fabs(a[piv * n + k])) piv = i;
         for (int j = 0; j < n; j++) { double s = a[k * n + j]; a[k * n + j] = a[piv * n + j]; a[piv * n + j] = s; }
@@ -843,7 +851,7 @@ static void lin_solve(int n, double *a, double *b) {
 }
 
 /* Damped Newton on the tearing variables (finite-difference Jacobian). */
-static void newton(int n, const int *tears, double t, const double *y, const double *p, double *v, resid_fn f) {
+static inline void newton(int n, const int *tears, double t, const double *y, const double *p, double *v, resid_fn f) {
     double *r = malloc(sizeof(double) * (size_t)(4 * n + n * n));
     if (!r) { for (int j = 0; j < n; j++) v[tears[j]] = NAN; return; }
     double *r1 = r + n, *dx = r + 2 * n, *x0 = r + 3 * n, *a = r + 4 * n;
@@ -878,7 +886,7 @@ typedef void (*tan_fn)(double, const double *, const double *, const double *, d
 /* The tangents of a loop's unknowns by implicit differentiation: f writes the
    tangents inside the loop and of its residuals, which are affine in the
    tears' tangents; they are solved for dr = 0. */
-static void tangent_solve(int n, const int *tears, double t, const double *y, const double *p, const double *v, double *dv, tan_fn f) {
+static inline void tangent_solve(int n, const int *tears, double t, const double *y, const double *p, const double *v, double *dv, tan_fn f) {
     double *b = malloc(sizeof(double) * (size_t)(2 * n + n * n));
     if (!b) { for (int j = 0; j < n; j++) dv[tears[j]] = NAN; return; }
     double *c = b + n, *a = b + 2 * n;
@@ -978,7 +986,7 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
         sys.eqs.len()
     );
     if rust {
-        out.push_str("#![allow(dead_code, unused_parens, clippy::all)]\n");
+        out.push_str("#![allow(dead_code, unused_parens, unused_variables, clippy::all)]\n");
         out.push_str(RUST_PRELUDE);
     } else {
         out.push_str(C_PRELUDE);
@@ -1232,6 +1240,13 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
             states.len()
         );
     } else {
+        // ISO C has no empty arrays or initializers: a stateless circuit's
+        // tables hold one unused 0.
+        let (st, dt) = if states.is_empty() {
+            ("0".to_string(), "0".to_string())
+        } else {
+            (st, dt)
+        };
         let _ = writeln!(
             out,
             "\n/* The variable of each state, and of its derivative. */\nstatic const int STATE_VAR[{ns}] = {{{st}}};\nstatic const int DER_VAR[{ns}] = {{{dt}}};"

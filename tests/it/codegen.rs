@@ -54,12 +54,20 @@ fn compile(lang: Lang, src: &str, dir: &std::path::Path) -> std::path::PathBuf {
     std::fs::write(&file, src).unwrap();
     let out = match lang {
         Lang::Rust => Command::new("rustc")
-            .args(["--edition", "2021", "-O", "-o"])
+            .args(["--edition", "2021", "-D", "warnings", "-O", "-o"])
             .arg(&bin)
             .arg(&file)
             .output(),
+        // Strict ISO C: M_PI, M_E and empty initializers are not in it.
         Lang::C => Command::new("cc")
-            .args(["-O2", "-o"])
+            .args([
+                "-std=c99",
+                "-pedantic-errors",
+                "-Wall",
+                "-Werror",
+                "-O2",
+                "-o",
+            ])
             .arg(&bin)
             .arg(&file)
             .arg("-lm")
