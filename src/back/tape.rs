@@ -260,7 +260,55 @@ impl Compiler<'_> {
         }
     }
 
+    /// The register of `e`, its code appended to `out` (each node once).
+    /// The operands go first, bottom-up with an explicit stack, so that the
+    /// recursion of [`Compiler::emit_one`] finds each memoized: the loop
+    /// formulation's node potentials are tree-path sums 10^5 deep, which
+    /// overflowed it.
     fn emit(&mut self, e: ExprId, out: &mut Vec<Instr>) -> u32 {
+        let mut stack = vec![(e, false)];
+        while let Some((n, expanded)) = stack.pop() {
+            if n == e && expanded {
+                break;
+            }
+            if self.emitted(n) {
+                continue;
+            }
+            if expanded {
+                self.emit_one(n, out);
+                continue;
+            }
+            stack.push((n, true));
+            let x = &self.sched.exprs;
+            let children = match x.get(n) {
+                Expr::Var(v) if self.var_reg[v.0 as usize] == NONE => {
+                    [self.sys.vars[v].alias, None]
+                }
+                Expr::Var(_) | Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => {
+                    [None, None]
+                }
+                op => op.operands(),
+            };
+            for c in children.into_iter().rev().flatten() {
+                if !self.emitted(c) {
+                    stack.push((c, false));
+                }
+            }
+        }
+        self.emit_one(e, out)
+    }
+
+    /// Whether `e` already has its register.
+    fn emitted(&self, e: ExprId) -> bool {
+        self.memo.contains_key(&e)
+            || match self.sched.exprs.get(e) {
+                Expr::Var(v) => self.var_reg[v.0 as usize] != NONE,
+                Expr::Param(p) => self.param_reg[p.0 as usize] != NONE,
+                _ => false,
+            }
+    }
+
+    fn emit_one(&mut self, e: ExprId, out: &mut Vec<Instr>) -> u32 {
         if let Some(&r) = self.memo.get(&e) {
             return r;
         }
@@ -597,28 +645,32 @@ pub fn compile(
             }
         }
     }
-    // Which of the rest the outputs need.
+    // Which of the rest the outputs need: one pass over the outputs'
+    // expression DAG, through aliases (the loop formulation's node
+    // potentials share their tree paths: a pass per output was quadratic).
     let mut out_needed = vec![false; sys.vars.len()];
-    let (mut vars, mut stack) = (Vec::new(), Vec::new());
-    for &o in outputs {
-        vars.clear();
-        match o {
-            OutputRef::Expr(e) => sys.exprs.vars_into(e, &mut vars, &mut stack),
-            OutputRef::Diff(a, b) => {
-                sys.exprs.vars_into(a, &mut vars, &mut stack);
-                sys.exprs.vars_into(b, &mut vars, &mut stack);
-            }
-            OutputRef::Var(v) => vars.push(v),
+    let mut seen: std::collections::HashSet<ExprId> = std::collections::HashSet::new();
+    let mut stack: Vec<ExprId> = Vec::new();
+    let mark = |v: VarId, out_needed: &mut [bool], stack: &mut Vec<ExprId>| {
+        if !std::mem::replace(&mut out_needed[v.0 as usize], true)
+            && let Some(a) = sys.vars[v].alias
+        {
+            stack.push(a);
         }
-        for v in &vars {
-            out_needed[v.0 as usize] = true;
-            // Aliases read other variables.
-            if let Some(a) = sys.vars[*v].alias {
-                let mut inner = Vec::new();
-                sys.exprs.vars_into(a, &mut inner, &mut stack);
-                for w in inner {
-                    out_needed[w.0 as usize] = true;
-                }
+    };
+    for &o in outputs {
+        match o {
+            OutputRef::Expr(e) => stack.push(e),
+            OutputRef::Diff(a, b) => stack.extend([a, b]),
+            OutputRef::Var(v) => mark(v, &mut out_needed, &mut stack),
+        }
+        while let Some(e) = stack.pop() {
+            if !seen.insert(e) {
+                continue;
+            }
+            match sys.exprs.get(e) {
+                Expr::Var(v) => mark(v, &mut out_needed, &mut stack),
+                op => stack.extend(op.operands().into_iter().flatten()),
             }
         }
     }

@@ -475,15 +475,43 @@ impl ExprArena {
     /// How many times `v` occurs in the tree of `root` (shared subterms counted
     /// once per use).
     pub fn occurrences(&self, root: ExprId, v: VarId) -> usize {
-        match self.get(root) {
-            Expr::Var(x) => usize::from(x == v),
-            op => op
-                .operands()
-                .into_iter()
-                .flatten()
-                .map(|a| self.occurrences(a, v))
-                .sum(),
+        // Recursion while the tree is shallow (the usual equation); a deep
+        // one (a tree-path sum 10^4 deep) is counted bottom-up with an
+        // explicit stack, each shared node once.
+        fn shallow(x: &ExprArena, e: ExprId, v: VarId, depth: usize) -> Option<usize> {
+            if depth > 128 {
+                return None;
+            }
+            match x.get(e) {
+                Expr::Var(y) => Some(usize::from(y == v)),
+                op => op
+                    .operands()
+                    .into_iter()
+                    .flatten()
+                    .try_fold(0, |n, a| Some(n + shallow(x, a, v, depth + 1)?)),
+            }
         }
+        if let Some(n) = shallow(self, root, v, 0) {
+            return n;
+        }
+        let mut count: HashMap<ExprId, usize> = HashMap::new();
+        let mut stack = vec![(root, false)];
+        while let Some((e, expanded)) = stack.pop() {
+            if count.contains_key(&e) {
+                continue;
+            }
+            let ops = self.get(e).operands();
+            if let Expr::Var(y) = self.get(e) {
+                count.insert(e, usize::from(y == v));
+            } else if expanded {
+                let n = ops.into_iter().flatten().map(|a| count[&a]).sum();
+                count.insert(e, n);
+            } else {
+                stack.push((e, true));
+                stack.extend(ops.into_iter().flatten().map(|a| (a, false)));
+            }
+        }
+        count[&root]
     }
 
     /// Replace variables by expressions (`map` returns `None` to keep one).

@@ -440,7 +440,8 @@ fn tolerances_out_of_range_are_rejected() {
 
 /// A 3·10^4-resistor series chain is one algebraic loop of 9·10^4
 /// equations: it sorts (also with alias elimination, whose alias chain is as
-/// long) and runs in time linear in its size, on a test thread's stack. The
+/// long, and in the loop formulation, whose node potentials are sums as
+/// deep) and runs in time linear in its size, on a test thread's stack. The
 /// recursive strongly-connected-components search and alias lookup overflowed
 /// the stack, and two quadratic scans took 27 s at 10^5.
 #[test]
@@ -451,18 +452,17 @@ fn a_long_series_chain_sorts_and_runs() {
         text.push_str(&format!("R{k} n{} n{k} 1\n", k - 1));
     }
     text.push_str(&format!("C1 n{n} 0 1u ic=0\n.tran 1m 10m uic\n.end\n"));
-    for alias in [false, true] {
+    for (alias, kvl) in [
+        (false, kausal::build::Kvl::Nodes),
+        (true, kausal::build::Kvl::Nodes),
+        // Node potentials as tree-path sums 3·10^4 deep.
+        (false, kausal::build::Kvl::Loops),
+    ] {
         let el =
             pipeline::elaborate_text("chain.cir", Path::new("chain.cir"), text.clone(), &FsLoader)
                 .ok()
                 .unwrap();
-        let built = kausal::build::build(
-            &el.circuit,
-            kausal::build::Options {
-                alias,
-                ..Default::default()
-            },
-        );
+        let built = kausal::build::build(&el.circuit, kausal::build::Options { alias, kvl });
         let s = pipeline::sort_built(el, built, &SortOptions::default())
             .ok()
             .expect("sorts");
@@ -477,7 +477,7 @@ fn a_long_series_chain_sorts_and_runs() {
             let exact = 1.0 - (-t / tau).exp();
             assert!(
                 (v - exact).abs() < 1e-6,
-                "alias {alias}: v({t}) = {v}, want {exact}"
+                "alias {alias}, {kvl:?}: v({t}) = {v}, want {exact}"
             );
         }
     }
