@@ -261,41 +261,8 @@ impl Compiler<'_> {
     }
 
     /// The register of `e`, its code appended to `out` (each node once).
-    /// The operands go first, bottom-up with an explicit stack, so that the
-    /// recursion of [`Compiler::emit_one`] finds each memoized: the loop
-    /// formulation's node potentials are tree-path sums 10^5 deep, which
-    /// overflowed it.
     fn emit(&mut self, e: ExprId, out: &mut Vec<Instr>) -> u32 {
-        let mut stack = vec![(e, false)];
-        while let Some((n, expanded)) = stack.pop() {
-            if n == e && expanded {
-                break;
-            }
-            if self.emitted(n) {
-                continue;
-            }
-            if expanded {
-                self.emit_one(n, out);
-                continue;
-            }
-            stack.push((n, true));
-            let x = &self.sched.exprs;
-            let children = match x.get(n) {
-                Expr::Var(v) if self.var_reg[v.0 as usize] == NONE => {
-                    [self.sys.vars[v].alias, None]
-                }
-                Expr::Var(_) | Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => {
-                    [None, None]
-                }
-                op => op.operands(),
-            };
-            for c in children.into_iter().rev().flatten() {
-                if !self.emitted(c) {
-                    stack.push((c, false));
-                }
-            }
-        }
-        self.emit_one(e, out)
+        self.emit_at(e, out, 0)
     }
 
     /// Whether `e` already has its register.
@@ -308,10 +275,44 @@ impl Compiler<'_> {
             }
     }
 
-    fn emit_one(&mut self, e: ExprId, out: &mut Vec<Instr>) -> u32 {
+    /// [`Compiler::emit`] at recursion depth `depth`. Past 128 levels (the
+    /// loop formulation's node potentials are tree-path sums 10^5 deep,
+    /// which overflowed the stack) the operands are emitted bottom-up with
+    /// an explicit stack, each then found memoized.
+    fn emit_at(&mut self, e: ExprId, out: &mut Vec<Instr>, depth: usize) -> u32 {
         if let Some(&r) = self.memo.get(&e) {
             return r;
         }
+        if depth > 128 {
+            let mut stack = vec![(e, false)];
+            while let Some((n, expanded)) = stack.pop() {
+                if n == e && expanded {
+                    break;
+                }
+                if self.emitted(n) {
+                    continue;
+                }
+                if expanded {
+                    self.emit_at(n, out, 0);
+                    continue;
+                }
+                stack.push((n, true));
+                let x = &self.sched.exprs;
+                let children = match x.get(n) {
+                    Expr::Var(v) if self.var_reg[v.0 as usize] == NONE => {
+                        [self.sys.vars[v].alias, None]
+                    }
+                    Expr::Var(_)
+                    | Expr::Const(_)
+                    | Expr::Param(_)
+                    | Expr::Time
+                    | Expr::Source(..) => [None, None],
+                    op => op.operands(),
+                };
+                stack.extend(children.into_iter().rev().flatten().map(|c| (c, false)));
+            }
+        }
+        let depth = depth + 1;
         let x = &self.sched.exprs;
         let r = match x.get(e) {
             Expr::Const(b) => {
@@ -342,7 +343,7 @@ impl Compiler<'_> {
                 let alias = self.sys.vars[v]
                     .alias
                     .expect("variables are computed before use");
-                let r = self.emit(alias, out);
+                let r = self.emit_at(alias, out, depth);
                 self.var_reg[v.0 as usize] = r;
                 return r;
             }
@@ -357,19 +358,19 @@ impl Compiler<'_> {
                 d
             }
             Expr::Neg(a) => {
-                let a = self.emit(a, out);
+                let a = self.emit_at(a, out, depth);
                 let d = self.reg(0.0);
                 out.push(Instr::Neg { d, a });
                 d
             }
             Expr::Call(f, a) => {
-                let a = self.emit(a, out);
+                let a = self.emit_at(a, out, depth);
                 let d = self.reg(0.0);
                 out.push(Instr::Call { d, f, a });
                 d
             }
             Expr::Device(f, a) => {
-                let a = self.emit(a, out);
+                let a = self.emit_at(a, out, depth);
                 let d = self.reg(0.0);
                 out.push(Instr::Device { d, f, a });
                 d
@@ -378,7 +379,7 @@ impl Compiler<'_> {
             // computed once here (within an ulp of dividing; a division costs
             // several multiplications).
             Expr::Div(a, b) if self.constant(b).is_some_and(|c| c != 0.0 && c.is_finite()) => {
-                let ra = self.emit(a, out);
+                let ra = self.emit_at(a, out, depth);
                 let rb = self.const_reg(1.0 / self.constant(b).unwrap_or(1.0));
                 let d = self.reg(0.0);
                 out.push(Instr::Mul { d, a: ra, b: rb });
@@ -389,7 +390,7 @@ impl Compiler<'_> {
             | Expr::Mul(a, b)
             | Expr::Div(a, b)
             | Expr::Pow(a, b) => {
-                let (ra, rb) = (self.emit(a, out), self.emit(b, out));
+                let (ra, rb) = (self.emit_at(a, out, depth), self.emit_at(b, out, depth));
                 let d = self.reg(0.0);
                 out.push(match x.get(e) {
                     Expr::Add(..) => Instr::Add { d, a: ra, b: rb },

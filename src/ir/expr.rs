@@ -521,42 +521,88 @@ impl ExprArena {
         map: &mut dyn FnMut(VarId) -> Option<ExprId>,
         memo: &mut HashMap<ExprId, ExprId>,
     ) -> ExprId {
+        self.substitute_at(root, map, memo, 0)
+    }
+
+    /// [`ExprArena::substitute`] at recursion depth `depth`. Past 128 levels
+    /// (the loop formulation's tree-path sums are as deep as the tree: 10^4
+    /// and more) the operands are substituted bottom-up with an explicit
+    /// stack, each then found memoized.
+    fn substitute_at(
+        &mut self,
+        root: ExprId,
+        map: &mut dyn FnMut(VarId) -> Option<ExprId>,
+        memo: &mut HashMap<ExprId, ExprId>,
+        depth: usize,
+    ) -> ExprId {
         if let Some(&r) = memo.get(&root) {
             return r;
         }
+        if depth > 128 {
+            let mut stack = vec![(root, false)];
+            while let Some((e, expanded)) = stack.pop() {
+                if memo.contains_key(&e) {
+                    continue;
+                }
+                if expanded {
+                    self.substitute_at(e, map, memo, 0);
+                } else {
+                    stack.push((e, true));
+                    let ops = self.get(e).operands();
+                    stack.extend(ops.into_iter().rev().flatten().map(|a| (a, false)));
+                }
+            }
+            return memo[&root];
+        }
+        let d = depth + 1;
         let r = match self.get(root) {
             Expr::Var(v) => map(v).unwrap_or(root),
             Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => root,
             Expr::Neg(a) => {
-                let a = self.substitute(a, map, memo);
+                let a = self.substitute_at(a, map, memo, d);
                 self.neg(a)
             }
             Expr::Call(f, a) => {
-                let a = self.substitute(a, map, memo);
+                let a = self.substitute_at(a, map, memo, d);
                 self.call(f, a)
             }
             Expr::Device(f, a) => {
-                let a = self.substitute(a, map, memo);
+                let a = self.substitute_at(a, map, memo, d);
                 self.intern(Expr::Device(f, a))
             }
             Expr::Add(a, b) => {
-                let (a, b) = (self.substitute(a, map, memo), self.substitute(b, map, memo));
+                let (a, b) = (
+                    self.substitute_at(a, map, memo, d),
+                    self.substitute_at(b, map, memo, d),
+                );
                 self.add(a, b)
             }
             Expr::Sub(a, b) => {
-                let (a, b) = (self.substitute(a, map, memo), self.substitute(b, map, memo));
+                let (a, b) = (
+                    self.substitute_at(a, map, memo, d),
+                    self.substitute_at(b, map, memo, d),
+                );
                 self.sub(a, b)
             }
             Expr::Mul(a, b) => {
-                let (a, b) = (self.substitute(a, map, memo), self.substitute(b, map, memo));
+                let (a, b) = (
+                    self.substitute_at(a, map, memo, d),
+                    self.substitute_at(b, map, memo, d),
+                );
                 self.mul(a, b)
             }
             Expr::Div(a, b) => {
-                let (a, b) = (self.substitute(a, map, memo), self.substitute(b, map, memo));
+                let (a, b) = (
+                    self.substitute_at(a, map, memo, d),
+                    self.substitute_at(b, map, memo, d),
+                );
                 self.div(a, b)
             }
             Expr::Pow(a, b) => {
-                let (a, b) = (self.substitute(a, map, memo), self.substitute(b, map, memo));
+                let (a, b) = (
+                    self.substitute_at(a, map, memo, d),
+                    self.substitute_at(b, map, memo, d),
+                );
                 self.pow(a, b)
             }
         };

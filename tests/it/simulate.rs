@@ -455,8 +455,9 @@ fn a_long_series_chain_sorts_and_runs() {
     for (alias, kvl) in [
         (false, kausal::build::Kvl::Nodes),
         (true, kausal::build::Kvl::Nodes),
-        // Node potentials as tree-path sums 3·10^4 deep.
+        // Node potentials as tree-path sums 3·10^4 deep (and substituted).
         (false, kausal::build::Kvl::Loops),
+        (true, kausal::build::Kvl::Loops),
     ] {
         let el =
             pipeline::elaborate_text("chain.cir", Path::new("chain.cir"), text.clone(), &FsLoader)
