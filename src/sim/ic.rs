@@ -46,35 +46,19 @@ pub(super) enum Unheld {
 /// held before (the node would have two potentials; ngspice's finite
 /// conductance gives way to the source there too).
 fn holdable(c: &Circuit, ics: &[NodeIc]) -> Vec<bool> {
-    let mut parent: Vec<usize> = (0..c.nodes.len()).collect();
-    fn find(parent: &mut [usize], mut x: usize) -> usize {
-        while parent[x] != x {
-            parent[x] = parent[parent[x]];
-            x = parent[x];
-        }
-        x
-    }
-    for e in c.elements.values() {
-        if let ElementKind::VSource { .. }
-        | ElementKind::Inductor { .. }
-        | ElementKind::Vcvs { .. }
-        | ElementKind::Ccvs { .. } = e.kind
-        {
-            let (a, b) = (
-                find(&mut parent, e.nodes[0].0 as usize),
-                find(&mut parent, e.nodes[1].0 as usize),
-            );
-            parent[a] = b;
-        }
-    }
+    let root = super::node_components(c, |k| {
+        matches!(
+            k,
+            ElementKind::VSource { .. }
+                | ElementKind::Inductor { .. }
+                | ElementKind::Vcvs { .. }
+                | ElementKind::Ccvs { .. }
+        )
+    });
     let mut fixed = vec![false; c.nodes.len()];
-    let ground = find(&mut parent, GROUND.0 as usize);
-    fixed[ground] = true;
+    fixed[root[GROUND.0 as usize]] = true;
     ics.iter()
-        .map(|ic| {
-            let r = find(&mut parent, ic.node.0 as usize);
-            !std::mem::replace(&mut fixed[r], true)
-        })
+        .map(|ic| !std::mem::replace(&mut fixed[root[ic.node.0 as usize]], true))
         .collect()
 }
 

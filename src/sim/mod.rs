@@ -406,33 +406,19 @@ where
     })
 }
 
-/// The nodes with no DC path to ground (joined to the rest only through
-/// capacitors and current sources), in islands, each with the elements that
-/// touch it.
-fn floating_islands(c: &Circuit) -> Vec<(Vec<crate::elab::NodeId>, Vec<String>)> {
+/// For each node, a representative of the nodes that the elements `joins`
+/// selects connect it to (union-find with path halving).
+fn node_components(c: &Circuit, joins: impl Fn(&ElementKind) -> bool) -> Vec<usize> {
     let mut parent: Vec<usize> = (0..c.nodes.len()).collect();
-    fn find(p: &mut [usize], mut x: usize) -> usize {
-        while p[x] != x {
-            p[x] = p[p[x]];
-            x = p[x];
+    fn find(parent: &mut [usize], mut x: usize) -> usize {
+        while parent[x] != x {
+            parent[x] = parent[parent[x]];
+            x = parent[x];
         }
         x
     }
     for e in c.elements.values() {
-        let conducts = match e.kind {
-            ElementKind::Resistor { .. }
-            | ElementKind::Inductor { .. }
-            | ElementKind::VSource { .. }
-            | ElementKind::Diode { .. }
-            | ElementKind::Vcvs { .. }
-            | ElementKind::Ccvs { .. } => true,
-            ElementKind::Capacitor { .. }
-            | ElementKind::ISource { .. }
-            | ElementKind::Vccs { .. }
-            | ElementKind::Cccs { .. }
-            | ElementKind::Coupling { .. } => false,
-        };
-        if conducts {
+        if e.nodes.len() >= 2 && joins(&e.kind) {
             let (a, b) = (
                 find(&mut parent, e.nodes[0].0 as usize),
                 find(&mut parent, e.nodes[1].0 as usize),
@@ -440,27 +426,51 @@ fn floating_islands(c: &Circuit) -> Vec<(Vec<crate::elab::NodeId>, Vec<String>)>
             parent[a] = b;
         }
     }
-    let ground = find(&mut parent, GROUND.0 as usize);
-    let mut islands: Vec<(usize, Vec<crate::elab::NodeId>, Vec<String>)> = Vec::new();
+    (0..parent.len()).map(|x| find(&mut parent, x)).collect()
+}
+
+/// The nodes with no DC path to ground (joined to the rest only through
+/// capacitors and current sources), in islands, each with the elements that
+/// touch it.
+fn floating_islands(c: &Circuit) -> Vec<(Vec<crate::elab::NodeId>, Vec<String>)> {
+    let root = node_components(c, |k| {
+        matches!(
+            k,
+            ElementKind::Resistor { .. }
+                | ElementKind::Inductor { .. }
+                | ElementKind::VSource { .. }
+                | ElementKind::Diode { .. }
+                | ElementKind::Vcvs { .. }
+                | ElementKind::Ccvs { .. }
+        )
+    });
+    let ground = root[GROUND.0 as usize];
+    // Islands in order of their first node; each node's island by its root.
+    let mut index: HashMap<usize, usize> = HashMap::new();
+    let mut islands: Vec<(Vec<crate::elab::NodeId>, Vec<String>)> = Vec::new();
     for id in c.nodes.ids() {
-        let r = find(&mut parent, id.0 as usize);
+        let r = root[id.0 as usize];
         if r == ground {
             continue;
         }
-        match islands.iter_mut().find(|i| i.0 == r) {
-            Some(i) => i.1.push(id),
-            None => islands.push((r, vec![id], Vec::new())),
-        }
+        let k = *index.entry(r).or_insert_with(|| {
+            islands.push((Vec::new(), Vec::new()));
+            islands.len() - 1
+        });
+        islands[k].0.push(id);
     }
     for e in c.elements.values() {
         let n = e.nodes.len().min(2);
-        for island in &mut islands {
-            if e.nodes[..n].iter().any(|x| island.1.contains(x)) && !island.2.contains(&e.name) {
-                island.2.push(e.name.clone());
-            }
+        let mut of: Vec<usize> = e.nodes[..n]
+            .iter()
+            .filter_map(|x| index.get(&root[x.0 as usize]).copied())
+            .collect();
+        of.dedup();
+        for k in of {
+            islands[k].1.push(e.name.clone());
         }
     }
-    islands.into_iter().map(|(_, n, e)| (n, e)).collect()
+    islands
 }
 
 /// A singular DC Jacobian explained by the nodes that have no DC path.
