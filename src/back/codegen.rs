@@ -926,7 +926,8 @@ fn sweep_fn(
             }
         }
         Lang::C => {
-            let _ = writeln!(out, "\n/* {} */", doc.replace('\n', "\n   "));
+            let doc = doc.replace('`', "").replace('\n', "\n   ");
+            let _ = writeln!(out, "\n/* {doc} */");
         }
     }
     let _ = writeln!(out, "{sig} {{");
@@ -1252,46 +1253,38 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
             "\n/* The variable of each state, and of its derivative. */\nstatic const int STATE_VAR[{ns}] = {{{st}}};\nstatic const int DER_VAR[{ns}] = {{{dt}}};"
         );
     }
-    match lang {
-        Lang::Rust => sweep_fn(
-            &mut out,
-            lang,
-            "dy/dt = f(t, y): `v` is scratch of N_VARS values (it keeps Newton's warm start).",
+    let (rhs_sig, rhs_prologue, jac_sig, jac_prologue) = match lang {
+        Lang::Rust => (
             "pub fn rhs(t: f64, y: &[f64], p: &[f64], v: &mut [f64], dy: &mut [f64])",
             RUST_ARRAY_VIEWS,
-            ("v", "y", "dy"),
-            ("part", chunks, "t, y, p, v"),
-        ),
-        Lang::C => sweep_fn(
-            &mut out,
-            lang,
-            "dy/dt = f(t, y): v is scratch of N_VARS values (it keeps Newton's warm start).",
-            "void rhs(double t, const double *y, const double *p, double *v, double *dy)",
-            "",
-            ("v", "y", "dy"),
-            ("part", chunks, "t, y, p, v"),
-        ),
-    }
-    // jac_mul: the values at (t, y) by rhs, then the tangent sweep.
-    match lang {
-        Lang::Rust => sweep_fn(
-            &mut out,
-            lang,
-            "J(t, y) w, exact: the tangents of the sorted assignments (forward mode),\nloops by implicit differentiation. `v` and `dv` are scratch of N_VARS values.",
             "pub fn jac_mul(t: f64, y: &[f64], p: &[f64], v: &mut [f64], dv: &mut [f64], w: &[f64], jw: &mut [f64])",
             "    rhs(t, y, p, v, jw);\n    let v: &[f64; N_VARS] = (&*v).try_into().expect(\"N_VARS values in v\");\n    let dv: &mut [f64; N_VARS] = dv.try_into().expect(\"N_VARS values in dv\");\n    let p: &[f64; NP] = p.try_into().expect(\"NP parameters\");\n",
-            ("dv", "w", "jw"),
-            ("tan", tchunks, "t, y, p, v, dv"),
         ),
-        Lang::C => sweep_fn(
-            &mut out,
-            lang,
-            "J(t, y) w, exact: the tangents of the sorted assignments (forward mode),\nloops by implicit differentiation. v and dv are scratch of N_VARS values.",
+        Lang::C => (
+            "void rhs(double t, const double *y, const double *p, double *v, double *dy)",
+            "",
             "void jac_mul(double t, const double *y, const double *p, double *v, double *dv, const double *w, double *jw)",
             "    rhs(t, y, p, v, jw);\n",
-            ("dv", "w", "jw"),
-            ("tan", tchunks, "t, y, p, v, dv"),
         ),
-    }
+    };
+    sweep_fn(
+        &mut out,
+        lang,
+        "dy/dt = f(t, y): `v` is scratch of N_VARS values (it keeps Newton's warm start).",
+        rhs_sig,
+        rhs_prologue,
+        ("v", "y", "dy"),
+        ("part", chunks, "t, y, p, v"),
+    );
+    // jac_mul: the values at (t, y) by rhs, then the tangent sweep.
+    sweep_fn(
+        &mut out,
+        lang,
+        "J(t, y) w, exact: the tangents of the sorted assignments (forward mode),\nloops by implicit differentiation. `v` and `dv` are scratch of N_VARS values.",
+        jac_sig,
+        jac_prologue,
+        ("dv", "w", "jw"),
+        ("tan", tchunks, "t, y, p, v, dv"),
+    );
     out
 }

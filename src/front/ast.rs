@@ -227,7 +227,7 @@ pub enum Stmt<'a> {
     },
 }
 
-/// A user function: `.func name(a b) {a*b}`.
+/// A user function: `.func name(a, b) {a*b}` (commas optional to kausal).
 #[derive(Clone, Debug)]
 pub struct FuncDef<'a> {
     pub name: Name<'a>,

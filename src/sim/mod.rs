@@ -126,6 +126,10 @@ pub enum SimError {
     Solver { t: f64, message: String },
     #[error("no DC operating point: {message}")]
     DcFailed { message: String },
+    #[error(
+        "no DC operating point: the DC Jacobian is singular: a node or loop has no DC path (a capacitor-only node, an inductor loop); use `.tran ... uic`"
+    )]
+    DcSingular,
     #[error("cannot write the waveforms: {message}")]
     Write { message: String },
     #[error("{what} is {value}; it must be {range}")]
@@ -157,7 +161,7 @@ impl crate::diag::ToDiagnostic for SimError {
                 "the circuit may be ill-posed there, or change faster than steps of TSTOP·1e-16 can follow (shorten TSTOP); try another --method or a looser --rtol",
             ),
             SimError::Solver { .. } => ("K0405", "try another --method"),
-            SimError::DcFailed { .. } => {
+            SimError::DcFailed { .. } | SimError::DcSingular => {
                 ("K0406", "give initial conditions and use `.tran ... uic`")
             }
             SimError::Write { .. } => ("K0407", "check the output path and free space"),
@@ -476,7 +480,7 @@ fn floating_islands(c: &Circuit) -> Vec<(Vec<crate::elab::NodeId>, Vec<String>)>
 /// A singular DC Jacobian explained by the nodes that have no DC path.
 fn name_dc_failure(c: &Circuit, e: SimError) -> SimError {
     match &e {
-        SimError::DcFailed { message } if message == DC_SINGULAR => {
+        SimError::DcSingular => {
             let islands = floating_islands(c);
             if islands.is_empty() {
                 return e;
@@ -513,9 +517,6 @@ fn name_dc_failure(c: &Circuit, e: SimError) -> SimError {
         _ => e,
     }
 }
-
-/// Why a DC Newton step could not be computed.
-const DC_SINGULAR: &str = "the DC Jacobian is singular: a node or loop has no DC path (a capacitor-only node, an inductor loop); use `.tran ... uic`";
 
 /// DC operating point by damped Newton on f(t0, y) = 0 in DC mode, with the
 /// states that `.ic` fixes held: the sparse LU of the coloured Jacobian above
@@ -577,9 +578,7 @@ where
         }
         limited
     };
-    let singular = || SimError::DcFailed {
-        message: DC_SINGULAR.into(),
-    };
+    let singular = || SimError::DcSingular;
     let mut jacobian: Box<JacobianAt<'_>> = if n > DENSE_STATES {
         // The coloured sparse Jacobian.
         use diffsol::NonLinearOpJacobian;
@@ -713,9 +712,7 @@ fn dc_newton(
     if norm == 0.0 {
         return Ok(y);
     }
-    let singular = || SimError::DcFailed {
-        message: DC_SINGULAR.into(),
-    };
+    let singular = || SimError::DcSingular;
     // Corrections measured against |y| + 1e7 atol: 1e-10 of it converges.
     let scaled = |d: &[f64], y: &[f64]| -> f64 {
         d.iter()

@@ -38,6 +38,14 @@ pub fn interrupt_when(
 }
 
 /// The repository root.
+/// Run the `kausal` binary with `args` to completion.
+pub fn kausal(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+        .args(args)
+        .output()
+        .expect("the kausal binary runs")
+}
+
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }

@@ -162,10 +162,7 @@ fn newton_failure_names_the_loop_and_leaves_no_file() {
     let net = dir.path().join("impossible.cir");
     std::fs::write(&net, text).unwrap();
     let out = dir.path().join("out.csv");
-    let status = std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
-        .args(["sim", net.to_str().unwrap(), "-o", out.to_str().unwrap()])
-        .output()
-        .unwrap();
+    let status = crate::kausal(&["sim", net.to_str().unwrap(), "-o", out.to_str().unwrap()]);
     assert!(!status.status.success());
     assert!(!out.exists(), "no partial output");
     assert!(String::from_utf8_lossy(&status.stderr).contains("D1"));
@@ -277,12 +274,7 @@ fn a_large_circuit_starts_from_its_dc_operating_point() {
 #[test]
 fn streamed_csv_is_whole_or_absent() {
     let dir = tempfile::tempdir().unwrap();
-    let run = |args: &[&str]| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
-            .args(args)
-            .output()
-            .unwrap()
-    };
+    let run = crate::kausal;
     // A negative resistor: rows stream until v explodes near t = 1 ms.
     let net = dir.path().join("unstable.cir");
     std::fs::write(
@@ -418,12 +410,7 @@ fn tolerances_out_of_range_are_rejected() {
         let e = sim::simulate(&s, &opts).unwrap_err();
         assert!(matches!(e, SimError::BadTolerance { .. }), "{e}");
     }
-    let cli = |args: &[&str]| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
-            .args(args)
-            .output()
-            .unwrap()
-    };
+    let cli = crate::kausal;
     let net = root().join("netlists/rc_lowpass_step.cir");
     let net = net.to_str().unwrap();
     for (bad, flag) in [

@@ -223,10 +223,7 @@ fn repeated_warnings_are_counted_not_repeated() {
     text.push_str("R0 n30 0 1\n.tran 1u 10u\n.end\n");
     let net = dir.path().join("chain.cir");
     std::fs::write(&net, text).unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
-        .args(["sort", net.to_str().unwrap()])
-        .output()
-        .unwrap();
+    let out = crate::kausal(&["sort", net.to_str().unwrap()]);
     assert!(out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(err.matches("⚠").count(), 10, "{err}");
@@ -237,12 +234,7 @@ fn repeated_warnings_are_counted_not_repeated() {
 /// sources is an error there (it said ok), a clean netlist reports its size.
 #[test]
 fn check_reports_structural_errors() {
-    let check = |file: &str| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
-            .args(["check", root().join(file).to_str().unwrap()])
-            .output()
-            .unwrap()
-    };
+    let check = |file: &str| crate::kausal(&["check", root().join(file).to_str().unwrap()]);
     let bad = check("netlists/faults/shorted_v.cir");
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("error"));
