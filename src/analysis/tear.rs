@@ -181,7 +181,7 @@ impl BlockTearer {
         for &(e, v) in &candidates {
             // The residual a perfect matching allows (the candidate's own
             // equation when possible).
-            let e = if mates.path(c, e, v).is_some() {
+            let e = if mates.path(c, e, v) {
                 e
             } else {
                 mates.mate(v).unwrap_or(e)
@@ -216,6 +216,15 @@ impl BlockTearer {
 pub struct Mates {
     of_eq: Vec<u32>,
     of_var: Vec<u32>,
+    /// Scratch of [`Mates::path`], valid where stamped with the current
+    /// search: the equation each unknown was reached from, and which
+    /// equations were queued (arrays, not hash maps: a block torn 10^4
+    /// times runs 10^5 searches).
+    prev_var: Vec<u32>,
+    var_stamp: Vec<u32>,
+    eq_stamp: Vec<u32>,
+    stamp: u32,
+    queue: std::collections::VecDeque<u32>,
 }
 
 const NONE: u32 = u32::MAX;
@@ -225,6 +234,11 @@ impl Mates {
         Mates {
             of_eq: vec![NONE; n_eqs],
             of_var: vec![NONE; n_vars],
+            prev_var: vec![NONE; n_vars],
+            var_stamp: vec![0; n_vars],
+            eq_stamp: vec![0; n_eqs],
+            stamp: 0,
+            queue: Default::default(),
         }
     }
 
@@ -248,14 +262,14 @@ impl Mates {
         if e0 == NONE || e0 == e.0 {
             return e;
         }
-        let Some(prev_var) = self.path(c, e, v) else {
+        if !self.path(c, e, v) {
             return EqId(e0);
-        };
+        }
         let w = self.of_eq[e.0 as usize];
         // Shift the matching along the path, then pair (e, v).
         let mut x = w;
         loop {
-            let q = prev_var[&x];
+            let q = self.prev_var[x as usize];
             let old = self.of_eq[q as usize];
             self.of_eq[q as usize] = x;
             self.of_var[x as usize] = q;
@@ -269,49 +283,52 @@ impl Mates {
         e
     }
 
-    /// An alternating path that lets `e` take `v`: from `v`'s equation to
-    /// `e`'s unknown, as predecessor links (`None` when there is none; an
-    /// empty map when `e` already has `v`).
-    fn path(
-        &self,
-        c: &Colouring<'_>,
-        e: EqId,
-        v: VarId,
-    ) -> Option<std::collections::HashMap<u32, u32>> {
+    /// Whether an alternating path lets `e` take `v`: from `v`'s equation to
+    /// `e`'s unknown, left in `prev_var` (trivially true when `e` already
+    /// has `v` or `v` has no mate).
+    fn path(&mut self, c: &Colouring<'_>, e: EqId, v: VarId) -> bool {
         let e0 = self.of_var[v.0 as usize];
         if e0 == NONE || e0 == e.0 {
-            return Some(Default::default());
+            return true;
         }
         let w = self.of_eq[e.0 as usize];
         if w == NONE {
-            return None;
+            return false;
         }
+        self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            self.var_stamp.fill(0);
+            self.eq_stamp.fill(0);
+            self.stamp = 1;
+        }
+        let stamp = self.stamp;
         // Breadth-first from e0 (which gives up v) to var w (which gives up e):
         // e0 -x1- M(x1) -x2- ... -w, along black edges of unassigned nodes.
-        let mut prev_var: std::collections::HashMap<u32, u32> = Default::default();
-        let mut queue = std::collections::VecDeque::from([e0]);
-        let mut seen_eq: std::collections::HashSet<u32> = [e0, e.0].into_iter().collect();
-        let mut found = false;
-        'bfs: while let Some(q) = queue.pop_front() {
+        self.queue.clear();
+        self.queue.push_back(e0);
+        self.eq_stamp[e0 as usize] = stamp;
+        self.eq_stamp[e.0 as usize] = stamp;
+        while let Some(q) = self.queue.pop_front() {
             for k in c.g.eq_edges(EqId(q)) {
                 if c.colour[k as usize] != EdgeColour::Black {
                     continue;
                 }
                 let x = c.g.edge_var[k as usize].0;
-                if x == v.0 || prev_var.contains_key(&x) {
+                if x == v.0 || self.var_stamp[x as usize] == stamp {
                     continue;
                 }
-                prev_var.insert(x, q);
+                self.var_stamp[x as usize] = stamp;
+                self.prev_var[x as usize] = q;
                 if x == w {
-                    found = true;
-                    break 'bfs;
+                    return true;
                 }
                 let next = self.of_var[x as usize];
-                if next != NONE && seen_eq.insert(next) {
-                    queue.push_back(next);
+                if next != NONE && self.eq_stamp[next as usize] != stamp {
+                    self.eq_stamp[next as usize] = stamp;
+                    self.queue.push_back(next);
                 }
             }
         }
-        found.then_some(prev_var)
+        false
     }
 }

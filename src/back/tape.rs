@@ -13,6 +13,7 @@ use std::collections::HashMap;
 
 use crate::analysis::{Assignment, Schedule, Solved, Step};
 use crate::ir::{DeviceFn, DiodeParams, EquationSystem, Expr, ExprId, Func, VarId, Waveform};
+use crate::sim::sparse_lu::TripletLu;
 
 /// One instruction: `dst = op(a, b)`; operands are registers.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -96,8 +97,11 @@ pub struct TapeBlock {
     /// The residuals are affine in the tears with coefficients that are
     /// constants of the tape: the Jacobian is factored once, at first use.
     pub constant_jacobian: bool,
-    /// That factorization (LU and row order), once computed.
-    lu: std::cell::OnceCell<(Vec<f64>, Vec<usize>)>,
+    /// That factorization, once computed.
+    lu: std::cell::OnceCell<BlockLu>,
+    /// The sparsity of a block past [`DENSE_TEARS`], once computed (`None`
+    /// inside: too dense to colour).
+    pattern: std::cell::OnceCell<Option<Pattern>>,
     /// The block is `0 = q - Q(x)` for a junction charge `Q`: it is solved
     /// by Halley's method on the device's own derivatives.
     pub charge_inverse: Option<ChargeInverse>,
@@ -141,33 +145,49 @@ pub struct TangentCache {
     /// The registers hold the last tangent run (set by [`Tape::jac_mul`]);
     /// whoever else writes them, or moves to another point, clears this.
     pub valid: bool,
-    lus: Vec<Option<(Vec<f64>, Vec<usize>)>>,
+    lus: Vec<Option<BlockLu>>,
 }
 
 impl TangentCache {
+    /// Keep block `k`'s dense factors (copied into the slot's own buffers).
     fn keep(&mut self, k: usize, n_blocks: usize, jac: &[f64], perm: &[usize]) {
+        let slot = self.slot(k, n_blocks);
+        if !matches!(slot, Some(BlockLu::Dense(..))) {
+            *slot = Some(BlockLu::Dense(Vec::new(), Vec::new()));
+        }
+        if let Some(BlockLu::Dense(a, p)) = slot {
+            a.clear();
+            a.extend_from_slice(jac);
+            p.clear();
+            p.extend_from_slice(perm);
+        }
+    }
+
+    fn slot(&mut self, k: usize, n_blocks: usize) -> &mut Option<BlockLu> {
         if self.lus.len() < n_blocks {
             self.lus.resize(n_blocks, None);
         }
-        let slot = self.lus[k].get_or_insert_with(Default::default);
-        slot.0.clear();
-        slot.0.extend_from_slice(jac);
-        slot.1.clear();
-        slot.1.extend_from_slice(perm);
+        &mut self.lus[k]
     }
 }
 
 /// Why an evaluation failed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum EvalError {
-    #[error("Newton did not converge in algebraic loop {block} through {} (residual {residual:.3e} at t = {t:e})", elements.join(", "))]
+    #[error(
+        "Newton did not converge in algebraic loop {block} through {} (residual {residual:.3e} at t = {t:e})",
+        crate::back::listing::shortened(elements, crate::back::listing::ELEMENTS_SHOWN)
+    )]
     NoConvergence {
         block: usize,
         elements: Vec<String>,
         residual: f64,
         t: f64,
     },
-    #[error("singular Jacobian in algebraic loop {block} through {} at t = {t:e}", elements.join(", "))]
+    #[error(
+        "singular Jacobian in algebraic loop {block} through {} at t = {t:e}",
+        crate::back::listing::shortened(elements, crate::back::listing::ELEMENTS_SHOWN)
+    )]
     Singular {
         block: usize,
         elements: Vec<String>,
@@ -496,6 +516,7 @@ impl Compiler<'_> {
                     private: false,
                     constant_jacobian: false,
                     lu: std::cell::OnceCell::new(),
+                    pattern: std::cell::OnceCell::new(),
                     charge_inverse: None,
                 });
                 let kk = k as usize;
@@ -546,6 +567,7 @@ impl Compiler<'_> {
                     private: false,
                     constant_jacobian: false,
                     lu: std::cell::OnceCell::new(),
+                    pattern: std::cell::OnceCell::new(),
                     charge_inverse: None,
                 });
                 let kk = k as usize;
@@ -947,7 +969,8 @@ impl Tape {
                             _ => None,
                         };
                         let slope = match kept {
-                            Some((jac, _)) => sign * jac[0],
+                            Some(BlockLu::Dense(jac, _)) => sign * jac[0],
+                            Some(BlockLu::Sparse(_)) => unreachable!("a charge block has one tear"),
                             None => {
                                 self.solve_block(k, r, t)?;
                                 let [_, c, _] = self.diodes[ci.diode as usize].charge(r[x]);
@@ -974,26 +997,28 @@ impl Tape {
                         Some(c) if c.valid => c.lus.get(k).is_some_and(|l| l.is_some()),
                         _ => false,
                     };
+                    let mut sparse = None;
                     if !kept {
                         self.solve_block(k, r, t)?;
                         if !b.constant_jacobian {
                             w.saved.extend(b.touched.iter().map(|&x| dr[x as usize]));
-                            self.block_jacobian(b, r, dr, t, &mut w.jac)?;
+                            let factored = self.factor_jacobian(b, r, dr, t, &mut w);
                             for (&x, &v) in b.touched.iter().zip(&w.saved) {
                                 dr[x as usize] = v;
                             }
-                            if !lu_factor(n, &mut w.jac, &mut w.perm) {
-                                return Err(b.singular(t));
-                            }
+                            sparse = factored?;
                         }
                         if let Some(c) = cache.as_deref_mut() {
                             // A constant Jacobian has its own factorization.
-                            let (jac, perm) = if b.constant_jacobian {
-                                (&[][..], &[][..])
-                            } else {
-                                (&w.jac[..], &w.perm[..])
-                            };
-                            c.keep(k, self.blocks.len(), jac, perm);
+                            match sparse.take() {
+                                Some(lu) => {
+                                    *c.slot(k, self.blocks.len()) = Some(BlockLu::Sparse(lu));
+                                }
+                                None if b.constant_jacobian => {
+                                    c.keep(k, self.blocks.len(), &[], &[])
+                                }
+                                None => c.keep(k, self.blocks.len(), &w.jac, &w.perm),
+                            }
                         }
                     }
                     for &x in &b.tears {
@@ -1002,14 +1027,14 @@ impl Tape {
                     self.run_tangent(&b.body, r, dr, t, None)?;
                     w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
                     if b.constant_jacobian {
-                        let (jac, perm) = self.constant_lu(b, r, t, &mut w)?;
-                        lu_solve(n, jac, perm, &mut w.res, &mut w.tmp);
-                    } else if kept {
-                        let c = cache.as_deref().expect("kept implies a cache");
-                        let (jac, perm) = c.lus[k].as_ref().expect("kept");
-                        lu_solve(n, jac, perm, &mut w.res, &mut w.tmp);
+                        self.constant_lu(b, r, t, &mut w)?
+                            .solve(&mut w.res, &mut w.tmp);
+                    } else if let Some(c) = cache.as_deref().filter(|c| c.valid)
+                        && let Some(lu) = c.lus.get(k).and_then(|l| l.as_ref())
+                    {
+                        lu.solve(&mut w.res, &mut w.tmp);
                     } else {
-                        lu_solve(n, &w.jac, &w.perm, &mut w.res, &mut w.tmp);
+                        solve_factored(sparse.as_ref(), &w.jac, &w.perm, &mut w.res, &mut w.tmp);
                     }
                     for (j, &x) in b.tears.iter().enumerate() {
                         dr[x as usize] = w.res[j];
@@ -1132,16 +1157,14 @@ impl Tape {
                     let mut w = Work::take(n, r.len());
                     self.solve_block(k as usize, r, t)?;
                     let result = (|| {
+                        let mut sparse = None;
                         let constant = if b.constant_jacobian {
                             Some(self.constant_lu(b, r, t, &mut w)?)
                         } else {
                             let mut scratch = std::mem::take(&mut w.dr);
-                            let got = self.block_jacobian(b, r, &mut scratch, t, &mut w.jac);
+                            let got = self.factor_jacobian(b, r, &mut scratch, t, &mut w);
                             w.dr = scratch;
-                            got?;
-                            if !lu_factor(n, &mut w.jac, &mut w.perm) {
-                                return Err(b.singular(t));
-                            }
+                            sparse = got?;
                             None
                         };
                         for &x in &b.tears {
@@ -1155,10 +1178,14 @@ impl Tape {
                                 w.step[i] = -dr[res as usize * m + j];
                             }
                             match constant {
-                                Some((jac, perm)) => {
-                                    lu_solve(n, jac, perm, &mut w.step, &mut w.tmp)
-                                }
-                                None => lu_solve(n, &w.jac, &w.perm, &mut w.step, &mut w.tmp),
+                                Some(lu) => lu.solve(&mut w.step, &mut w.tmp),
+                                None => solve_factored(
+                                    sparse.as_ref(),
+                                    &w.jac,
+                                    &w.perm,
+                                    &mut w.step,
+                                    &mut w.tmp,
+                                ),
                             }
                             for (i, &x) in b.tears.iter().enumerate() {
                                 dr[x as usize * m + j] = w.step[i];
@@ -1253,25 +1280,128 @@ impl Tape {
     /// The factored constant Jacobian of `b`, computed at the first call
     /// that finds it finite and regular (a failure is not remembered: the
     /// registers it was computed from may have held a failed trial point).
+    /// Up to [`DENSE_TEARS`] tears it is dense; beyond, its columns are
+    /// gathered one tangent run at a time as sparse entries and factored by
+    /// the circuit sparse LU: a ladder torn every few sections couples each
+    /// residual to a few neighbouring tears, and its dense LU (cubic in the
+    /// tears) took 50 s at 5000 tears.
     fn constant_lu<'t>(
         &self,
         b: &'t TapeBlock,
         r: &mut [f64],
         t: f64,
         w: &mut Work,
-    ) -> Result<&'t (Vec<f64>, Vec<usize>), EvalError> {
+    ) -> Result<&'t BlockLu, EvalError> {
         if let Some(lu) = b.lu.get() {
             return Ok(lu);
         }
         let n = b.tears.len();
-        self.block_jacobian(b, r, &mut w.dr, t, &mut w.jac)?;
-        let mut perm = vec![0; n];
-        let mut jac = w.jac.clone();
-        if jac.iter().all(|v| v.is_finite()) && lu_factor(n, &mut jac, &mut perm) {
-            Ok(b.lu.get_or_init(|| (jac, perm)))
+        let lu = if n <= DENSE_TEARS {
+            w.dense_jac(n);
+            self.block_jacobian(b, r, &mut w.dr, t, &mut w.jac)?;
+            let mut perm = vec![0; n];
+            let mut jac = w.jac.clone();
+            (jac.iter().all(|v| v.is_finite()) && lu_factor(n, &mut jac, &mut perm))
+                .then_some(BlockLu::Dense(jac, perm))
         } else {
-            Err(b.singular(t))
+            let entries = self.sparse_columns(b, r, &mut w.dr, t)?;
+            if entries.iter().all(|e| e.2.is_finite()) {
+                TripletLu::new(n, entries).map(BlockLu::Sparse)
+            } else {
+                None
+            }
+        };
+        match lu {
+            Some(lu) => Ok(b.lu.get_or_init(|| lu)),
+            None => Err(b.singular(t)),
         }
+    }
+
+    /// `b`'s Jacobian at the current point, factored (the body is evaluated
+    /// there too; `dr`'s tangents of the body are left dirty): dense into
+    /// `w.jac` and `w.perm` (`None`), or past [`DENSE_TEARS`] sparse.
+    fn factor_jacobian(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        dr: &mut [f64],
+        t: f64,
+        w: &mut Work,
+    ) -> Result<Option<TripletLu>, EvalError> {
+        let n = b.tears.len();
+        if n > DENSE_TEARS {
+            let entries = self.sparse_columns(b, r, dr, t)?;
+            return match entries.iter().all(|e| e.2.is_finite()) {
+                true => TripletLu::new(n, entries)
+                    .map(Some)
+                    .ok_or_else(|| b.singular(t)),
+                false => Err(b.singular(t)),
+            };
+        }
+        w.dense_jac(n);
+        self.block_jacobian(b, r, dr, t, &mut w.jac)?;
+        if !lu_factor(n, &mut w.jac, &mut w.perm) {
+            return Err(b.singular(t));
+        }
+        Ok(None)
+    }
+
+    /// The nonzero entries `(residual, tear, ∂)` of `b`'s Jacobian at the
+    /// current point: columns that share no residual ([`tear_pattern`],
+    /// coloured once per block) in one tangent run, else one run a column.
+    fn sparse_columns(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        dr: &mut [f64],
+        t: f64,
+    ) -> Result<Vec<(usize, usize, f64)>, EvalError> {
+        let n = b.tears.len();
+        let mut entries = Vec::new();
+        let pattern = b.pattern.get_or_init(|| {
+            tear_pattern(b).map(|rows| {
+                let (colour, n_colours) = colour_columns(n, &rows);
+                Pattern {
+                    rows,
+                    colour,
+                    n_colours,
+                }
+            })
+        });
+        let Some(p) = pattern else {
+            for j in 0..n {
+                for &x in &b.touched {
+                    dr[x as usize] = 0.0;
+                }
+                dr[b.tears[j] as usize] = 1.0;
+                self.run_tangent(&b.body, r, dr, t, None)?;
+                for (i, &res) in b.residuals.iter().enumerate() {
+                    let v = dr[res as usize];
+                    if v != 0.0 {
+                        entries.push((i, j, v));
+                    }
+                }
+            }
+            return Ok(entries);
+        };
+        for c in 0..p.n_colours {
+            for &x in &b.touched {
+                dr[x as usize] = 0.0;
+            }
+            for (j, _) in p.colour.iter().enumerate().filter(|(_, k)| **k == c) {
+                dr[b.tears[j] as usize] = 1.0;
+            }
+            self.run_tangent(&b.body, r, dr, t, None)?;
+            for (i, row) in p.rows.iter().enumerate() {
+                let v = dr[b.residuals[i] as usize];
+                if let Some(&j) = row.iter().find(|&&j| p.colour[j as usize] == c)
+                    && v != 0.0
+                {
+                    entries.push((i, j as usize, v));
+                }
+            }
+        }
+        Ok(entries)
     }
 
     /// A block whose residuals are affine in the tears with a constant
@@ -1283,8 +1413,7 @@ impl Tape {
         t: f64,
         w: &mut Work,
     ) -> Result<(), EvalError> {
-        let n = b.tears.len();
-        let (jac, perm) = self.constant_lu(b, r, t, w)?;
+        let lu = self.constant_lu(b, r, t, w)?;
         self.run(&b.body, r, t)?;
         for (j, &x) in b.residuals.iter().enumerate() {
             w.step[j] = r[x as usize];
@@ -1292,7 +1421,7 @@ impl Tape {
         if w.step.iter().all(|v| *v == 0.0) {
             return Ok(());
         }
-        lu_solve(n, jac, perm, &mut w.step, &mut w.tmp);
+        lu.solve(&mut w.step, &mut w.tmp);
         if w.step.iter().any(|v| !v.is_finite()) {
             return Err(b.singular(t));
         }
@@ -1458,7 +1587,6 @@ impl Tape {
         t: f64,
         w: &mut Work,
     ) -> Result<(), EvalError> {
-        let n = b.tears.len();
         let no_convergence = |r: &[f64]| {
             let residual = b
                 .residuals
@@ -1480,17 +1608,17 @@ impl Tape {
         };
         // The Jacobian's tangent runs evaluate the body too.
         for _ in 0..200 {
-            self.block_jacobian(b, r, &mut w.dr, t, &mut w.jac)?;
-            if !lu_factor(n, &mut w.jac, &mut w.perm) {
-                return Err(b.singular(t));
-            }
+            let mut dr = std::mem::take(&mut w.dr);
+            let factored = self.factor_jacobian(b, r, &mut dr, t, w);
+            w.dr = dr;
+            let sparse = factored?;
             for (j, &x) in b.residuals.iter().enumerate() {
                 w.step[j] = r[x as usize];
             }
             if w.step.iter().all(|v| *v == 0.0) {
                 return Ok(());
             }
-            lu_solve(n, &w.jac, &w.perm, &mut w.step, &mut w.tmp);
+            solve_factored(sparse.as_ref(), &w.jac, &w.perm, &mut w.step, &mut w.tmp);
             for (j, &x) in b.tears.iter().enumerate() {
                 w.x0[j] = r[x as usize];
             }
@@ -1527,7 +1655,7 @@ impl Tape {
                 for (j, &x) in b.residuals.iter().enumerate() {
                     w.bar[j] = r[x as usize];
                 }
-                lu_solve(n, &w.jac, &w.perm, &mut w.bar, &mut w.tmp);
+                solve_factored(sparse.as_ref(), &w.jac, &w.perm, &mut w.bar, &mut w.tmp);
                 // The same scaling as the full correction: a scale that moved
                 // with x would make a shrinking |x| look like no progress.
                 let simplified = scaled(&w.bar, &w.x0);
@@ -1811,9 +1939,11 @@ fn set_private(blocks: &mut [TapeBlock], programs: &[&[Instr]], direct: &[&[u32]
         }
     }
     for (k, b) in blocks.iter_mut().enumerate() {
+        // A set: a block can have 10^4 tears and 10^5 instructions.
+        let tears: std::collections::HashSet<u32> = b.tears.iter().copied().collect();
         b.private = b.body.iter().all(|ins| {
             let d = dest(ins);
-            d == NONE || b.tears.contains(&d) || reader.get(&d).is_none_or(|by| *by == Some(k))
+            d == NONE || reader.get(&d).is_none_or(|by| *by == Some(k)) || tears.contains(&d)
         });
     }
 }
@@ -1891,11 +2021,19 @@ fn set_constant_jacobians(blocks: &mut [TapeBlock], programs: &[&[Instr]], state
 /// Tears `x` of a block whose body computes `exp(x / vt)`.
 fn junctions(b: &TapeBlock, vte_regs: &dyn Fn(u32) -> Option<u32>) -> Vec<(usize, u32)> {
     let mut out = Vec::new();
+    // Maps, not scans: a block can hold 10^4 tears and junctions.
+    let tear_index: HashMap<u32, usize> =
+        b.tears.iter().enumerate().map(|(j, &x)| (x, j)).collect();
+    let mut by_dest: HashMap<u32, &Instr> = HashMap::new();
+    for i in &b.body {
+        by_dest.entry(dest(i)).or_insert(i);
+    }
+    let mut found = std::collections::HashSet::new();
     for ins in &b.body {
         if let Instr::Device { f, a, .. } = *ins
-            && let Some(j) = b.tears.iter().position(|&x| x == a)
-            && !out.iter().any(|&(k, _)| k == j)
+            && let Some(&j) = tear_index.get(&a)
             && let Some(vt) = vte_regs(f.diode)
+            && found.insert(j)
         {
             out.push((j, vt));
         }
@@ -1905,12 +2043,11 @@ fn junctions(b: &TapeBlock, vte_regs: &dyn Fn(u32) -> Option<u32>) -> Vec<(usize
         else {
             continue;
         };
-        let Some(Instr::Div { a: num, b: den, .. }) = b.body.iter().find(|i| dest(i) == a).copied()
-        else {
+        let Some(&&Instr::Div { a: num, b: den, .. }) = by_dest.get(&a) else {
             continue;
         };
-        if let Some(j) = b.tears.iter().position(|&x| x == num)
-            && !out.iter().any(|&(k, _)| k == j)
+        if let Some(&j) = tear_index.get(&num)
+            && found.insert(j)
         {
             out.push((j, den));
         }
@@ -1984,8 +2121,6 @@ impl Work {
     /// Buffers for an `n`-tear block and `regs` tangent registers.
     fn take(n: usize, regs: usize) -> Box<Work> {
         let mut w = WORK.with(|p| p.borrow_mut().pop()).unwrap_or_default();
-        w.jac.clear();
-        w.jac.resize(n * n, 0.0);
         for v in [&mut w.step, &mut w.x0, &mut w.bar, &mut w.tmp] {
             v.clear();
             v.resize(n, 0.0);
@@ -1999,6 +2134,14 @@ impl Work {
             w.dr.resize(regs, 0.0);
         }
         w
+    }
+
+    /// The dense `n`×`n` Jacobian buffer, zeroed (only blocks that factor
+    /// a Jacobian per call pay for it: a constant one is factored once).
+    fn dense_jac(&mut self, n: usize) -> &mut Vec<f64> {
+        self.jac.clear();
+        self.jac.resize(n * n, 0.0);
+        &mut self.jac
     }
 
     fn give(self: Box<Work>) {
@@ -2036,6 +2179,126 @@ pub(crate) fn lu_factor(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
         }
     }
     true
+}
+
+/// Which tears each residual of `b` depends on (sorted), followed through
+/// the body as sets per register; `None` when a set grows past
+/// [`PATTERN_MAX`] (dense enough for one column per run) or the body holds a
+/// nested block.
+fn tear_pattern(b: &TapeBlock) -> Option<Vec<Vec<u32>>> {
+    let mut deps: HashMap<u32, Vec<u32>> = HashMap::new();
+    for (j, &x) in b.tears.iter().enumerate() {
+        deps.insert(x, vec![j as u32]);
+    }
+    for ins in &b.body {
+        if matches!(ins, Instr::Block { .. }) {
+            return None;
+        }
+        let mut set: Vec<u32> = Vec::new();
+        for a in sources_of(ins, &[]) {
+            if let Some(s) = deps.get(&a) {
+                set.extend_from_slice(s);
+            }
+        }
+        set.sort_unstable();
+        set.dedup();
+        if set.len() > PATTERN_MAX {
+            return None;
+        }
+        let d = dest(ins);
+        if set.is_empty() {
+            deps.remove(&d);
+        } else {
+            deps.insert(d, set);
+        }
+    }
+    Some(
+        b.residuals
+            .iter()
+            .map(|r| deps.get(r).cloned().unwrap_or_default())
+            .collect(),
+    )
+}
+
+/// Dependency sets larger than this make [`tear_pattern`] give up.
+const PATTERN_MAX: usize = 64;
+
+/// Greedy colouring of `n` columns so that no row has two of one colour.
+fn colour_columns(n: usize, rows: &[Vec<u32>]) -> (Vec<u32>, u32) {
+    let mut col_rows: Vec<Vec<u32>> = vec![Vec::new(); n];
+    for (i, row) in rows.iter().enumerate() {
+        for &j in row {
+            col_rows[j as usize].push(i as u32);
+        }
+    }
+    let mut colour = vec![u32::MAX; n];
+    let mut n_colours = 0;
+    let mut taken: Vec<u32> = Vec::new();
+    for j in 0..n {
+        taken.clear();
+        for &i in &col_rows[j] {
+            taken.extend(rows[i as usize].iter().map(|&k| colour[k as usize]));
+        }
+        taken.sort_unstable();
+        let c = (0..).find(|c| taken.binary_search(c).is_err()).unwrap_or(0);
+        colour[j] = c;
+        n_colours = n_colours.max(c + 1);
+    }
+    (colour, n_colours)
+}
+
+/// Blocks with more tears than this factor a constant Jacobian as sparse.
+const DENSE_TEARS: usize = 48;
+
+/// A constant block Jacobian, factored.
+#[derive(Clone)]
+enum BlockLu {
+    /// Row-major LU with its row order ([`lu_factor`]).
+    Dense(Vec<f64>, Vec<usize>),
+    Sparse(TripletLu),
+}
+
+/// Which tears each residual of a block depends on ([`tear_pattern`]) and
+/// a colouring of the tears in which no residual sees two of one colour.
+#[derive(Clone, Debug)]
+struct Pattern {
+    rows: Vec<Vec<u32>>,
+    colour: Vec<u32>,
+    n_colours: u32,
+}
+
+/// Solve with a sparse factorization when there is one, else with the
+/// dense factors of [`lu_factor`].
+fn solve_factored(
+    sparse: Option<&TripletLu>,
+    jac: &[f64],
+    perm: &[usize],
+    b: &mut [f64],
+    tmp: &mut [f64],
+) {
+    match sparse {
+        Some(lu) => lu.solve_in_place(b, tmp),
+        None => lu_solve(perm.len(), jac, perm, b, tmp),
+    }
+}
+
+impl std::fmt::Debug for BlockLu {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            BlockLu::Dense(_, perm) => write!(f, "Dense({}x{0})", perm.len()),
+            BlockLu::Sparse(_) => f.write_str("Sparse"),
+        }
+    }
+}
+
+impl BlockLu {
+    /// `b := J⁻¹ b`; `tmp` is scratch of the block's size.
+    fn solve(&self, b: &mut [f64], tmp: &mut [f64]) {
+        match self {
+            BlockLu::Dense(a, perm) => lu_solve(perm.len(), a, perm, b, tmp),
+            BlockLu::Sparse(lu) => lu.solve_in_place(b, tmp),
+        }
+    }
 }
 
 /// Solve with the factors of [`lu_factor`]; `tmp` is scratch of length `n`.

@@ -9,7 +9,7 @@
 mod ic;
 pub mod ode;
 pub mod output;
-mod sparse_lu;
+pub(crate) mod sparse_lu;
 
 use std::collections::HashMap;
 use std::rc::Rc;

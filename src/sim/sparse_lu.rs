@@ -42,7 +42,7 @@ type Ctx = <FaerSparseMat<f64> as MatrixCommon>::C;
 
 /// The factors `P A Q = L U`: `L` unit lower triangular, `U` upper
 /// triangular, both by columns in pivot order.
-#[derive(Default)]
+#[derive(Clone, Default)]
 struct Factors {
     n: usize,
     /// Step `k` eliminates column `q[k]` of `A`.
@@ -383,6 +383,7 @@ impl CircuitLu {
 
 /// A matrix given by `(row, column, value)` entries, factored once
 /// (pivoting, AMD order) for several right-hand sides.
+#[derive(Clone)]
 pub struct TripletLu {
     f: Factors,
 }
@@ -421,6 +422,11 @@ impl TripletLu {
         };
         f.factor(&csc, &mut Work::default()).ok()?;
         Some(TripletLu { f })
+    }
+
+    /// `b := A⁻¹ b`; `tmp` is scratch of length `n`.
+    pub fn solve_in_place(&self, b: &mut [f64], tmp: &mut [f64]) {
+        self.f.solve(&mut b[..self.f.n], &mut tmp[..self.f.n]);
     }
 
     /// `A⁻¹ b`.

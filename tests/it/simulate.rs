@@ -471,6 +471,73 @@ fn a_long_series_chain_sorts_and_runs() {
     }
 }
 
+/// A resistive ladder tears into one variable every few sections (each
+/// guess carried too far would amplify its error ~2.6× a section): 100 of
+/// them, past the dense limit, so its constant Jacobian is gathered by
+/// coloured tangent runs and factored sparse. The node voltages must be the
+/// ladder's own (a tridiagonal solve here), and the columns of each colour
+/// must not have been mixed up: a wrong entry moves them by far more than
+/// rounding. Half the shunts are VCCSs (`G n 0 n 0`), which give the block
+/// terms the resistor laws do not.
+#[test]
+fn a_resistive_ladder_with_many_tears_is_solved_sparse() {
+    let n = 150;
+    let mut text = String::from("ladder\nV1 n0 0 1\n");
+    for k in 1..=n {
+        text.push_str(&format!("R{k} n{} n{k} 1k\n", k - 1));
+        if k % 2 == 0 {
+            text.push_str(&format!("G{k} n{k} 0 n{k} 0 1u\n"));
+        } else {
+            text.push_str(&format!("Rs{k} n{k} 0 1Meg\n"));
+        }
+    }
+    text.push_str(&format!("C1 n{n} 0 1n\n.tran 1u 10u\n.end\n"));
+    let s = sort_text(&text);
+    let tears = s
+        .schedule
+        .blocks()
+        .map(|b| b.tears.len())
+        .max()
+        .unwrap_or(0);
+    assert!(tears > 48, "{tears} tears: the dense path would be taken");
+    let probes: Vec<usize> = vec![1, 2, 75, 76, n];
+    let opts = sim::Options {
+        probes: probes.iter().map(|k| format!("v(n{k})")).collect(),
+        ..Default::default()
+    };
+    let w = sim::simulate(&s, &opts).unwrap_or_else(|e| panic!("{e}"));
+    // KCL at node k: (v[k-1] - v[k])/R - v[k]/Rs - (v[k] - v[k+1])/R = 0
+    // (the capacitor is open at DC, and stays so), by the Thomas algorithm.
+    // Shunts of 1 MΩ: the far end still has 1 % of the source.
+    let (r, rs) = (1e3, 1e6);
+    let (mut c, mut d) = (vec![0.0; n + 1], vec![0.0; n + 1]);
+    for k in 1..=n {
+        let diag = if k < n {
+            2.0 / r + 1.0 / rs
+        } else {
+            1.0 / r + 1.0 / rs
+        };
+        let (lower, upper) = (-1.0 / r, if k < n { -1.0 / r } else { 0.0 });
+        let rhs = if k == 1 { 1.0 / r } else { 0.0 };
+        let m = diag - lower * if k > 1 { c[k - 1] } else { 0.0 };
+        c[k] = upper / m;
+        d[k] = (rhs - lower * if k > 1 { d[k - 1] } else { 0.0 }) / m;
+    }
+    let mut v = vec![0.0; n + 2];
+    for k in (1..=n).rev() {
+        v[k] = d[k] - c[k] * v[k + 1];
+    }
+    for (j, &k) in probes.iter().enumerate() {
+        for (t, got) in w.time.iter().zip(&w.data[j]) {
+            assert!(
+                (got - v[k]).abs() <= 1e-9 * v[1],
+                "v(n{k}) at {t}: {got:e}, want {:e}",
+                v[k]
+            );
+        }
+    }
+}
+
 /// A node with 3·10^4 elements: its KCL sum is chains of 64 terms added
 /// pairwise, not one chain 3·10^4 deep (which overflowed the stack of the
 /// recursive passes over expressions at 10^5); the divider's value is exact.
