@@ -531,8 +531,17 @@ impl Compiler<'_> {
         match step {
             Step::Assign(a) => self.assign(a, out),
             Step::Block(b) => {
-                let tears: Vec<u32> = b
-                    .tears
+                // A large linear loop is solved whole: every unknown a Newton
+                // unknown, every equation a residual. Its Jacobian then has the
+                // circuit's own sparsity, where the torn one fills in (a
+                // 100×100 resistor mesh: 7471 tears, 4.5 ms a solve).
+                let whole = b.linear && b.tears.len() > DENSE_TEARS;
+                let unknowns: Vec<VarId> = if whole {
+                    b.inner.iter().chain(&b.residuals).map(|a| a.var).collect()
+                } else {
+                    b.tears.clone()
+                };
+                let tears: Vec<u32> = unknowns
                     .iter()
                     .map(|&v| {
                         let r = self.reg(0.0);
@@ -542,11 +551,14 @@ impl Compiler<'_> {
                     })
                     .collect();
                 let mut body = Vec::new();
-                for a in &b.inner {
-                    self.assign(a, &mut body);
+                if !whole {
+                    for a in &b.inner {
+                        self.assign(a, &mut body);
+                    }
                 }
+                let equations = if whole { &b.inner[..] } else { &[][..] };
                 let mut residuals = Vec::new();
-                for a in &b.residuals {
+                for a in equations.iter().chain(&b.residuals) {
                     let eq = &self.sys.eqs[a.eq];
                     let l = self.emit(eq.lhs, &mut body);
                     let r = self.emit(eq.rhs, &mut body);

@@ -73,9 +73,10 @@ fn hard_case_validates(name: &str) {
 /// every third section (a Newton block) and a resistor/VCCS ladder (a
 /// constant Jacobian, factored once). Before, the 2000-section diode ladder
 /// took 12 s in dense LUs; a mis-coloured column would stall Newton or move
-/// the far nodes.
+/// the far nodes. Large linear loops are solved whole (every unknown, every
+/// equation), which a resistor mesh needs.
 #[test]
-fn sparse_torn_ladders_agree_with_ngspice() {
+fn large_algebraic_loops_agree_with_ngspice() {
     require_ngspice();
     let dir = tempfile::tempdir().unwrap();
     let n = 240;
@@ -106,6 +107,21 @@ fn sparse_torn_ladders_agree_with_ngspice() {
         for s in &report.signals {
             assert!(s.pass, "{shunt} {}: {:.3e}", s.name, s.max_norm);
         }
+    }
+    // A mesh: its torn Jacobian fills in, so it is solved whole (ngspice
+    // needs 156 s on 100×100, kausal 2 s).
+    let path = dir.path().join("mesh.cir");
+    let mesh = kausal::generate::r_mesh(20, 20)
+        .replace(".tran", ".save v(n0_1) v(n10_10) v(n19_19)\n.tran");
+    std::fs::write(&path, mesh).unwrap();
+    let sorted = pipeline::sort(&path, &FsLoader, &SortOptions::default())
+        .ok()
+        .expect("the mesh sorts");
+    let report = validate::validate(&path, &sorted, &validate::Options::default())
+        .unwrap_or_else(|e| panic!("mesh: {e}"));
+    assert_eq!(report.signals.len(), 3);
+    for s in &report.signals {
+        assert!(s.pass, "mesh {}: {:.3e}", s.name, s.max_norm);
     }
 }
 
