@@ -1,6 +1,8 @@
 //! Colour-edge sorting on generated circuits of 10^3 to 10^6 equations:
-//! RC ladders (no loops: pure colouring) and resistor meshes with one
-//! capacitor per node (algebraic loops: BLT and tearing).
+//! RC ladders (no loops: pure colouring), resistor meshes with one
+//! capacitor per node (algebraic loops: BLT and tearing), and index
+//! reduction of inductor cutset chains and parallel capacitors (each
+//! Pantelides round handles every independent constraint).
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use kausal::analysis::{self, StructureGraph};
@@ -64,5 +66,33 @@ fn meshes(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, ladders, meshes);
+fn index_reduction(c: &mut Criterion) {
+    kausal::io::no_huge_pages();
+    let mut g = c.benchmark_group("sort index reduction");
+    g.sample_size(10);
+    for n in [300usize, 3_000, 30_000] {
+        for (name, text) in [
+            (
+                "inductor cutset chain",
+                kausal::generate::inductor_cutset_chain(n),
+            ),
+            (
+                "parallel capacitors",
+                kausal::generate::parallel_capacitors(n),
+            ),
+        ] {
+            let sys = system(text);
+            g.throughput(Throughput::Elements(n as u64));
+            g.bench_with_input(BenchmarkId::new(name, n), &sys, |b, sys| {
+                b.iter(|| {
+                    analysis::reduce_index(sys, &Default::default())
+                        .expect("index reduction succeeds")
+                })
+            });
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(benches, ladders, meshes, index_reduction);
 criterion_main!(benches);

@@ -74,3 +74,30 @@ pub fn rc_mesh(rows: usize, cols: usize) -> String {
     s.insert_str(end, &caps);
     s
 }
+
+/// `n` inductors in series with a current source: every inductor current is
+/// fixed by the source (`n` cutsets for index reduction).
+pub fn inductor_cutset_chain(n: usize) -> String {
+    let mut s = String::with_capacity(n * 24 + 200);
+    let _ = writeln!(s, "Inductor cutset chain {n}");
+    s.push_str("I1 0 n0 PULSE(0 1m 0.1m 50u 50u 1m 2m)\n");
+    for k in 1..=n {
+        let _ = writeln!(s, "L{k} n{} n{k} 1m", k - 1);
+    }
+    let _ = writeln!(s, "R1 n{n} 0 100");
+    s.push_str(".tran 5u 1m\n.end\n");
+    s
+}
+
+/// `n` capacitors in parallel behind a resistor: `n - 1` capacitor loops
+/// for index reduction.
+pub fn parallel_capacitors(n: usize) -> String {
+    let mut s = String::with_capacity(n * 16 + 200);
+    let _ = writeln!(s, "Parallel capacitors {n}");
+    s.push_str("V1 n0 0 SIN(0 1 1k)\nR0 n0 a 1\n");
+    for k in 1..=n {
+        let _ = writeln!(s, "C{k} a 0 1u");
+    }
+    s.push_str(".tran 5u 1m\n.end\n");
+    s
+}

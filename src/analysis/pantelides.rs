@@ -7,7 +7,7 @@
 //!
 //! The pass returns a new, augmented system; the input is not changed.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use super::error::{Culprit, StructuralError};
 use super::graph::StructureGraph;
@@ -84,6 +84,8 @@ pub fn reduce_index(
     // The derivative of each equation differentiated so far.
     let mut deq: HashMap<EqId, EqId> = HashMap::new();
     let limit = opts.max_rounds.unwrap_or(sys.eqs.len() + 8);
+    let keep: HashSet<VarId> = opts.keep.iter().copied().collect();
+    let tied: HashSet<VarId> = opts.tied.iter().copied().collect();
     for iteration in 0.. {
         let err = match super::causalize(&aug, super::Options::default()) {
             Ok(_) => break,
@@ -107,58 +109,91 @@ pub fn reduce_index(
             .iter()
             .filter_map(|c| c.eq)
             .find(|&e| !matches!(aug.eqs[e].origin.kind, OriginKind::Derivative { .. }));
-        let Some((g, set)) = overdetermined_set(&aug, prefer) else {
+        let sets = overdetermined_sets(&aug, prefer);
+        if sets.is_empty() {
             return Err(err);
-        };
-        // Differentiate every equation of the set not differentiated yet.
-        for &eq in &set {
-            if deq.contains_key(&eq) {
-                continue;
-            }
-            let e = aug.eqs[eq].clone();
-            let mut memo = HashMap::new();
-            let mut dvar = |x: VarId, arena: &mut crate::ir::ExprArena| -> ExprId {
-                let d = *derivs
-                    .entry(x)
-                    .or_insert_with(|| new_derivative(&mut aug.vars, x));
-                arena.var(d)
-            };
-            let dl = derive::time_derivative(&mut aug.exprs, e.lhs, &mut dvar, &mut memo);
-            let dr = derive::time_derivative(&mut aug.exprs, e.rhs, &mut dvar, &mut memo);
-            let new_eq = aug.add_eq(
-                dl,
-                dr,
-                Origin {
-                    kind: OriginKind::Derivative { of: eq },
-                    span: e.origin.span,
-                },
-            );
-            deq.insert(eq, new_eq);
-            red.differentiated
-                .push(Differentiated { eq: new_eq, of: eq });
-            if red.differentiated.len() > 4 * sys.eqs.len() + 16 {
-                return Err(StructuralError::IndexLimit {
-                    iterations: iteration,
-                    limit,
-                });
-            }
         }
-        aug.refresh_unknown();
-        // A state whose derivative the differentiated set contains.
-        let derived: Vec<EqId> = set.iter().map(|e| deq[e]).collect();
-        let Some(state) = choose_state(&aug, g, &derived, opts) else {
-            return Err(StructuralError::NoStateInConstraint {
-                constraint: Box::new(Culprit::eq(&aug, g)),
-            });
-        };
-        let der = derivs[&state];
-        aug.demote_state(state, der);
-        red.removed.push(RemovedIntegrator {
-            state,
-            der,
-            constraint: g,
-        });
-        red.constraints.push(g);
+        // Handling a set adds equations and turns one state into an unknown;
+        // a later set whose equations do not contain that state keeps its
+        // unknowns, so it is still over-determined, and is handled in the
+        // same round (one set a round made 3000 inductors in a cutset cost
+        // 3000 matchings of the whole system). The others wait a round.
+        // When the first set's state is in all the others (parallel
+        // capacitors whose matching runs through one of them), the rest are
+        // found again at once, without the preferred constraint: their own
+        // constraints then give up their own states.
+        let mut sets = sets;
+        for pass in 0..2 {
+            let mut skipped = 0;
+            let mut demoted: HashSet<VarId> = HashSet::new();
+            let (mut vars, mut stack) = (Vec::new(), Vec::new());
+            for (g, set) in sets {
+                let touches_demoted = set.iter().any(|&e| {
+                    aug.eq_vars(e, &mut vars, &mut stack);
+                    vars.iter().any(|v| demoted.contains(v))
+                });
+                if touches_demoted {
+                    skipped += 1;
+                    continue;
+                }
+                // Differentiate every equation of the set not differentiated yet.
+                for &eq in &set {
+                    if deq.contains_key(&eq) {
+                        continue;
+                    }
+                    let e = aug.eqs[eq].clone();
+                    let mut memo = HashMap::new();
+                    let mut dvar = |x: VarId, arena: &mut crate::ir::ExprArena| -> ExprId {
+                        let d = *derivs
+                            .entry(x)
+                            .or_insert_with(|| new_derivative(&mut aug.vars, x));
+                        arena.var(d)
+                    };
+                    let dl = derive::time_derivative(&mut aug.exprs, e.lhs, &mut dvar, &mut memo);
+                    let dr = derive::time_derivative(&mut aug.exprs, e.rhs, &mut dvar, &mut memo);
+                    let new_eq = aug.add_eq(
+                        dl,
+                        dr,
+                        Origin {
+                            kind: OriginKind::Derivative { of: eq },
+                            span: e.origin.span,
+                        },
+                    );
+                    deq.insert(eq, new_eq);
+                    red.differentiated
+                        .push(Differentiated { eq: new_eq, of: eq });
+                    if red.differentiated.len() > 4 * sys.eqs.len() + 16 {
+                        return Err(StructuralError::IndexLimit {
+                            iterations: iteration,
+                            limit,
+                        });
+                    }
+                }
+                // A state whose derivative the differentiated set contains.
+                let derived: Vec<EqId> = set.iter().map(|e| deq[e]).collect();
+                let Some(state) = choose_state(&aug, g, &derived, &keep, &tied) else {
+                    return Err(StructuralError::NoStateInConstraint {
+                        constraint: Box::new(Culprit::eq(&aug, g)),
+                    });
+                };
+                let der = derivs[&state];
+                aug.demote_state(state, der);
+                demoted.insert(state);
+                red.removed.push(RemovedIntegrator {
+                    state,
+                    der,
+                    constraint: g,
+                });
+                red.constraints.push(g);
+            }
+            // New derivative unknowns were pushed directly: once per batch
+            // (once per set was quadratic).
+            aug.refresh_unknown();
+            if skipped == 0 || pass == 1 {
+                break;
+            }
+            sets = overdetermined_sets(&aug, None);
+        }
     }
     if red.removed.is_empty() {
         return Ok(None);
@@ -167,10 +202,12 @@ pub fn reduce_index(
     Ok(Some(red))
 }
 
-/// An equation no maximum matching can give an unknown (`prefer` when it is
-/// one), and the equations reachable from it by alternating paths (it first,
-/// then ascending).
-fn overdetermined_set(sys: &EquationSystem, prefer: Option<EqId>) -> Option<(EqId, Vec<EqId>)> {
+/// Equations no maximum matching can give an unknown (`prefer` first when
+/// it is one, then original equations before differentiated ones), each
+/// with the equations reachable from it by alternating paths (it first,
+/// then ascending): the structurally over-determined sets, one per equation
+/// left unmatched, from one matching.
+fn overdetermined_sets(sys: &EquationSystem, prefer: Option<EqId>) -> Vec<(EqId, Vec<EqId>)> {
     let graph = StructureGraph::build(sys);
     let n_eqs = sys.eqs.len();
     let mut index: HashMap<VarId, u32> = HashMap::new();
@@ -207,8 +244,7 @@ fn overdetermined_set(sys: &EquationSystem, prefer: Option<EqId>) -> Option<(EqI
             owner[r as usize] = l as u32;
         }
     }
-    // The preferred equation, else original equations before differentiated ones.
-    let g = (0..n_eqs).filter(|&l| m[l] == u32::MAX).min_by_key(|&l| {
+    let key = |l: usize| {
         (
             Some(EqId(l as u32)) != prefer,
             matches!(
@@ -217,28 +253,44 @@ fn overdetermined_set(sys: &EquationSystem, prefer: Option<EqId>) -> Option<(EqI
             ),
             l,
         )
-    })?;
-    let mut seen_eq = vec![false; n_eqs];
-    let mut seen_var = vec![false; vars.len()];
-    let mut stack = vec![g];
-    seen_eq[g] = true;
-    let mut set = Vec::new();
-    while let Some(l) = stack.pop() {
-        set.push(EqId(l as u32));
-        for &r in &adj[l] {
-            if seen_var[r as usize] {
-                continue;
-            }
-            seen_var[r as usize] = true;
-            let o = owner[r as usize];
-            if o != u32::MAX && !seen_eq[o as usize] {
-                seen_eq[o as usize] = true;
-                stack.push(o as usize);
+    };
+    let mut free: Vec<usize> = (0..n_eqs).filter(|&l| m[l] == u32::MAX).collect();
+    free.sort_by_key(|&l| key(l));
+    // Searches may overlap (parallel capacitors all reach the node voltage
+    // and the first capacitor's equation); their total work is bounded by a
+    // few passes over the graph, the rest waits for the next round.
+    let budget = 4 * adj.iter().map(Vec::len).sum::<usize>() + n_eqs;
+    let mut work = 0;
+    let mut eq_mark = vec![0u32; n_eqs];
+    let mut var_mark = vec![0u32; vars.len()];
+    let mut sets = Vec::new();
+    for (search, &g) in free.iter().enumerate() {
+        if work > budget && !sets.is_empty() {
+            break;
+        }
+        let stamp = search as u32 + 1;
+        let mut stack = vec![g];
+        eq_mark[g] = stamp;
+        let mut set = Vec::new();
+        while let Some(l) = stack.pop() {
+            set.push(EqId(l as u32));
+            work += adj[l].len() + 1;
+            for &r in &adj[l] {
+                if var_mark[r as usize] == stamp {
+                    continue;
+                }
+                var_mark[r as usize] = stamp;
+                let o = owner[r as usize];
+                if o != u32::MAX && eq_mark[o as usize] != stamp {
+                    eq_mark[o as usize] = stamp;
+                    stack.push(o as usize);
+                }
             }
         }
+        set[1..].sort();
+        sets.push((EqId(g as u32), set));
     }
-    set[1..].sort();
-    Some((EqId(g as u32), set))
+    sets
 }
 
 /// A fresh algebraic unknown `der(x)` (the caller refreshes the system's
@@ -258,16 +310,23 @@ fn new_derivative(vars: &mut crate::ir::IdVec<VarId, crate::ir::Var>, x: VarId) 
 /// occurs in the differentiated equations `derived` — not one the user
 /// keeps, then one tied to a source (the circuit-level diagnosis names it),
 /// then one in the constraint `g` itself, then the last in netlist order.
-fn choose_state(sys: &EquationSystem, g: EqId, derived: &[EqId], opts: &Options) -> Option<VarId> {
+fn choose_state(
+    sys: &EquationSystem,
+    g: EqId,
+    derived: &[EqId],
+    keep: &HashSet<VarId>,
+    tied: &HashSet<VarId>,
+) -> Option<VarId> {
     let (mut vars, mut stack) = (Vec::new(), Vec::new());
     sys.eq_vars(g, &mut vars, &mut stack);
-    let in_g: Vec<VarId> = vars.clone();
+    let in_g: HashSet<VarId> = vars.iter().copied().collect();
     let mut states: Vec<VarId> = Vec::new();
+    let mut seen: HashSet<VarId> = HashSet::new();
     for &e in derived {
         sys.eq_vars(e, &mut vars, &mut stack);
         for &v in &vars {
             if let VarRole::Derivative { of } = sys.vars[v].role
-                && !states.contains(&of)
+                && seen.insert(of)
             {
                 states.push(of);
             }
@@ -275,8 +334,8 @@ fn choose_state(sys: &EquationSystem, g: EqId, derived: &[EqId], opts: &Options)
     }
     states.into_iter().min_by_key(|s| {
         (
-            opts.keep.contains(s),
-            !opts.tied.contains(s),
+            keep.contains(s),
+            !tied.contains(s),
             !in_g.contains(s),
             std::cmp::Reverse(s.0),
         )
