@@ -376,10 +376,15 @@ pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
     out
 }
 
+/// A diagnostic names and labels this many elements of a fault, then counts
+/// the rest (a loop of 3000 capacitors printed 3000 labelled lines).
+const SHOWN: usize = 24;
+
 fn list(names: &[String]) -> String {
     match names.len() {
         0 => String::new(),
         1 => names[0].clone(),
+        n if n > SHOWN => format!("{}, and {} more", names[..SHOWN].join(", "), n - SHOWN),
         n => format!("{} and {}", names[..n - 1].join(", "), names[n - 1]),
     }
 }
@@ -400,6 +405,7 @@ impl TopologyError {
         let names = |v: &[ElemId]| v.iter().map(name).collect::<Vec<_>>();
         let labels_of = |v: &[ElemId], what: &str| -> Vec<(Span, String)> {
             v.iter()
+                .take(SHOWN)
                 .map(|e| (c.elements[*e].span, what.to_string()))
                 .collect()
         };

@@ -231,6 +231,26 @@ fn repeated_warnings_are_counted_not_repeated() {
     assert!(err.contains("K0310: 20 more like the 10 above"), "{err}");
 }
 
+/// One fault of 100 elements (a loop of a source and 100 capacitors) names
+/// and labels 24 of them and counts the rest: it printed a labelled line
+/// for each.
+#[test]
+fn a_long_loop_is_named_in_part() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut text = String::from("series loop\nV1 n0 0 1\n");
+    for k in 1..=100 {
+        text.push_str(&format!("C{k} n{} n{k} 1u\n", k - 1));
+    }
+    text.push_str("R0 n100 0 1\nC0 n100 0 1u\n.tran 1u 10u\n.end\n");
+    let net = dir.path().join("loop.cir");
+    std::fs::write(&net, text).unwrap();
+    let out = crate::kausal(&["sort", net.to_str().unwrap()]);
+    assert!(out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("C23, and 78 more form a loop"), "{err}");
+    assert_eq!(err.matches("in the loop").count(), 24, "{err}");
+}
+
 /// `kausal check` goes through the structural analysis: a loop of voltage
 /// sources is an error there (it said ok), a clean netlist reports its size.
 #[test]
