@@ -1380,33 +1380,28 @@ impl Tape {
                 }
             })
         });
-        let Some(p) = pattern else {
-            for j in 0..n {
-                for &x in &b.touched {
-                    dr[x as usize] = 0.0;
-                }
-                dr[b.tears[j] as usize] = 1.0;
-                self.run_tangent(&b.body, r, dr, t, None)?;
-                for (i, &res) in b.residuals.iter().enumerate() {
-                    let v = dr[res as usize];
-                    if v != 0.0 {
-                        entries.push((i, j, v));
-                    }
-                }
-            }
-            return Ok(entries);
-        };
-        for c in 0..p.n_colours {
+        // Without a pattern every column is its own colour.
+        let n_colours = pattern.as_ref().map_or(n as u32, |p| p.n_colours);
+        for c in 0..n_colours {
             for &x in &b.touched {
                 dr[x as usize] = 0.0;
             }
-            for (j, _) in p.colour.iter().enumerate().filter(|(_, k)| **k == c) {
-                dr[b.tears[j] as usize] = 1.0;
+            for j in 0..n {
+                if pattern.as_ref().map_or(j as u32, |p| p.colour[j]) == c {
+                    dr[b.tears[j] as usize] = 1.0;
+                }
             }
             self.run_tangent(&b.body, r, dr, t, None)?;
-            for (i, row) in p.rows.iter().enumerate() {
-                let v = dr[b.residuals[i] as usize];
-                if let Some(&j) = row.iter().find(|&&j| p.colour[j as usize] == c)
+            for (i, &res) in b.residuals.iter().enumerate() {
+                let v = dr[res as usize];
+                let j = match pattern {
+                    Some(p) => p.rows[i]
+                        .iter()
+                        .find(|&&j| p.colour[j as usize] == c)
+                        .copied(),
+                    None => Some(c),
+                };
+                if let Some(j) = j
                     && v != 0.0
                 {
                     entries.push((i, j as usize, v));
