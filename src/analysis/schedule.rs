@@ -40,9 +40,21 @@ pub struct Block {
     pub elements: Vec<String>,
 }
 
+/// Linear blocks with more tearing variables than this are solved whole.
+pub const WHOLE_ABOVE_TEARS: usize = 48;
+
 impl Block {
     pub fn n_eqs(&self) -> usize {
         self.inner.len() + self.residuals.len()
+    }
+
+    /// Whether the evaluator solves this block whole, every unknown a Newton
+    /// unknown and every equation a residual, rather than by its tears: a
+    /// large linear loop, whose torn Jacobian fills in where the circuit's
+    /// own is sparse (a resistor mesh). The order of its assignments is the
+    /// listing's either way.
+    pub fn solved_whole(&self) -> bool {
+        self.linear && self.tears.len() > WHOLE_ABOVE_TEARS
     }
 }
 

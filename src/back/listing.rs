@@ -107,9 +107,14 @@ pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
             Step::Assign(a) => line(&mut rows, a, "", ""),
             Step::Block(b) => {
                 let tears: Vec<&str> = b.tears.iter().map(|&v| sys.vars[v].name.as_str()).collect();
+                let whole = if b.solved_whole() {
+                    format!(" (solved whole: {} unknowns, sparse LU)", b.n_eqs())
+                } else {
+                    String::new()
+                };
                 rows.push((
                     format!(
-                        "       block {}: {}; tearing: {}",
+                        "       block {}: {}; tearing: {}{whole}",
                         b.index,
                         block_header(b),
                         shortened(&tears, ELEMENTS_SHOWN)
@@ -278,6 +283,7 @@ pub fn json(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> serde_json
                     "description": block_header(b),
                     "elements": b.elements,
                     "linear": b.linear,
+                    "solved_whole": b.solved_whole(),
                     "tearing": b.tears.iter().map(|&v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
                     "inner": inner,
                     "residuals": res,

@@ -535,7 +535,7 @@ impl Compiler<'_> {
                 // unknown, every equation a residual. Its Jacobian then has the
                 // circuit's own sparsity, where the torn one fills in (a
                 // 100×100 resistor mesh: 7471 tears, 4.5 ms a solve).
-                let whole = b.linear && b.tears.len() > DENSE_TEARS;
+                let whole = b.solved_whole();
                 let unknowns: Vec<VarId> = if whole {
                     b.inner.iter().chain(&b.residuals).map(|a| a.var).collect()
                 } else {

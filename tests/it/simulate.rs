@@ -500,6 +500,10 @@ fn a_resistive_ladder_with_many_tears_is_solved_sparse() {
         .max()
         .unwrap_or(0);
     assert!(tears > 48, "{tears} tears: the dense path would be taken");
+    // A linear loop that large is solved whole, and the listing says so.
+    assert!(s.schedule.blocks().any(|b| b.solved_whole()));
+    let listing = kausal::back::listing::text(s.system(), &s.schedule);
+    assert!(listing.contains("(solved whole:"), "{listing}");
     let probes: Vec<usize> = vec![1, 2, 75, 76, n];
     let opts = sim::Options {
         probes: probes.iter().map(|k| format!("v(n{k})")).collect(),
