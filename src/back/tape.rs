@@ -1010,6 +1010,8 @@ impl Tape {
                         _ => false,
                     };
                     let mut sparse = None;
+                    // Whether the factors to solve with are in the cache.
+                    let mut cached = kept;
                     if !kept {
                         self.solve_block(k, r, t)?;
                         if !b.constant_jacobian {
@@ -1021,6 +1023,7 @@ impl Tape {
                             sparse = factored?;
                         }
                         if let Some(c) = cache.as_deref_mut() {
+                            cached = true;
                             // A constant Jacobian has its own factorization.
                             match sparse.take() {
                                 Some(lu) => {
@@ -1041,8 +1044,8 @@ impl Tape {
                     if b.constant_jacobian {
                         self.constant_lu(b, r, t, &mut w)?
                             .solve(&mut w.res, &mut w.tmp);
-                    } else if let Some(c) = cache.as_deref().filter(|c| c.valid)
-                        && let Some(lu) = c.lus.get(k).and_then(|l| l.as_ref())
+                    } else if cached
+                        && let Some(lu) = cache.as_deref().and_then(|c| c.lus.get(k)?.as_ref())
                     {
                         lu.solve(&mut w.res, &mut w.tmp);
                     } else {
