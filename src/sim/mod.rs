@@ -1166,6 +1166,13 @@ where
     let c = &sorted.elaborated.circuit;
     let atol = atols(sys, &tape.states, opts, c);
     let start = initial_state::<M>(sorted, &ode, t0, &atol, outputs, opts)?;
+    // f must be defined where the run starts: diffsol sizes its first step
+    // from f(t0, y0), and a NaN there (a loop that is singular at t0 while
+    // the `.ic` operating point was not) made every step size NaN, which no
+    // step-size test rejects: the run never ended.
+    let mut dy0 = vec![0.0; start.y.len()];
+    ode.eval(t0, &start.y, &mut dy0)
+        .map_err(|error| SimError::Eval { error })?;
     *ode.y0.borrow_mut() = start.y;
     let rtol = opts.rtol.unwrap_or_else(|| {
         c.options

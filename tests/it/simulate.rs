@@ -471,6 +471,50 @@ fn a_long_series_chain_sorts_and_runs() {
     }
 }
 
+/// A loop that is singular in the transient but not in the `.ic` operating
+/// point (there the inductor into it is a short to a held node): f is NaN at
+/// t = 0, diffsol sized its first step from it, and the NaN step never
+/// failed a step-size test, so the run never ended (found by fuzzing). It
+/// must stop at once with the loop named; the test kills it after 20 s.
+#[test]
+fn a_loop_singular_from_the_start_is_an_error_not_a_hang() {
+    let dir = tempfile::tempdir().unwrap();
+    let net = dir.path().join("sing.cir");
+    std::fs::write(
+        &net,
+        "singular after the hold\nV1 in 0 1\nR1 in a 1k\nR2 a 0 1k\nL1 a f 1m\n\
+         R6 f 0 1k\nGz f 0 f 0 -1m\nC1 a 0 1n\n.ic v(a)=0.5\n.tran 1n 10n\n.end\n",
+    )
+    .unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+        .args([
+            "sim",
+            net.to_str().unwrap(),
+            "-o",
+            dir.path().join("o.csv").to_str().unwrap(),
+        ])
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > std::time::Duration::from_secs(20) {
+            child.kill().unwrap();
+            panic!("the run did not end");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("singular Jacobian in algebraic loop") && err.contains("Gz"),
+        "{err}"
+    );
+    assert!(!dir.path().join("o.csv").exists());
+}
+
 /// A resistive ladder tears into one variable every few sections (each
 /// guess carried too far would amplify its error ~2.6× a section): 100 of
 /// them, past the dense limit, so its constant Jacobian is gathered by
