@@ -128,10 +128,11 @@ pub fn reduce_index(
             let mut demoted: HashSet<VarId> = HashSet::new();
             let (mut vars, mut stack) = (Vec::new(), Vec::new());
             for (g, set) in sets {
-                let touches_demoted = set.iter().any(|&e| {
-                    aug.eq_vars(e, &mut vars, &mut stack);
-                    vars.iter().any(|v| demoted.contains(v))
-                });
+                let touches_demoted = !demoted.is_empty()
+                    && set.iter().any(|&e| {
+                        aug.eq_vars(e, &mut vars, &mut stack);
+                        vars.iter().any(|v| demoted.contains(v))
+                    });
                 if touches_demoted {
                     skipped += 1;
                     continue;
@@ -141,24 +142,7 @@ pub fn reduce_index(
                     if deq.contains_key(&eq) {
                         continue;
                     }
-                    let e = aug.eqs[eq].clone();
-                    let mut memo = HashMap::new();
-                    let mut dvar = |x: VarId, arena: &mut crate::ir::ExprArena| -> ExprId {
-                        let d = *derivs
-                            .entry(x)
-                            .or_insert_with(|| new_derivative(&mut aug.vars, x));
-                        arena.var(d)
-                    };
-                    let dl = derive::time_derivative(&mut aug.exprs, e.lhs, &mut dvar, &mut memo);
-                    let dr = derive::time_derivative(&mut aug.exprs, e.rhs, &mut dvar, &mut memo);
-                    let new_eq = aug.add_eq(
-                        dl,
-                        dr,
-                        Origin {
-                            kind: OriginKind::Derivative { of: eq },
-                            span: e.origin.span,
-                        },
-                    );
+                    let new_eq = differentiate(&mut aug, &mut derivs, eq);
                     deq.insert(eq, new_eq);
                     red.differentiated
                         .push(Differentiated { eq: new_eq, of: eq });
@@ -291,6 +275,29 @@ fn overdetermined_sets(sys: &EquationSystem, prefer: Option<EqId>) -> Vec<(EqId,
         sets.push((EqId(g as u32), set));
     }
     sets
+}
+
+/// Add `d/dt` of equation `eq` to `aug`, with a fresh `der(x)` for each
+/// variable that has none yet (`derivs`); the caller refreshes the unknown
+/// flags.
+fn differentiate(aug: &mut EquationSystem, derivs: &mut HashMap<VarId, VarId>, eq: EqId) -> EqId {
+    let e = aug.eqs[eq].clone();
+    let mut memo = HashMap::new();
+    let vars = &mut aug.vars;
+    let mut dvar = |x: VarId, arena: &mut crate::ir::ExprArena| -> ExprId {
+        let d = *derivs.entry(x).or_insert_with(|| new_derivative(vars, x));
+        arena.var(d)
+    };
+    let dl = derive::time_derivative(&mut aug.exprs, e.lhs, &mut dvar, &mut memo);
+    let dr = derive::time_derivative(&mut aug.exprs, e.rhs, &mut dvar, &mut memo);
+    aug.add_eq(
+        dl,
+        dr,
+        Origin {
+            kind: OriginKind::Derivative { of: eq },
+            span: e.origin.span,
+        },
+    )
 }
 
 /// A fresh algebraic unknown `der(x)` (the caller refreshes the system's

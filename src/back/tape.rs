@@ -1294,12 +1294,11 @@ impl Tape {
 
     /// The factored constant Jacobian of `b`, computed at the first call
     /// that finds it finite and regular (a failure is not remembered: the
-    /// registers it was computed from may have held a failed trial point).
-    /// Up to [`DENSE_TEARS`] tears it is dense; beyond, its columns are
-    /// gathered one tangent run at a time as sparse entries and factored by
-    /// the circuit sparse LU: a ladder torn every few sections couples each
-    /// residual to a few neighbouring tears, and its dense LU (cubic in the
-    /// tears) took 50 s at 5000 tears.
+    /// registers it was computed from may have held a failed trial point),
+    /// by [`Tape::factor_jacobian`]: dense up to [`DENSE_TEARS`] tears,
+    /// sparse beyond (a ladder torn every few sections couples each residual
+    /// to a few neighbouring tears; its dense LU, cubic in the tears, took
+    /// 50 s at 5000).
     fn constant_lu<'t>(
         &self,
         b: &'t TapeBlock,
@@ -1310,26 +1309,14 @@ impl Tape {
         if let Some(lu) = b.lu.get() {
             return Ok(lu);
         }
-        let n = b.tears.len();
-        let lu = if n <= DENSE_TEARS {
-            w.dense_jac(n);
-            self.block_jacobian(b, r, &mut w.dr, t, &mut w.jac)?;
-            let mut perm = vec![0; n];
-            let mut jac = w.jac.clone();
-            (jac.iter().all(|v| v.is_finite()) && lu_factor(n, &mut jac, &mut perm))
-                .then_some(BlockLu::Dense(jac, perm))
-        } else {
-            let entries = self.sparse_columns(b, r, &mut w.dr, t)?;
-            if entries.iter().all(|e| e.2.is_finite()) {
-                TripletLu::new(n, entries).map(BlockLu::Sparse)
-            } else {
-                None
-            }
+        let mut dr = std::mem::take(&mut w.dr);
+        let factored = self.factor_jacobian(b, r, &mut dr, t, w);
+        w.dr = dr;
+        let lu = match factored? {
+            Some(sparse) => BlockLu::Sparse(sparse),
+            None => BlockLu::Dense(w.jac.clone(), w.perm.clone()),
         };
-        match lu {
-            Some(lu) => Ok(b.lu.get_or_init(|| lu)),
-            None => Err(b.singular(t)),
-        }
+        Ok(b.lu.get_or_init(|| lu))
     }
 
     /// `b`'s Jacobian at the current point, factored (the body is evaluated
@@ -1355,7 +1342,7 @@ impl Tape {
         }
         w.dense_jac(n);
         self.block_jacobian(b, r, dr, t, &mut w.jac)?;
-        if !lu_factor(n, &mut w.jac, &mut w.perm) {
+        if !(w.jac.iter().all(|v| v.is_finite()) && lu_factor(n, &mut w.jac, &mut w.perm)) {
             return Err(b.singular(t));
         }
         Ok(None)
@@ -1376,23 +1363,29 @@ impl Tape {
         let pattern = b.pattern.get_or_init(|| {
             tear_pattern(b).map(|rows| {
                 let (colour, n_colours) = colour_columns(n, &rows);
+                let mut members = vec![Vec::new(); n_colours as usize];
+                for (j, &c) in colour.iter().enumerate() {
+                    members[c as usize].push(j as u32);
+                }
                 Pattern {
                     rows,
                     colour,
-                    n_colours,
+                    members,
                 }
             })
         });
         // Without a pattern every column is its own colour.
-        let n_colours = pattern.as_ref().map_or(n as u32, |p| p.n_colours);
+        let n_colours = pattern.as_ref().map_or(n, |p| p.members.len()) as u32;
         for c in 0..n_colours {
             for &x in &b.touched {
                 dr[x as usize] = 0.0;
             }
-            for j in 0..n {
-                if pattern.as_ref().map_or(j as u32, |p| p.colour[j]) == c {
-                    dr[b.tears[j] as usize] = 1.0;
-                }
+            let seeds = match pattern {
+                Some(p) => &p.members[c as usize][..],
+                None => std::slice::from_ref(&c),
+            };
+            for &j in seeds {
+                dr[b.tears[j as usize] as usize] = 1.0;
             }
             self.run_tangent(&b.body, r, dr, t, None)?;
             for (i, &res) in b.residuals.iter().enumerate() {
@@ -2269,12 +2262,13 @@ enum BlockLu {
 }
 
 /// Which tears each residual of a block depends on ([`tear_pattern`]) and
-/// a colouring of the tears in which no residual sees two of one colour.
+/// a colouring of the tears in which no residual sees two of one colour
+/// (each tear's colour, and the tears of each colour).
 #[derive(Clone, Debug)]
 struct Pattern {
     rows: Vec<Vec<u32>>,
     colour: Vec<u32>,
-    n_colours: u32,
+    members: Vec<Vec<u32>>,
 }
 
 /// Solve with a sparse factorization when there is one, else with the

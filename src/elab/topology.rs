@@ -282,40 +282,13 @@ pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
             .map(two),
     );
     let ground = comp_all[GROUND.0 as usize];
-    // Islands in order of their first node; each element that crosses a
-    // component boundary is listed under both sides, in one pass (a scan of
-    // the elements per island or part was quadratic: 3·10^4 inductors in
-    // series make 3·10^4 parts).
-    let mut slot = vec![usize::MAX; n];
-    let mut floating: Vec<(Vec<NodeId>, Vec<ElemId>)> = Vec::new();
-    for (id, _) in c.nodes.iter() {
-        let k = comp_all[id.0 as usize];
-        if k == ground {
-            continue;
-        }
-        if slot[k] == usize::MAX {
-            slot[k] = floating.len();
-            floating.push((Vec::new(), Vec::new()));
-        }
-        floating[slot[k]].0.push(id);
-    }
-    for (id, e) in c.elements.iter() {
-        if defines(&e.kind) != Defines::Current || e.nodes.len() < 2 {
-            continue;
-        }
-        let (a, b) = (
-            comp_all[e.nodes[0].0 as usize],
-            comp_all[e.nodes[1].0 as usize],
-        );
-        if a != b {
-            for k in [a, b] {
-                if slot[k] != usize::MAX {
-                    floating[slot[k]].1.push(id);
-                }
-            }
-        }
-    }
-    for (nodes, via) in floating {
+    let islands = component_groups(
+        c,
+        &comp_all,
+        |_, k| k != ground,
+        |e| defines(&e.kind) == Defines::Current,
+    );
+    for (nodes, via) in islands {
         out.push(Fault::Floating { nodes, via });
     }
     // Cutsets: parts cut off from ground when inductors and current
@@ -331,31 +304,12 @@ pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
             .map(two),
     );
     let root = comp[GROUND.0 as usize];
-    let mut slot = vec![usize::MAX; n];
-    let mut parts: Vec<(Vec<NodeId>, Vec<ElemId>)> = Vec::new();
-    for (id, _) in c.nodes.iter() {
-        let k = comp[id.0 as usize];
-        if k != root && slot[k] == usize::MAX && comp_all[id.0 as usize] == ground {
-            slot[k] = parts.len();
-            parts.push((Vec::new(), Vec::new()));
-        }
-        if slot[k] != usize::MAX {
-            parts[slot[k]].0.push(id);
-        }
-    }
-    for (id, e) in c.elements.iter() {
-        if e.nodes.len() < 2 || !matches!(defines(&e.kind), Defines::Current | Defines::Inductor) {
-            continue;
-        }
-        let (a, b) = (comp[e.nodes[0].0 as usize], comp[e.nodes[1].0 as usize]);
-        if a != b {
-            for k in [a, b] {
-                if slot[k] != usize::MAX {
-                    parts[slot[k]].1.push(id);
-                }
-            }
-        }
-    }
+    let parts = component_groups(
+        c,
+        &comp,
+        |id, k| k != root && comp_all[id.0 as usize] == ground,
+        |e| matches!(defines(&e.kind), Defines::Current | Defines::Inductor),
+    );
     for (part_nodes, cut) in parts {
         let inductors: Vec<ElemId> = cut
             .iter()
@@ -374,6 +328,49 @@ pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
         }
     }
     out
+}
+
+/// The components of `comp` that `take` accepts (asked at each one's first
+/// node), in order of their first node: their nodes, and the elements of the
+/// kinds `crosses` selects with one terminal inside and one outside. One pass
+/// over nodes and elements (a scan of the elements per component was
+/// quadratic: 3·10^4 inductors in series make 3·10^4 parts).
+fn component_groups(
+    c: &Circuit,
+    comp: &[usize],
+    take: impl Fn(NodeId, usize) -> bool,
+    crosses: impl Fn(&super::Element) -> bool,
+) -> Vec<(Vec<NodeId>, Vec<ElemId>)> {
+    let mut slot = vec![usize::MAX; comp.len()];
+    let mut groups: Vec<(Vec<NodeId>, Vec<ElemId>)> = Vec::new();
+    let mut asked = vec![false; comp.len()];
+    for (id, _) in c.nodes.iter() {
+        let k = comp[id.0 as usize];
+        if !asked[k] {
+            asked[k] = true;
+            if take(id, k) {
+                slot[k] = groups.len();
+                groups.push((Vec::new(), Vec::new()));
+            }
+        }
+        if slot[k] != usize::MAX {
+            groups[slot[k]].0.push(id);
+        }
+    }
+    for (id, e) in c.elements.iter() {
+        if e.nodes.len() < 2 || !crosses(e) {
+            continue;
+        }
+        let (a, b) = (comp[e.nodes[0].0 as usize], comp[e.nodes[1].0 as usize]);
+        if a != b {
+            for k in [a, b] {
+                if slot[k] != usize::MAX {
+                    groups[slot[k]].1.push(id);
+                }
+            }
+        }
+    }
+    groups
 }
 
 /// A diagnostic names and labels this many elements of a fault, then counts
