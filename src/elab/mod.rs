@@ -144,6 +144,12 @@ struct Elab {
     globals: FxHashSet<String>,
 }
 
+/// The constant junction capacitance kausal gives a diode model with TT and
+/// no CJO (warning K0297): a time constant of 0.1 ps on 100 Ω, below what
+/// ngspice's results resolve, and enough for the junction's charge to fix
+/// its voltage.
+pub const JUNCTION_CAPACITANCE_FLOOR: f64 = 1e-15;
+
 /// Level-1 diode parameters kausal models, with their aliases.
 const DIODE_PARAMS: &[&str] = &[
     "is", "n", "rs", "cjo", "cj0", "cj", "vj", "pb", "m", "mj", "fc", "tt", "bv", "ibv",
@@ -726,6 +732,20 @@ impl Elab {
                 "bv" => m.bv = Some(v.abs()),
                 "ibv" => m.ibv = v,
                 _ => {}
+            }
+        }
+        // A junction's charge is its state (`build::diode`): with diffusion
+        // charge alone, a reverse-biased junction holds ~TT·GMIN·v, so its
+        // charge cannot fix its voltage (1e-21 C moved it by 0.1 V at TT =
+        // 10 ns, and a half-wave rectifier turned on 0.5 V early).
+        if m.cjo == 0.0 && m.tt > 0.0 {
+            m.cjo = JUNCTION_CAPACITANCE_FLOOR;
+            m.m = 0.0;
+            if first_use && let Some(tt) = def.params.iter().find(|p| p.name.key() == "tt") {
+                self.errors.push(ElabError::TransitTimeWithoutCapacitance {
+                    span: tt.name.span,
+                    model: def.name.text.to_string(),
+                });
             }
         }
         self.model_cache.insert(cache_key, m.clone());
