@@ -388,7 +388,16 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
         .collect();
     corners.sort_by(f64::total_cmp);
     corners.dedup();
-    let mut times = reference.time.clone();
+    // ngspice's last point can be TSTOP plus an ulp: kausal's value there is
+    // the one at TSTOP (kausal stops at TSTOP and does not extrapolate).
+    let within = |t: f64| {
+        if t > tran.tstop && t - tran.tstop <= delta {
+            tran.tstop
+        } else {
+            t
+        }
+    };
+    let mut times: Vec<f64> = reference.time.iter().map(|&t| within(t)).collect();
     times.extend(corners.iter().map(|&b| b - delta).filter(|&t| t > 0.0));
     times.sort_by(f64::total_cmp);
     times.dedup();
@@ -416,7 +425,7 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
             .iter()
             .zip(r)
             .map(|(&t, &rv)| {
-                let at = interp(&w.time, &w.data[k], t).unwrap_or(f64::NAN);
+                let at = interp(&w.time, &w.data[k], within(t)).unwrap_or(f64::NAN);
                 if corners.binary_search_by(|b| b.total_cmp(&t)).is_ok()
                     && let Some(before) = interp(&w.time, &w.data[k], t - delta)
                     && (before - rv).abs() < (at - rv).abs()

@@ -129,6 +129,33 @@ fn large_algebraic_loops_agree_with_ngspice() {
     }
 }
 
+/// ngspice's last time point can be TSTOP plus an ulp (4.233000000000001e-2
+/// for `.tran 0.1058m 42.33m`); kausal's value there is its value at TSTOP.
+/// It was NaN (kausal does not extrapolate), an infinite error that failed
+/// every signal of 5 in 60 fuzzed rectifiers.
+#[test]
+fn a_reference_point_an_ulp_past_tstop_is_compared_at_tstop() {
+    require_ngspice();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("rc_end.cir");
+    std::fs::write(
+        &path,
+        "RC, TSTOP off ngspice's step grid\nV1 in 0 SIN(0 1 118.1)\nR1 in out 1k\n\
+         C1 out 0 1u\n.tran 0.0001058 0.04233\n.end\n",
+    )
+    .unwrap();
+    let sorted = pipeline::sort(&path, &FsLoader, &SortOptions::default())
+        .ok()
+        .expect("sorts");
+    let report = validate::validate(&path, &sorted, &validate::Options::default())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let last = report.reference.time.last().copied().unwrap_or(0.0);
+    assert!(last > 0.04233, "ngspice ends at {last:e}, not past TSTOP");
+    for s in &report.signals {
+        assert!(s.pass, "{}: {:.3e}", s.name, s.max_norm);
+    }
+}
+
 /// Operating points that Newton from all-zero cannot reach without junction
 /// limiting: zeners in breakdown, a clamp in a high-gain loop (which was
 /// silently wrong: the solve stopped at a point violating KCL by 2 mA), a
