@@ -138,7 +138,7 @@ pub enum ElabError {
         gigabytes: f64,
     },
     #[error(
-        "model `{model}` has TT but no CJO: kausal gives its junctions a constant 1 fF capacitance"
+        "model `{model}` has TT but no CJO: kausal gives its junctions a constant 1 pF capacitance"
     )]
     TransitTimeWithoutCapacitance { span: Span, model: String },
     #[error("`{name}` is a current source: ngspice takes PWL `{param}=` on voltage sources only")]
@@ -230,7 +230,7 @@ impl ToDiagnostic for ElabError {
             IgnoredOption { .. } => ("K0293", "ignored", "kausal honours reltol, abstol, vntol, chgtol, trtol, method and maxord".into()),
             DanglingNode { .. } => ("K0294", "dangling node", "a node with one connection carries no current".into()),
             PwlParamOnCurrent { .. } => ("K0296", "not in ngspice", "kausal runs it; for ngspice (and `kausal validate`) write the repeated points out".into()),
-            TransitTimeWithoutCapacitance { .. } => ("K0297", "TT without CJO", "a junction's charge is kausal's state for it, and diffusion charge alone (TT·id) nearly vanishes in reverse bias: it could not fix the junction's voltage. 1 fF changes nothing ngspice resolves (`kausal validate` compares); give CJO to choose the capacitance".into()),
+            TransitTimeWithoutCapacitance { .. } => ("K0297", "TT without CJO", "a junction's charge is kausal's state for it, and diffusion charge alone (TT·id) nearly vanishes in reverse bias: it could not fix the junction's voltage. ngspice has no such capacitance (`kausal validate` shows what it changes); give CJO to choose the capacitance".into()),
             ManyOutputPoints { .. } => ("K0295", "TSTEP", "TSTEP is the output spacing, not the solver's step (which follows the tolerance): a larger TSTEP, `--times`, or `.save` of fewer vectors makes the file smaller".into()),
         };
         let mut d = Diagnostic::error(code, self.to_string())

@@ -145,10 +145,14 @@ struct Elab {
 }
 
 /// The constant junction capacitance kausal gives a diode model with TT and
-/// no CJO (warning K0297): a time constant of 0.1 ps on 100 Ω, below what
-/// ngspice's results resolve, and enough for the junction's charge to fix
-/// its voltage.
-pub const JUNCTION_CAPACITANCE_FLOOR: f64 = 1e-15;
+/// no CJO (warning K0297), so that the junction's charge fixes its voltage.
+/// Smaller floors leave the charge too weak a coordinate: with 1 fF a clamp
+/// whose two junctions and source form a loop (index reduction keeps one
+/// junction's charge) was off ngspice by volts, and a bridge took minutes.
+/// 1 pF is physical, and visible where nothing else sets a voltage: the
+/// floating common mode of a bridge (its four junctions' capacitance against
+/// a 10 MΩ path), or a clamp's nA current.
+pub const JUNCTION_CAPACITANCE_FLOOR: f64 = 1e-12;
 
 /// Level-1 diode parameters kausal models, with their aliases.
 const DIODE_PARAMS: &[&str] = &[
