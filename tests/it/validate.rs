@@ -168,6 +168,7 @@ fn hard_operating_points_agree_with_ngspice() {
         "dc_clamped_inverter",
         "dc_bridge_300v",
         "dc_current_into_zener",
+        "dc_clamp_rounding",
     ] {
         hard_case_validates(name);
     }
