@@ -699,7 +699,8 @@ impl DcJacobian {
 /// shortens junction steps (a limited step is taken whole, as SPICE takes
 /// it). Converged when a correction is below 1e-10 relative and 1e-3 of
 /// the integration's absolute tolerances, or `f` vanishes; or when no damped
-/// step improves a correction already below 1e-7 of that scale (rounding).
+/// step improves a correction already below 1e-7 of that scale with `f`
+/// below 1e-12 (rounding).
 fn dc_newton(
     mut y: Vec<f64>,
     resid: &Residual<'_>,
@@ -761,11 +762,14 @@ fn dc_newton(
             if lambda < 1e-10 {
                 // No step along the correction is better: rounding, not the
                 // circuit, sets the corrections now. When they are already
-                // within the integration's own tolerances, this is the
-                // operating point (a clamp's junction charge of 1e-18 C,
-                // computed through a 27 mΩ RS, kept corrections of 6e-23 C:
-                // 6e-9 of its scale, not 1e-10).
-                if full <= 1e-7 {
+                // within the integration's own tolerances and f is at the
+                // level of ngspice's ABSTOL (1 pA), this is the operating
+                // point (a clamp's junction charge of 1e-18 C, computed
+                // through a 27 mΩ RS, kept corrections of 6e-23 C: 6e-9 of
+                // its scale, not 1e-10, with f at 2e-15 A). A charge's
+                // correction is amplified into a current by 1/(C·RS): with
+                // f at 4e-9 A this is not the point (source stepping goes on).
+                if full <= 1e-7 && norm <= 1e-12 {
                     return Ok(y);
                 }
                 return Err(SimError::DcFailed {
