@@ -412,12 +412,55 @@ impl Builder<'_> {
         }
     }
 
-    /// `u_X = v(a) - v(b)` for every element.
+    /// `u_X = v(a) - v(b)` for every element, except a capacitor that a loop
+    /// of capacitors and voltage sources fixes: its equation is the loop's
+    /// KVL, `u_C = ±u_…` over the rest of the loop (which implies its
+    /// branch equation through theirs). Written on node potentials, a loop
+    /// that touches neither ground nor a source-fixed node hid its
+    /// constraint: the two potentials matched the two branch equations,
+    /// index reduction never started, and the loop's block was singular at
+    /// run time (two parallel capacitors between internal nodes).
     fn branch_equations(&mut self, vars: &[Option<ElemVars>], pots: &[ExprId]) {
+        let mut loops: HashMap<ElemId, Vec<(ElemId, f64)>> = HashMap::new();
+        for f in crate::elab::topology::faults(self.c, &[]) {
+            if let crate::elab::topology::Fault::CapacitorLoop { elements, fixed } = f
+                && let Some(path) = loop_path(self.c, &elements, fixed)
+            {
+                loops.insert(fixed, path);
+            }
+        }
         for (id, e) in self.c.elements.iter() {
             let Some(ev) = vars[id.0 as usize] else {
                 continue;
             };
+            if let Some(path) = loops.get(&id) {
+                let x = &mut self.sys.exprs;
+                let u = x.var(ev.u);
+                let terms: Vec<ExprId> = path
+                    .iter()
+                    .filter_map(|&(el, sign)| {
+                        let v = x.var(vars[el.0 as usize]?.u);
+                        Some(if sign < 0.0 { x.neg(v) } else { v })
+                    })
+                    .collect();
+                let rhs = x.sum(terms);
+                let elements = path
+                    .iter()
+                    .map(|&(el, _)| self.names[el.0 as usize].clone())
+                    .collect();
+                self.sys.add_eq(
+                    u,
+                    rhs,
+                    Origin {
+                        kind: OriginKind::Kvl {
+                            link: self.names[id.0 as usize].clone(),
+                            elements,
+                        },
+                        span: Some(e.span),
+                    },
+                );
+                continue;
+            }
             let x = &mut self.sys.exprs;
             let u = x.var(ev.u);
             let rhs = x.sub(pots[e.nodes[0].0 as usize], pots[e.nodes[1].0 as usize]);
@@ -433,4 +476,27 @@ impl Builder<'_> {
             );
         }
     }
+}
+
+/// The rest of the loop `elements` from `fixed`'s first node to its second,
+/// each element with the sign of its branch voltage along the way:
+/// `u_fixed = Σ sign·u_e`. `None` if the elements do not close a loop.
+fn loop_path(c: &Circuit, elements: &[ElemId], fixed: ElemId) -> Option<Vec<(ElemId, f64)>> {
+    let (start, end) = (c.elements[fixed].nodes[0], c.elements[fixed].nodes[1]);
+    let mut path = Vec::new();
+    let mut used = vec![false; elements.len()];
+    let mut at = start;
+    while at != end {
+        let k = elements.iter().enumerate().position(|(k, &el)| {
+            !used[k] && el != fixed && c.elements[el].nodes[..2].contains(&at)
+        })?;
+        used[k] = true;
+        let el = elements[k];
+        let [a, b] = [c.elements[el].nodes[0], c.elements[el].nodes[1]];
+        // Walking a → b adds v(a) - v(b) = u_el; b → a subtracts it.
+        let (sign, next) = if a == at { (1.0, b) } else { (-1.0, a) };
+        path.push((el, sign));
+        at = next;
+    }
+    Some(path)
 }

@@ -115,8 +115,78 @@ pub fn potentials_from_tree(
         .collect()
 }
 
-/// `u_link = v(a) - v(b)` for every element outside the tree, with the tree
-/// path's elements recorded in the origin.
+/// The tree as parent links: for each node, its parent node, the tree
+/// element joining them and the sign `s` with `v(node) - v(parent) = s·u_e`,
+/// and its depth (roots: no parent, depth 0).
+struct Rooted {
+    up: Vec<Option<(usize, usize, f64)>>,
+    depth: Vec<usize>,
+}
+
+fn rooted(c: &Circuit, in_tree: &[bool]) -> Rooted {
+    let n = c.nodes.len();
+    let mut adj: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (i, e) in c.elements.values().enumerate() {
+        if in_tree[i] {
+            adj[e.nodes[0].0 as usize].push(i);
+            adj[e.nodes[1].0 as usize].push(i);
+        }
+    }
+    let mut up = vec![None; n];
+    let mut depth = vec![0; n];
+    let mut seen = vec![false; n];
+    let mut queue = std::collections::VecDeque::new();
+    for start in std::iter::once(GROUND.0 as usize).chain(0..n) {
+        if seen[start] {
+            continue;
+        }
+        seen[start] = true;
+        queue.push_back(start);
+        while let Some(a) = queue.pop_front() {
+            for &ei in &adj[a] {
+                let e = &c.elements.as_slice()[ei];
+                let (p, q) = (e.nodes[0].0 as usize, e.nodes[1].0 as usize);
+                let other = if p == a { q } else { p };
+                if seen[other] {
+                    continue;
+                }
+                seen[other] = true;
+                // u_e = v(p) - v(q): the child is q (sign -1) or p (+1).
+                up[other] = Some((a, ei, if other == p { 1.0 } else { -1.0 }));
+                depth[other] = depth[a] + 1;
+                queue.push_back(other);
+            }
+        }
+    }
+    Rooted { up, depth }
+}
+
+impl Rooted {
+    /// `v(a) - v(b)` as signed tree elements along the tree path between
+    /// them, `None` when they are in different trees.
+    fn path(&self, mut a: usize, mut b: usize) -> Option<Vec<(usize, f64)>> {
+        let (mut from_a, mut from_b) = (Vec::new(), Vec::new());
+        while a != b {
+            if self.depth[a] >= self.depth[b] {
+                let (p, e, s) = self.up[a]?;
+                from_a.push((e, s));
+                a = p;
+            } else {
+                let (p, e, s) = self.up[b]?;
+                from_b.push((e, -s));
+                b = p;
+            }
+        }
+        from_a.extend(from_b.into_iter().rev());
+        Some(from_a)
+    }
+}
+
+/// `u_link = v(a) - v(b)` for every element outside the tree, written on the
+/// tree path between its nodes (the common part of their paths to ground
+/// cancels, and a sum that only cancelled in value hid the constraint of a
+/// loop of capacitors from index reduction), with the path's elements
+/// recorded in the origin.
 pub fn loop_equations(
     sys: &mut EquationSystem,
     c: &Circuit,
@@ -124,15 +194,32 @@ pub fn loop_equations(
     pots: &[ExprId],
 ) {
     let in_tree = tree_elements(c);
+    let tree = rooted(c, &in_tree);
     for (i, e) in c.elements.values().enumerate() {
         if in_tree[i] {
             continue;
         }
         let Some(ev) = vars[i] else { continue };
         let u = sys.exprs.var(ev.u);
-        let rhs = sys
-            .exprs
-            .sub(pots[e.nodes[0].0 as usize], pots[e.nodes[1].0 as usize]);
+        let (a, b) = (e.nodes[0].0 as usize, e.nodes[1].0 as usize);
+        let path = tree.path(a, b).and_then(|path| {
+            path.into_iter()
+                .map(|(el, s)| vars[el].map(|v| (v.u, s)))
+                .collect::<Option<Vec<_>>>()
+        });
+        let rhs = match path {
+            Some(path) => {
+                let terms: Vec<ExprId> = path
+                    .into_iter()
+                    .map(|(v, s)| {
+                        let x = sys.exprs.var(v);
+                        if s < 0.0 { sys.exprs.neg(x) } else { x }
+                    })
+                    .collect();
+                sys.exprs.sum(terms)
+            }
+            None => sys.exprs.sub(pots[a], pots[b]),
+        };
         let mut elements: Vec<Name> = vec![Name::from(e.name.as_str())];
         let mut seen = Vec::new();
         let mut stack = Vec::new();

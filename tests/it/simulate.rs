@@ -471,6 +471,52 @@ fn a_long_series_chain_sorts_and_runs() {
     }
 }
 
+/// Two capacitors in parallel between internal nodes: a loop that touches
+/// neither ground nor a source. On node potentials the two branch
+/// equations took the two potentials; in the loop formulation C2's KVL was
+/// a difference of two paths to ground whose common part cancelled only in
+/// value. Either way index reduction never started and the loop's block
+/// was singular at t = 0 (K0402; found by fuzzing against ngspice). Every
+/// formulation now reduces it to one state and gives the same waveform.
+#[test]
+fn a_capacitor_loop_between_internal_nodes_is_reduced_in_every_formulation() {
+    let path = root().join("netlists/parallel_caps_floating.cir");
+    let mut first: Option<Vec<f64>> = None;
+    for (alias, kvl) in [
+        (false, kausal::build::Kvl::Nodes),
+        (true, kausal::build::Kvl::Nodes),
+        (false, kausal::build::Kvl::Loops),
+        (true, kausal::build::Kvl::Loops),
+    ] {
+        let (el, built) =
+            pipeline::equations(&path, &FsLoader, kausal::build::Options { alias, kvl })
+                .ok()
+                .unwrap();
+        let s = pipeline::sort_built(el, built, &SortOptions::default())
+            .ok()
+            .expect("sorts");
+        assert!(s.reduction.is_some(), "alias {alias}, {kvl:?}: not reduced");
+        assert_eq!(s.system().states().count(), 1, "alias {alias}, {kvl:?}");
+        let opts = sim::Options {
+            probes: vec!["v(a)".into(), "v(b)".into()],
+            ..Default::default()
+        };
+        let w = sim::simulate(&s, &opts).unwrap_or_else(|e| panic!("{alias} {kvl:?}: {e}"));
+        let v: Vec<f64> = w.data.concat();
+        match &first {
+            None => first = Some(v),
+            Some(f) => {
+                let worst = f
+                    .iter()
+                    .zip(&v)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+                assert!(worst < 1e-6, "alias {alias}, {kvl:?}: {worst:e} off");
+            }
+        }
+    }
+}
+
 /// A loop that is singular in the transient but not in the `.ic` operating
 /// point (there the inductor into it is a short to a held node): f is NaN at
 /// t = 0, diffsol sized its first step from it, and the NaN step never
