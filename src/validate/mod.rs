@@ -380,11 +380,22 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
         .clone()
         .ok_or(SimError::NoTran)?;
     let delta = 1e-9 * tran.tstop;
+    // The reference's point at each corner it stepped on (to within delta:
+    // ngspice's time can be the corner plus an ulp, 1.3800000000000001e-7
+    // for a PWL corner at 1.38e-7, and a capacitor across the source then
+    // failed i(V1) by its whole jump).
     let mut corners: Vec<f64> = sys
         .sources
         .values()
         .flat_map(|s| s.wave.breakpoints(tran.tstop))
-        .filter(|&b| reference.time.binary_search_by(|t| t.total_cmp(&b)).is_ok())
+        .filter_map(|b| {
+            let k = reference.time.partition_point(|&t| t < b - delta);
+            reference
+                .time
+                .get(k)
+                .copied()
+                .filter(|&t| (t - b).abs() <= delta)
+        })
         .collect();
     corners.sort_by(f64::total_cmp);
     corners.dedup();

@@ -156,6 +156,35 @@ fn a_reference_point_an_ulp_past_tstop_is_compared_at_tstop() {
     }
 }
 
+/// A source corner that the reference steps on an ulp late (1.3800000000000001e-7
+/// for a PWL corner at 1.38e-7) is still a corner: a capacitor across the
+/// source makes i(V1) jump there, and comparing kausal's value after the
+/// corner with ngspice's before it failed i(V1) by its whole jump.
+#[test]
+fn a_corner_an_ulp_off_is_compared_one_sided() {
+    require_ngspice();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cpwl.cir");
+    std::fs::write(
+        &path,
+        "C across a PWL source\nV1 n1 0 PWL(0 0 1.38e-07 1.79 5.53e-07 -2.78 1.11e-06 0)\n\
+         C3 0 n1 6.073e-06\nR1 n1 0 1k\n.tran 6.918e-09 1.384e-06\n.end\n",
+    )
+    .unwrap();
+    let sorted = pipeline::sort(&path, &FsLoader, &SortOptions::default())
+        .ok()
+        .expect("sorts");
+    let report = validate::validate(&path, &sorted, &validate::Options::default())
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        !report.reference.time.contains(&1.38e-7),
+        "ngspice stepped exactly on the corner: the test needs it an ulp off"
+    );
+    for s in &report.signals {
+        assert!(s.pass, "{}: {:.3e}", s.name, s.max_norm);
+    }
+}
+
 /// Operating points that Newton from all-zero cannot reach without junction
 /// limiting: zeners in breakdown, a clamp in a high-gain loop (which was
 /// silently wrong: the solve stopped at a point violating KCL by 2 mA), a
