@@ -242,13 +242,16 @@ pub fn compare(
         });
     let peak = reference.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let range = hi - lo;
-    // A constant signal is compared relative to its level (or an absolute
-    // floor for a zero one: 1 nV / 1 pA).
+    // A constant signal is compared relative to its level, and no scale is
+    // below an absolute floor (1 nV / 1 nA): a signal that is zero but for
+    // rounding (a range of 2e-16) was its own scale, so kausal's rounding
+    // failed it at a normalized error of 1.
     let scale = if range > 1e-9 * peak && range > 0.0 {
         range
     } else {
-        peak.max(1e-9)
-    };
+        peak
+    }
+    .max(1e-9);
     let mut max_abs = 0.0f64;
     let mut worst = 0;
     let mut sq = 0.0;

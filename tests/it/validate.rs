@@ -185,6 +185,21 @@ fn a_corner_an_ulp_off_is_compared_one_sided() {
     }
 }
 
+/// A signal that is zero but for rounding is compared on the absolute floor
+/// (1e-9), not on its own range: a reference ranging over 2e-16 made kausal's
+/// rounding a normalized error of 1 (3 of 80 fuzzed linear circuits). A
+/// real error on a small signal still fails.
+#[test]
+fn rounding_is_not_its_own_scale() {
+    let time = [0.0, 1.0, 2.0, 3.0];
+    let noise = [0.0, 2.2e-16, 0.0, -1.1e-16];
+    let r = validate::compare("v(n3)", &noise, &[0.0; 4], &time, 1e-3);
+    assert!(r.pass, "normalized {:e}", r.max_norm);
+    let small = [0.0, 1e-11, 2e-11, 1e-11];
+    let off = [0.0, 1e-11, 2e-11, 3e-11];
+    assert!(!validate::compare("i(d1)", &small, &off, &time, 1e-3).pass);
+}
+
 /// Operating points that Newton from all-zero cannot reach without junction
 /// limiting: zeners in breakdown, a clamp in a high-gain loop (which was
 /// silently wrong: the solve stopped at a point violating KCL by 2 mA), a
