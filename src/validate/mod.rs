@@ -224,6 +224,10 @@ pub struct SignalReport {
     /// The same for ngspice's default run against the reference.
     pub ngspice_default_norm: Option<f64>,
     pub pass: bool,
+    /// For a failing signal: how much later (negative: earlier) kausal's
+    /// waveform takes the reference's value at the worst point, when it
+    /// does within [`EDGE_POINTS`] points of it (an edge whose timing differs).
+    pub shift: Option<f64>,
 }
 
 /// Compare `test` with `reference` at the reference's points (both on the
@@ -275,6 +279,7 @@ pub fn compare(
         scale,
         ngspice_default_norm: None,
         pass: max_norm <= tol,
+        shift: None,
     }
 }
 
@@ -450,6 +455,11 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
             })
             .collect();
         let mut rep = compare(name, r, &test, &reference.time, opts.tol);
+        if !rep.pass
+            && let Some(i) = reference.time.iter().position(|&t| t == rep.worst_time)
+        {
+            rep.shift = edge_shift(&w.time, &w.data[k], rep.worst_time, r[i]);
+        }
         if let Some(d) = &default_run
             && let Some(dc) = d.names.iter().position(|n| n == name)
         {
@@ -495,6 +505,23 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
     })
 }
 
+/// Points either side of the worst one searched for an edge's shift.
+const EDGE_POINTS: usize = 500;
+
+/// The time nearest `at` (within [`EDGE_POINTS`] points of it) where `(time, y)`
+/// crosses `value`, less `at`.
+fn edge_shift(time: &[f64], y: &[f64], at: f64, value: f64) -> Option<f64> {
+    let i = time.partition_point(|&t| t < at);
+    let lo = i.saturating_sub(EDGE_POINTS);
+    let hi = (i + EDGE_POINTS).min(time.len().saturating_sub(1));
+    (lo..hi)
+        .filter_map(|j| {
+            let (a, b) = (y[j] - value, y[j + 1] - value);
+            (a * b <= 0.0 && a != b).then(|| time[j] + (time[j + 1] - time[j]) * a / (a - b) - at)
+        })
+        .min_by(|a, b| a.abs().total_cmp(&b.abs()))
+}
+
 fn sci(x: f64) -> String {
     if x == 0.0 {
         "0".into()
@@ -538,6 +565,18 @@ pub fn table(r: &Report) -> String {
             if s.pass { "ok" } else { "FAIL" }
         ));
     }
+    let span = r.reference.time.last().copied().unwrap_or(0.0);
+    for s in r.signals.iter().filter(|s| !s.pass) {
+        if let Some(d) = s.shift {
+            out.push_str(&format!(
+                "  note: kausal's {} takes the reference's worst-point value {} s {} ({} of the run): where that is an edge, its timing is all that differs\n",
+                s.name,
+                sci(d.abs()),
+                if d > 0.0 { "later" } else { "earlier" },
+                sci(d.abs() / span.max(f64::MIN_POSITIVE)),
+            ));
+        }
+    }
     if !r.missed_breakpoints.is_empty() {
         let list: Vec<String> = r.missed_breakpoints.iter().map(|t| sci(*t)).collect();
         out.push_str(&format!(
@@ -572,4 +611,23 @@ pub fn plot_path(dir: &Path, netlist: &Path, signal: &str) -> PathBuf {
         })
         .collect();
     dir.join(format!("{stem}_{clean}.svg"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A step that kausal takes 2e-3 s before the reference: the worst
+    /// point's value is kausal's 2e-3 s earlier; a level offset without a
+    /// crossing nearby has none.
+    #[test]
+    fn an_edge_shift_is_measured() {
+        let time: Vec<f64> = (0..=1000).map(|k| k as f64 * 1e-3).collect();
+        let step = |t: f64, at: f64| ((t - at) / 1e-3).clamp(0.0, 1.0);
+        let kausal: Vec<f64> = time.iter().map(|&t| step(t, 0.498)).collect();
+        let shift = edge_shift(&time, &kausal, 0.5005, step(0.5005, 0.5)).expect("crosses");
+        assert!((shift + 2e-3).abs() < 1e-9, "{shift}");
+        let flat = vec![1.0; time.len()];
+        assert_eq!(edge_shift(&time, &flat, 0.5, 0.5), None);
+    }
 }
