@@ -161,21 +161,72 @@ impl Drop for ScratchDir {
 }
 
 /// Run `cmd` to completion as [`std::process::Command::output`] does, with
-/// the child known to [`remove_pending_on_interrupt`] while it runs.
-pub fn run_child(cmd: &mut std::process::Command) -> std::io::Result<std::process::Output> {
+/// the child known to [`remove_pending_on_interrupt`] while it runs. A child
+/// still running after `limit` is killed and the error is `TimedOut`
+/// (ngspice can loop without end at a tight reltol on a circuit it finds
+/// hard: a `validate` then waited forever).
+pub fn run_child(
+    cmd: &mut std::process::Command,
+    limit: std::time::Duration,
+) -> std::io::Result<std::process::Output> {
+    use std::io::Read;
     let spawn = || {
         cmd.stdin(std::process::Stdio::null())
             .stdout(std::process::Stdio::piped())
             .stderr(std::process::Stdio::piped())
             .spawn()
     };
-    let child = register(&CHILDREN, spawn, std::process::Child::id)?;
+    let mut child = register(&CHILDREN, spawn, std::process::Child::id)?;
     let pid = child.id();
+    // Both pipes are drained while the child runs (a full pipe would stop it).
+    let drain = |pipe: Option<Box<dyn Read + Send>>| {
+        std::thread::spawn(move || {
+            let mut buf = Vec::new();
+            if let Some(mut p) = pipe {
+                let _ = p.read_to_end(&mut buf);
+            }
+            buf
+        })
+    };
+    let out = drain(
+        child
+            .stdout
+            .take()
+            .map(|p| Box::new(p) as Box<dyn Read + Send>),
+    );
+    let err = drain(
+        child
+            .stderr
+            .take()
+            .map(|p| Box::new(p) as Box<dyn Read + Send>),
+    );
+    let started = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait()? {
+            break Ok(status);
+        }
+        if started.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            break Err(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                format!("did not finish within {} s", limit.as_secs()),
+            ));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    };
     // Unregistered as soon as it is reaped: only in those few instructions
     // could an interrupt signal the pid after the kernel freed it.
-    let out = child.wait_with_output();
     registry(&CHILDREN).retain(|&p| p != pid);
-    out
+    let (stdout, stderr) = (
+        out.join().unwrap_or_default(),
+        err.join().unwrap_or_default(),
+    );
+    Ok(std::process::Output {
+        status: status?,
+        stdout,
+        stderr,
+    })
 }
 
 impl AtomicFile {

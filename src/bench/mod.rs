@@ -403,6 +403,7 @@ fn kausal_process(
                     "-o",
                 ])
                 .arg(&out),
+            std::time::Duration::from_secs(3600),
         )
         .map_err(|e| format!("cannot run `{}`: {e}", exe.display()))?;
         times.push(started.elapsed().as_secs_f64());

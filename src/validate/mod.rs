@@ -36,6 +36,20 @@ pub enum ValidateError {
     Sim(#[from] SimError),
     #[error("ngspice has no vector `{0}`")]
     NoVector(String),
+    #[error("ngspice did not finish within {seconds} s ({reltol})")]
+    TimedOut { seconds: u64, reltol: String },
+}
+
+/// How long one ngspice run may take: `$KAUSAL_NGSPICE_TIMEOUT` seconds, else
+/// 300 (ngspice needs 156 s for a 100×100 resistor mesh; at a tight reltol it
+/// can also shrink its step without end).
+pub fn ngspice_time_limit() -> std::time::Duration {
+    let secs = std::env::var("KAUSAL_NGSPICE_TIMEOUT")
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+        .filter(|&s| s > 0)
+        .unwrap_or(300);
+    std::time::Duration::from_secs(secs)
 }
 
 impl ToDiagnostic for ValidateError {
@@ -52,6 +66,9 @@ impl ToDiagnostic for ValidateError {
             ValidateError::Sim(_) => "see `kausal sim` for the same run",
             ValidateError::NoVector(_) => {
                 "probe a vector both simulators know: v(node) or i(vsource)"
+            }
+            ValidateError::TimedOut { .. } => {
+                "it was stopped (also at 10 and 100 times the reference reltol); set KAUSAL_NGSPICE_TIMEOUT (seconds) to wait longer"
             }
         };
         Diagnostic::error("K0500", self.to_string()).with_help(help)
@@ -147,6 +164,16 @@ pub struct Execution {
 
 /// Run `program -b` on `path` with `extra` (an `.options` line) before `.end`.
 pub fn exec(program: &str, path: &Path, extra: Option<&str>) -> Result<Execution, ValidateError> {
+    exec_within(program, path, extra, ngspice_time_limit())
+}
+
+/// [`exec`], stopping the run after `limit`.
+pub fn exec_within(
+    program: &str,
+    path: &Path,
+    extra: Option<&str>,
+    limit: std::time::Duration,
+) -> Result<Execution, ValidateError> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| ValidateError::Io(format!("{}: {e}", path.display())))?;
     let dir = crate::io::ScratchDir::new().map_err(|e| ValidateError::Io(e.to_string()))?;
@@ -164,10 +191,18 @@ pub fn exec(program: &str, path: &Path, extra: Option<&str>) -> Result<Execution
             .arg(&net)
             .current_dir(dir.path())
             .env("SPICE_ASCIIRAWFILE", "0"),
+        limit,
     )
     .map_err(|e| match e.kind() {
         std::io::ErrorKind::NotFound => ValidateError::Missing {
             program: program.clone(),
+        },
+        std::io::ErrorKind::TimedOut => ValidateError::TimedOut {
+            seconds: limit.as_secs(),
+            reltol: extra
+                .and_then(|x| x.split_whitespace().find(|w| w.starts_with("reltol=")))
+                .unwrap_or("its defaults")
+                .to_string(),
         },
         _ => ValidateError::Io(format!("{program}: {e}")),
     })?;
@@ -357,9 +392,11 @@ fn reference_run(path: &Path, reltol: f64) -> Result<(RawData, f64), ValidateErr
         let tol = reltol * 10f64.powi(k);
         match run_ngspice(path, Some(RefTol { reltol: tol })) {
             Ok(r) => return Ok((r, tol)),
-            Err(e @ (ValidateError::Failed { .. } | ValidateError::NoData { .. })) => {
-                last = Some(e)
-            }
+            Err(
+                e @ (ValidateError::Failed { .. }
+                | ValidateError::NoData { .. }
+                | ValidateError::TimedOut { .. }),
+            ) => last = Some(e),
             Err(e) => return Err(e),
         }
     }

@@ -294,6 +294,27 @@ fn fake(dir: &Path, name: &str, body: &str) -> String {
     p.display().to_string()
 }
 
+/// An ngspice that never finishes (it can shrink its step without end at a
+/// tight reltol) is stopped at the time limit with a clear error, not waited
+/// for: `validate` hung on 3 of 60 fuzzed RLC circuits.
+#[test]
+fn an_ngspice_that_never_finishes_is_stopped() {
+    let dir = tempfile::tempdir().unwrap();
+    let net = root().join("netlists/rc_lowpass_step.cir");
+    let stuck = fake(dir.path(), "stuck-ngspice", "echo running; exec sleep 60");
+    let started = std::time::Instant::now();
+    let e = validate::exec_within(&stuck, &net, None, std::time::Duration::from_secs(1))
+        .err()
+        .expect("stopped");
+    assert!(matches!(e, ValidateError::TimedOut { .. }), "{e}");
+    assert!(
+        started.elapsed() < std::time::Duration::from_secs(20),
+        "waited {:?}",
+        started.elapsed()
+    );
+    assert!(e.to_string().contains("did not finish within 1 s"), "{e}");
+}
+
 #[test]
 fn missing_failing_and_garbled_ngspice_give_clear_errors() {
     let dir = tempfile::tempdir().unwrap();
