@@ -357,12 +357,19 @@ where
     let mut y = vec![0.0; n];
     if uic {
         // Element initial conditions, and `.ic` node voltages across
-        // capacitors whose other terminal is ground or named too.
+        // capacitors with a terminal on the `.ic` line; as in ngspice, a node
+        // not on it starts at 0 V (a capacitor from a named node to an
+        // unnamed one started at 0 V instead of the named node's value).
         let ic_node = |node: crate::elab::NodeId| -> Option<f64> {
             if node == GROUND {
                 return Some(0.0);
             }
-            c.ics.iter().find(|i| i.node == node).map(|i| i.value)
+            Some(
+                c.ics
+                    .iter()
+                    .find(|i| i.node == node)
+                    .map_or(0.0, |i| i.value),
+            )
         };
         let owner = element_of_vars(sorted);
         for (k, &s) in tape.states.iter().enumerate() {
