@@ -48,6 +48,18 @@ fn tree_elements(c: &Circuit) -> Vec<bool> {
     in_tree
 }
 
+/// The tree elements at each node.
+fn tree_adjacency(c: &Circuit, in_tree: &[bool]) -> Vec<Vec<usize>> {
+    let mut adj: Vec<Vec<usize>> = vec![Vec::new(); c.nodes.len()];
+    for (i, e) in c.elements.values().enumerate() {
+        if in_tree[i] {
+            adj[e.nodes[0].0 as usize].push(i);
+            adj[e.nodes[1].0 as usize].push(i);
+        }
+    }
+    adj
+}
+
 /// Potentials of all nodes as expressions in tree-branch voltages, by a
 /// breadth-first walk from ground. A part of the circuit not connected to
 /// ground through the tree gets a free potential variable at its first node.
@@ -56,59 +68,37 @@ pub fn potentials_from_tree(
     c: &Circuit,
     vars: &[Option<ElemVars>],
 ) -> Vec<ExprId> {
-    let in_tree = tree_elements(c);
-    let n = c.nodes.len();
-    let mut adj: Vec<Vec<usize>> = vec![Vec::new(); n];
-    for (i, e) in c.elements.values().enumerate() {
-        if in_tree[i] {
-            adj[e.nodes[0].0 as usize].push(i);
-            adj[e.nodes[1].0 as usize].push(i);
-        }
-    }
-    let mut pot: Vec<Option<ExprId>> = vec![None; n];
-    let mut queue = std::collections::VecDeque::new();
-    for start in 0..n {
-        if pot[start].is_some() {
-            continue;
-        }
-        let root = if start == GROUND.0 as usize {
-            sys.exprs.constant(0.0)
-        } else {
-            let node = &c.nodes.as_slice()[start];
-            let v = sys.add_var(
-                format!("v({})", node.name),
-                VarKind::Potential,
-                Origin {
-                    kind: OriginKind::Node {
-                        name: Name::from(node.name.as_str()),
+    let tree = rooted(c, &tree_elements(c));
+    let mut pot: Vec<Option<ExprId>> = vec![None; c.nodes.len()];
+    for &x in &tree.order {
+        let from_parent = tree.up[x].and_then(|(parent, ei, s)| {
+            let u = sys.exprs.var(vars[ei]?.u);
+            let pa = pot[parent]?;
+            // v(x) = v(parent) + s·u
+            Some(if s > 0.0 {
+                sys.exprs.add(pa, u)
+            } else {
+                sys.exprs.sub(pa, u)
+            })
+        });
+        pot[x] = Some(match from_parent {
+            Some(p) => p,
+            None if x == GROUND.0 as usize => sys.exprs.constant(0.0),
+            None => {
+                let node = &c.nodes.as_slice()[x];
+                let v = sys.add_var(
+                    format!("v({})", node.name),
+                    VarKind::Potential,
+                    Origin {
+                        kind: OriginKind::Node {
+                            name: Name::from(node.name.as_str()),
+                        },
+                        span: Some(node.span),
                     },
-                    span: Some(node.span),
-                },
-            );
-            sys.exprs.var(v)
-        };
-        pot[start] = Some(root);
-        queue.push_back(start);
-        while let Some(a) = queue.pop_front() {
-            for &ei in &adj[a] {
-                let e = &c.elements.as_slice()[ei];
-                let (p, q) = (e.nodes[0].0 as usize, e.nodes[1].0 as usize);
-                let other = if p == a { q } else { p };
-                if pot[other].is_some() {
-                    continue;
-                }
-                let Some(ev) = vars[ei] else { continue };
-                let u = sys.exprs.var(ev.u);
-                let pa = pot[a].expect("visited");
-                // u = v(p) - v(q)
-                pot[other] = Some(if other == q {
-                    sys.exprs.sub(pa, u)
-                } else {
-                    sys.exprs.add(pa, u)
-                });
-                queue.push_back(other);
+                );
+                sys.exprs.var(v)
             }
-        }
+        });
     }
     pot.into_iter()
         .map(|p| p.expect("every node visited"))
@@ -121,20 +111,17 @@ pub fn potentials_from_tree(
 struct Rooted {
     up: Vec<Option<(usize, usize, f64)>>,
     depth: Vec<usize>,
+    /// Breadth-first order, a tree at a time (ground's first).
+    order: Vec<usize>,
 }
 
 fn rooted(c: &Circuit, in_tree: &[bool]) -> Rooted {
     let n = c.nodes.len();
-    let mut adj: Vec<Vec<usize>> = vec![Vec::new(); n];
-    for (i, e) in c.elements.values().enumerate() {
-        if in_tree[i] {
-            adj[e.nodes[0].0 as usize].push(i);
-            adj[e.nodes[1].0 as usize].push(i);
-        }
-    }
+    let adj = tree_adjacency(c, in_tree);
     let mut up = vec![None; n];
     let mut depth = vec![0; n];
     let mut seen = vec![false; n];
+    let mut order = Vec::with_capacity(n);
     let mut queue = std::collections::VecDeque::new();
     for start in std::iter::once(GROUND.0 as usize).chain(0..n) {
         if seen[start] {
@@ -143,6 +130,7 @@ fn rooted(c: &Circuit, in_tree: &[bool]) -> Rooted {
         seen[start] = true;
         queue.push_back(start);
         while let Some(a) = queue.pop_front() {
+            order.push(a);
             for &ei in &adj[a] {
                 let e = &c.elements.as_slice()[ei];
                 let (p, q) = (e.nodes[0].0 as usize, e.nodes[1].0 as usize);
@@ -158,7 +146,7 @@ fn rooted(c: &Circuit, in_tree: &[bool]) -> Rooted {
             }
         }
     }
-    Rooted { up, depth }
+    Rooted { up, depth, order }
 }
 
 impl Rooted {

@@ -129,6 +129,18 @@ fn large_algebraic_loops_agree_with_ngspice() {
     }
 }
 
+/// `kausal validate` on netlist text written to a scratch file.
+fn validate_text(name: &str, text: &str) -> validate::Report {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(name);
+    std::fs::write(&path, text).unwrap();
+    let sorted = pipeline::sort(&path, &FsLoader, &SortOptions::default())
+        .ok()
+        .unwrap_or_else(|| panic!("{name} sorts"));
+    validate::validate(&path, &sorted, &validate::Options::default())
+        .unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
 /// ngspice's last time point can be TSTOP plus an ulp (4.233000000000001e-2
 /// for `.tran 0.1058m 42.33m`); kausal's value there is its value at TSTOP.
 /// It was NaN (kausal does not extrapolate), an infinite error that failed
@@ -136,19 +148,11 @@ fn large_algebraic_loops_agree_with_ngspice() {
 #[test]
 fn a_reference_point_an_ulp_past_tstop_is_compared_at_tstop() {
     require_ngspice();
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("rc_end.cir");
-    std::fs::write(
-        &path,
+    let report = validate_text(
+        "rc_end.cir",
         "RC, TSTOP off ngspice's step grid\nV1 in 0 SIN(0 1 118.1)\nR1 in out 1k\n\
          C1 out 0 1u\n.tran 0.0001058 0.04233\n.end\n",
-    )
-    .unwrap();
-    let sorted = pipeline::sort(&path, &FsLoader, &SortOptions::default())
-        .ok()
-        .expect("sorts");
-    let report = validate::validate(&path, &sorted, &validate::Options::default())
-        .unwrap_or_else(|e| panic!("{e}"));
+    );
     let last = report.reference.time.last().copied().unwrap_or(0.0);
     assert!(last > 0.04233, "ngspice ends at {last:e}, not past TSTOP");
     for s in &report.signals {
@@ -163,19 +167,11 @@ fn a_reference_point_an_ulp_past_tstop_is_compared_at_tstop() {
 #[test]
 fn a_corner_an_ulp_off_is_compared_one_sided() {
     require_ngspice();
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("cpwl.cir");
-    std::fs::write(
-        &path,
+    let report = validate_text(
+        "cpwl.cir",
         "C across a PWL source\nV1 n1 0 PWL(0 0 1.38e-07 1.79 5.53e-07 -2.78 1.11e-06 0)\n\
          C3 0 n1 6.073e-06\nR1 n1 0 1k\n.tran 6.918e-09 1.384e-06\n.end\n",
-    )
-    .unwrap();
-    let sorted = pipeline::sort(&path, &FsLoader, &SortOptions::default())
-        .ok()
-        .expect("sorts");
-    let report = validate::validate(&path, &sorted, &validate::Options::default())
-        .unwrap_or_else(|e| panic!("{e}"));
+    );
     assert!(
         !report.reference.time.contains(&1.38e-7),
         "ngspice stepped exactly on the corner: the test needs it an ulp off"
