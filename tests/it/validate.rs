@@ -50,6 +50,7 @@ fn hard_rectifiers_agree_with_ngspice() {
         "fast_edges_diode",
         "rectifier_big_cap",
         "halfwave_light_load",
+        "clamp_leakage",
     ] {
         hard_case_validates(name);
     }
