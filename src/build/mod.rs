@@ -483,13 +483,20 @@ impl Builder<'_> {
 /// `u_fixed = Σ sign·u_e`. `None` if the elements do not close a loop.
 fn loop_path(c: &Circuit, elements: &[ElemId], fixed: ElemId) -> Option<Vec<(ElemId, f64)>> {
     let (start, end) = (c.elements[fixed].nodes[0], c.elements[fixed].nodes[1]);
-    let mut path = Vec::new();
+    // The loop's elements at each of its nodes (two each on a simple loop).
+    let mut at_node: HashMap<NodeId, Vec<usize>> = HashMap::with_capacity(elements.len());
+    for (k, &el) in elements.iter().enumerate() {
+        if el != fixed {
+            for &n in &c.elements[el].nodes[..2] {
+                at_node.entry(n).or_default().push(k);
+            }
+        }
+    }
+    let mut path = Vec::with_capacity(elements.len());
     let mut used = vec![false; elements.len()];
     let mut at = start;
     while at != end {
-        let k = elements.iter().enumerate().position(|(k, &el)| {
-            !used[k] && el != fixed && c.elements[el].nodes[..2].contains(&at)
-        })?;
+        let k = *at_node.get(&at)?.iter().find(|&&k| !used[k])?;
         used[k] = true;
         let el = elements[k];
         let [a, b] = [c.elements[el].nodes[0], c.elements[el].nodes[1]];
