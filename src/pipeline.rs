@@ -183,10 +183,8 @@ pub fn sort_built(el: Elaborated, built: Built, opts: &SortOptions) -> Result<So
             }
         }
     }
-    let errors: Vec<TopologyError> = topology::faults(c, &keep)
-        .iter()
-        .map(|f| TopologyError::new(c, f))
-        .collect();
+    let faults = topology::faults(c, &keep);
+    let errors: Vec<TopologyError> = faults.iter().map(|f| TopologyError::new(c, f)).collect();
     let (fixable, fatal): (Vec<TopologyError>, Vec<TopologyError>) =
         errors.into_iter().partition(|e| e.fixable);
     if !fatal.is_empty() {
@@ -203,7 +201,7 @@ pub fn sort_built(el: Elaborated, built: Built, opts: &SortOptions) -> Result<So
             .into_iter()
             .find(|&v| built.system.vars[v].is_state())
     };
-    let fixed: Vec<crate::ir::VarId> = topology::faults(c, &keep)
+    let fixed: Vec<crate::ir::VarId> = faults
         .iter()
         .filter_map(|f| match f {
             Fault::CapacitorLoop { fixed, .. } | Fault::InductorCutset { fixed, .. } => {

@@ -360,16 +360,11 @@ where
         // capacitors with a terminal on the `.ic` line; as in ngspice, a node
         // not on it starts at 0 V (a capacitor from a named node to an
         // unnamed one started at 0 V instead of the named node's value).
-        let ic_node = |node: crate::elab::NodeId| -> Option<f64> {
-            if node == GROUND {
-                return Some(0.0);
-            }
-            Some(
-                c.ics
-                    .iter()
-                    .find(|i| i.node == node)
-                    .map_or(0.0, |i| i.value),
-            )
+        let ic_node = |node: crate::elab::NodeId| -> f64 {
+            c.ics
+                .iter()
+                .find(|i| i.node == node && node != GROUND)
+                .map_or(0.0, |i| i.value)
         };
         let owner = element_of_vars(sorted);
         for (k, &s) in tape.states.iter().enumerate() {
@@ -382,10 +377,8 @@ where
                 | ElementKind::Inductor { ic: Some(v), .. } => y[k] = v,
                 ElementKind::Capacitor { ic: None, .. } => {
                     let named = |node| node != GROUND && c.ics.iter().any(|i| i.node == node);
-                    if (named(el.nodes[0]) || named(el.nodes[1]))
-                        && let (Some(a), Some(b)) = (ic_node(el.nodes[0]), ic_node(el.nodes[1]))
-                    {
-                        y[k] = a - b;
+                    if named(el.nodes[0]) || named(el.nodes[1]) {
+                        y[k] = ic_node(el.nodes[0]) - ic_node(el.nodes[1]);
                     }
                 }
                 _ => {}
@@ -1099,8 +1092,9 @@ where
 {
     /// Put the junction charges of an interpolated state `y` on their slow
     /// manifold: [`SETTLE_STEPS`] Newton steps (one factored matrix) towards
-    /// `f_q(t, y) = dq/dt` of the interpolant, shifted by `σ = 100/h` so that it acts only along
-    /// directions whose relaxation time is far below the step `h`
+    /// `f_q(t, y) = dq/dt` of the interpolant, shifted by `σ = 100/h` so
+    /// that they act only along directions whose relaxation time is far
+    /// below the step `h`
     /// (`(J_qq - σ I) Δ = f_q - q̇`: a stiff direction, |λ| ≫ σ, moves by its
     /// full correction; a slow one by at most `h/100` times its residual).
     ///

@@ -212,21 +212,26 @@ fn index_reduction_is_bounded() {
     assert_eq!(red.removed.len(), 2);
 }
 
+/// `kausal sort` on netlist text (which must succeed): its standard error.
+fn sort_stderr(text: &str) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    let net = dir.path().join("net.cir");
+    std::fs::write(&net, text).unwrap();
+    let out = crate::kausal(&["sort", net.to_str().unwrap()]);
+    assert!(out.status.success());
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 /// A chain of 30 inductors in a cutset with a current source gives 30
 /// K0310 warnings: the CLI shows ten and counts the rest.
 #[test]
 fn repeated_warnings_are_counted_not_repeated() {
-    let dir = tempfile::tempdir().unwrap();
     let mut text = String::from("cutset chain\nI1 0 n0 1m\n");
     for k in 1..=30 {
         text.push_str(&format!("L{k} n{} n{k} 1u\n", k - 1));
     }
     text.push_str("R0 n30 0 1\n.tran 1u 10u\n.end\n");
-    let net = dir.path().join("chain.cir");
-    std::fs::write(&net, text).unwrap();
-    let out = crate::kausal(&["sort", net.to_str().unwrap()]);
-    assert!(out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = sort_stderr(&text);
     assert_eq!(err.matches("⚠").count(), 10, "{err}");
     assert!(err.contains("K0310: 20 more like the 10 above"), "{err}");
 }
@@ -236,17 +241,12 @@ fn repeated_warnings_are_counted_not_repeated() {
 /// for each.
 #[test]
 fn a_long_loop_is_named_in_part() {
-    let dir = tempfile::tempdir().unwrap();
     let mut text = String::from("series loop\nV1 n0 0 1\n");
     for k in 1..=100 {
         text.push_str(&format!("C{k} n{} n{k} 1u\n", k - 1));
     }
     text.push_str("R0 n100 0 1\nC0 n100 0 1u\n.tran 1u 10u\n.end\n");
-    let net = dir.path().join("loop.cir");
-    std::fs::write(&net, text).unwrap();
-    let out = crate::kausal(&["sort", net.to_str().unwrap()]);
-    assert!(out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = sort_stderr(&text);
     assert!(err.contains("C23, and 78 more form a loop"), "{err}");
     assert_eq!(err.matches("in the loop").count(), 24, "{err}");
 }
