@@ -671,7 +671,7 @@ struct BenchArgs {
     #[arg(long, value_delimiter = ',', value_parser = relative_tolerance, default_values_t = [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7])]
     tolerances: Vec<f64>,
     /// kausal's solvers.
-    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Bdf, Method::TrBdf2, Method::Esdirk34])]
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Bdf, Method::TrBdf2, Method::Esdirk34, Method::Circuit])]
     solvers: Vec<Method>,
     /// Runs per measurement (the median is reported).
     #[arg(long, default_value_t = 3)]

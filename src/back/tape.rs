@@ -232,6 +232,11 @@ pub struct Tape {
     pub source_scale: std::cell::Cell<f64>,
     /// The registers of DC sources' values, and the values.
     pub source_params: Vec<(u32, f64)>,
+    /// Each source's last `(t, value)` (unscaled, order 0): the Newton
+    /// iterations of an implicit stage evaluate `f` at one time again and
+    /// again, and a SIN source's `sin` was a twentieth of a rectifier's
+    /// evaluation.
+    source_memo: Vec<std::cell::Cell<(f64, f64)>>,
 }
 
 struct Compiler<'a> {
@@ -829,6 +834,7 @@ pub fn compile(
         dc: std::cell::Cell::new(false),
         source_scale: std::cell::Cell::new(1.0),
         source_params,
+        source_memo: vec![std::cell::Cell::new((f64::NAN, 0.0)); sys.sources.len()],
     }
 }
 
@@ -861,7 +867,20 @@ impl Tape {
         if order > 0 && self.dc.get() {
             0.0
         } else {
-            self.sources[s as usize].eval(t, order) * self.source_scale.get()
+            let value = if order == 0 {
+                let memo = &self.source_memo[s as usize];
+                let (at, v) = memo.get();
+                if at == t {
+                    v
+                } else {
+                    let v = self.sources[s as usize].eval(t, 0);
+                    memo.set((t, v));
+                    v
+                }
+            } else {
+                self.sources[s as usize].eval(t, order)
+            };
+            value * self.source_scale.get()
         }
     }
 

@@ -44,7 +44,12 @@ impl Default for Options {
     fn default() -> Self {
         Options {
             tolerances: vec![1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7],
-            methods: vec![Method::Bdf, Method::TrBdf2, Method::Esdirk34],
+            methods: vec![
+                Method::Bdf,
+                Method::TrBdf2,
+                Method::Esdirk34,
+                Method::Circuit,
+            ],
             repeats: 3,
             ngspice: true,
             ref_rtol: 1e-11,
@@ -260,18 +265,28 @@ pub fn extra_solvers(text: &str) -> Vec<Method> {
         .map(|list| {
             list.split(',')
                 .filter_map(|name| {
-                    [Method::Bdf, Method::TrBdf2, Method::Esdirk34, Method::Tsit5]
-                        .into_iter()
-                        .find(|&m| method_name(m).eq_ignore_ascii_case(name))
+                    [
+                        Method::Bdf,
+                        Method::TrBdf2,
+                        Method::Esdirk34,
+                        Method::Tsit5,
+                        Method::Circuit,
+                    ]
+                    .into_iter()
+                    .find(|&m| method_name(m).eq_ignore_ascii_case(name))
                 })
                 .collect()
         })
         .unwrap_or_default()
 }
 
-/// The chosen solvers, then those the netlist asks for besides.
-fn methods_for(opts: &Options, text: &str) -> Vec<Method> {
+/// The chosen solvers, then those the netlist asks for besides; `circuit`
+/// only where it runs (at most [`sim::DENSE_STATES`] states).
+fn methods_for(opts: &Options, text: &str, states: usize) -> Vec<Method> {
     let mut methods = opts.methods.clone();
+    if states > sim::DENSE_STATES {
+        methods.retain(|&m| m != Method::Circuit);
+    }
     for m in extra_solvers(text) {
         if !methods.contains(&m) {
             methods.push(m);
@@ -357,6 +372,7 @@ fn method_name(m: Method) -> &'static str {
         Method::TrBdf2 => "tr-bdf2",
         Method::Esdirk34 => "esdirk34",
         Method::Tsit5 => "tsit5",
+        Method::Circuit => "circuit",
     }
 }
 
@@ -534,7 +550,13 @@ pub fn bench_circuit(
         energy.as_ref().and_then(|e| energy_drift(e, names, data))
     };
     let mut points = Vec::new();
-    for m in methods_for(opts, &text) {
+    let methods = methods_for(opts, &text, sorted.system().states().count());
+    // The measurements a large circuit skips still count for the progress
+    // bar ([`measurements`] cannot know the size).
+    for _ in 0..(methods_for(opts, &text, 0).len() - methods.len()) * opts.tolerances.len() {
+        tick("kausal circuit: too many states");
+    }
+    for m in methods {
         for &tol in &opts.tolerances {
             let so = sim::Options {
                 method: Some(m),
@@ -722,7 +744,7 @@ fn failed_point(solver: String, tol: Option<f64>, why: String) -> Point {
 /// progress bar).
 pub fn measurements(opts: &Options, netlist: &Path) -> usize {
     let text = std::fs::read_to_string(netlist).unwrap_or_default();
-    let k = methods_for(opts, &text).len() * opts.tolerances.len() + 1;
+    let k = methods_for(opts, &text, 0).len() * opts.tolerances.len() + 1;
     if opts.ngspice {
         k + 2 + 2 * opts.tolerances.len()
     } else {
