@@ -904,6 +904,8 @@ pub struct ScalePoint {
     /// Largest difference of the first and last nodes' voltages, kausal
     /// against ngspice.
     pub difference: Option<f64>,
+    /// Why ngspice has no figures here (it did not finish in time).
+    pub ngspice_failed: Option<String>,
 }
 
 /// The scaling run: RC ladders of growing size at default tolerances.
@@ -940,12 +942,22 @@ pub fn scaling(
         };
         let w = sim::simulate(&sorted, &so)?;
         let solve = w.stats.wall.as_secs_f64();
-        let (mut ns, mut nt, mut diff) = (None, None, None);
+        let (mut ns, mut nt, mut diff, mut failed) = (None, None, None, None);
         if ngspice {
-            let (raw, s, t, _) = run_ngspice(&path, "", 1)?;
-            ns = Some(s);
-            nt = Some(t);
-            diff = Some(max_error(&w.names, &w.time, &w.data, &raw.names, &raw.time, &raw.data).0);
+            // A missing ngspice ends the run; one that failed or did not
+            // finish on a large ladder is that point's note (the rest of
+            // the report, an hour's measurements, must not be lost to it).
+            match run_ngspice(&path, "", 1) {
+                Ok((raw, s, t, _)) => {
+                    ns = Some(s);
+                    nt = Some(t);
+                    diff = Some(
+                        max_error(&w.names, &w.time, &w.data, &raw.names, &raw.time, &raw.data).0,
+                    );
+                }
+                Err(e @ ValidateError::Missing { .. }) => return Err(e.into()),
+                Err(e) => failed = Some(e.to_string()),
+            }
         }
         points.push(ScalePoint {
             sections: n,
@@ -956,14 +968,16 @@ pub fn scaling(
             ngspice_solve_seconds: ns,
             ngspice_total_seconds: nt,
             difference: diff,
+            ngspice_failed: failed,
         });
         tick(&format!("ladder {n}"));
     }
+    // From the smallest to the largest ladder that has the figure.
     let slope = |f: &dyn Fn(&ScalePoint) -> Option<f64>| -> Option<f64> {
-        let a = points.first()?;
-        let b = points.last()?;
+        let a = points.iter().find(|p| f(p).is_some())?;
+        let b = points.iter().rev().find(|p| f(p).is_some())?;
         let (ya, yb) = (f(a)?, f(b)?);
-        if points.len() < 2 || ya <= 0.0 || yb <= 0.0 {
+        if a.sections == b.sections || ya <= 0.0 || yb <= 0.0 {
             return None;
         }
         Some((yb / ya).ln() / (b.sections as f64 / a.sections as f64).ln())
@@ -990,7 +1004,9 @@ fn scaling_markdown(sc: &Scaling) -> String {
             ms(p.front_seconds),
             ms(p.sort_seconds),
             ms(p.solve_seconds),
-            p.ngspice_solve_seconds.map(ms).unwrap_or_default(),
+            p.ngspice_solve_seconds
+                .map(ms)
+                .unwrap_or_else(|| p.ngspice_failed.clone().unwrap_or_default()),
             p.ngspice_total_seconds.map(ms).unwrap_or_default(),
             p.ngspice_solve_seconds
                 .map(|n| format!("{:.1}×", n / p.solve_seconds))
@@ -1000,7 +1016,7 @@ fn scaling_markdown(sc: &Scaling) -> String {
     }
     let _ = writeln!(
         s,
-        "\nLog-log slopes from the smallest to the largest ladder: parse+build+sort {:.2}, kausal solve {:.2}{}.\n",
+        "\nLog-log slopes from the smallest to the largest ladder (for ngspice, the largest it finished): parse+build+sort {:.2}, kausal solve {:.2}{}.\n",
         sc.slope_front_sort,
         sc.slope_solve,
         sc.slope_ngspice

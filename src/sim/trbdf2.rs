@@ -312,10 +312,32 @@ where
         nw.factored
     }
 
+    /// One Newton correction of `y1` from `f1 = f(t1, y1)` with the factored
+    /// iteration matrix; its size in the Newton weights.
+    fn correct(&mut self, beta: f64) -> f64 {
+        let n = self.n;
+        for i in 0..n {
+            self.d[i] = self.c[i] + beta * self.f1[i] - self.y1[i];
+        }
+        let nw = &self.newton;
+        solve(n, &nw.lu, &nw.perm, &mut self.d, &mut self.tmp);
+        let mut norm: f64 = 0.0;
+        for i in 0..n {
+            self.y1[i] += self.d[i];
+            let v = (self.d[i] * self.w[i]).abs();
+            // `max` passes NaN over: a NaN correction is infinitely large.
+            norm = if v.is_nan() {
+                f64::INFINITY
+            } else {
+                norm.max(v)
+            };
+        }
+        norm
+    }
+
     /// Newton iterations on `y1 = c + β f(t1, y1)` with the kept Jacobian,
     /// from the predictor in `y1`.
     fn iterate(&mut self, t1: f64, beta: f64) -> Iteration {
-        let n = self.n;
         let mut last = f64::INFINITY;
         for it in 0..MAX_ITERATIONS {
             if let Err(e) = self.ode.eval(t1, &self.y1, &mut self.f1) {
@@ -323,16 +345,7 @@ where
                 return Iteration::Failed;
             }
             self.stats.rhs_evals += 1;
-            for i in 0..n {
-                self.d[i] = self.c[i] + beta * self.f1[i] - self.y1[i];
-            }
-            let nw = &self.newton;
-            solve(n, &nw.lu, &nw.perm, &mut self.d, &mut self.tmp);
-            let mut norm: f64 = 0.0;
-            for i in 0..n {
-                self.y1[i] += self.d[i];
-                norm = norm.max((self.d[i] * self.w[i]).abs());
-            }
+            let norm = self.correct(beta);
             if !norm.is_finite() {
                 return Iteration::Failed;
             }
@@ -404,7 +417,6 @@ where
 
     /// Newton with a fresh Jacobian (and `f` with it) at every iterate.
     fn full_newton(&mut self, t1: f64, beta: f64) -> bool {
-        let n = self.n;
         let mut last = f64::INFINITY;
         for it in 0..2 * MAX_ITERATIONS {
             let y1 = std::mem::take(&mut self.y1);
@@ -426,16 +438,7 @@ where
             if !self.factor(beta) {
                 return false;
             }
-            for i in 0..n {
-                self.d[i] = self.c[i] + beta * self.f1[i] - self.y1[i];
-            }
-            let nw = &self.newton;
-            solve(n, &nw.lu, &nw.perm, &mut self.d, &mut self.tmp);
-            let mut norm: f64 = 0.0;
-            for i in 0..n {
-                self.y1[i] += self.d[i];
-                norm = norm.max((self.d[i] * self.w[i]).abs());
-            }
+            let norm = self.correct(beta);
             if !norm.is_finite() {
                 return false;
             }
