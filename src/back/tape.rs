@@ -1812,6 +1812,28 @@ impl Tape {
         Ok(())
     }
 
+    /// For each state, the junction-charge inversion whose charge it is
+    /// (the block that finds the junction voltage from it), if any.
+    pub fn charge_states(&self) -> Vec<Option<ChargeInverse>> {
+        let slot: HashMap<u32, usize> = self
+            .state_regs
+            .iter()
+            .enumerate()
+            .map(|(k, &s)| (s, k))
+            .collect();
+        let mut of = vec![None; self.states.len()];
+        for ins in &self.code {
+            if let Instr::Block { k } = *ins
+                && let Some(ci) = self.blocks[k as usize].charge_inverse
+                && let Some(&k) = slot.get(&ci.target)
+                && of[k].is_none()
+            {
+                of[k] = Some(ci);
+            }
+        }
+        of
+    }
+
     /// The first register of `code` that became NaN or infinite from finite
     /// operands, and the variable it holds (if any).
     pub fn first_non_finite(&self, regs: &[f64]) -> Option<(usize, Option<VarId>)> {

@@ -548,22 +548,11 @@ where
     };
     // The junction of each charge state (one pass over the tape: a search
     // per state was quadratic), and its voltage at the last iterate.
-    let mut junction: Vec<Option<&crate::ir::DiodeParams>> = vec![None; n];
-    let slot: HashMap<u32, usize> = tape
-        .state_regs
-        .iter()
-        .enumerate()
-        .map(|(k, &s)| (s, k))
+    let junction: Vec<Option<&crate::ir::DiodeParams>> = tape
+        .charge_states()
+        .into_iter()
+        .map(|ci| ci.map(|ci| &tape.diodes[ci.diode as usize]))
         .collect();
-    for ins in &tape.code {
-        if let tape::Instr::Block { k } = *ins
-            && let Some(ci) = tape.blocks[k as usize].charge_inverse
-            && let Some(&k) = slot.get(&ci.target)
-            && junction[k].is_none()
-        {
-            junction[k] = Some(&tape.diodes[ci.diode as usize]);
-        }
-    }
     let mut volts: Vec<f64> = vec![0.0; n];
     let mut limit = |y: &[f64], step: &mut [f64]| -> bool {
         let mut limited = false;

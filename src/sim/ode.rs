@@ -200,6 +200,11 @@ where
         )
     }
 
+    /// One register of the solver's evaluations, as the last left it.
+    pub fn register(&self, r: u32) -> f64 {
+        self.regs.borrow()[r as usize]
+    }
+
     /// The registers after the last evaluation (to find where a NaN came from).
     pub fn registers(&self) -> Vec<f64> {
         self.regs.borrow().clone()

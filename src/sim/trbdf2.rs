@@ -37,7 +37,7 @@
 
 use super::ode::{CircuitOde, HostVec, Regs};
 use super::{Recorder, SimError, Stats};
-use crate::back::tape::{self, EvalError};
+use crate::back::tape::{self, ChargeInverse, EvalError};
 use crate::ir::EquationSystem;
 use diffsol::Matrix;
 
@@ -84,6 +84,32 @@ struct Newton {
     /// The estimated contraction rate of the iteration (CVODE's `crate`),
     /// carried from stage to stage; 1 after a new Jacobian.
     rate: f64,
+    /// The last stage needed a Jacobian at every iterate, three or more:
+    /// the next goes there at once (a junction's turn-on or turn-off lasts
+    /// several steps, and the kept Jacobian's attempt only cost evaluations).
+    full: bool,
+}
+
+/// A junction-charge state. Its charge grows exponentially with its
+/// junction voltage, which moves smoothly through a diode's turn-on: the
+/// predictor extrapolates the voltage and takes its charge, where a
+/// polynomial in the charge itself missed by orders of magnitude and sent
+/// each stage of a rectifier's conduction to a Jacobian per iteration.
+struct Junction {
+    /// Index in `y`.
+    k: usize,
+    ci: ChargeInverse,
+    /// The junction voltage at the current and the previous point, and its
+    /// slope at the current point (`dv/dt = q'/Q'(v)`).
+    v: f64,
+    v_prev: f64,
+    dv: f64,
+    /// `Q′` and `g_d` where the kept Jacobian was computed, and where the
+    /// predictor put the junction.
+    cap_j: f64,
+    gd_j: f64,
+    cap_p: f64,
+    gd_p: f64,
 }
 
 /// How Newton with the kept Jacobian ended.
@@ -145,6 +171,10 @@ where
     tmp: Vec<f64>,
     w: Vec<f64>,
     all: Vec<usize>,
+    /// The junction charges among the states, predicted through their
+    /// junction voltages (see [`Junction`]).
+    junctions: Vec<Junction>,
+    vz: Vec<f64>,
     no_growth: bool,
 }
 
@@ -166,7 +196,27 @@ where
         ode.eval(t0, &y0, &mut f)
             .map_err(|error| SimError::Eval { error })?;
         let peak = y0.iter().map(|v| v.abs()).collect();
-        Ok(TrBdf2 {
+        let junctions: Vec<Junction> = ode
+            .tape
+            .charge_states()
+            .into_iter()
+            .enumerate()
+            .filter_map(|(k, ci)| {
+                Some(Junction {
+                    k,
+                    ci: ci?,
+                    v: f64::NAN,
+                    v_prev: f64::NAN,
+                    dv: f64::NAN,
+                    cap_j: f64::NAN,
+                    gd_j: f64::NAN,
+                    cap_p: f64::NAN,
+                    gd_p: f64::NAN,
+                })
+            })
+            .collect();
+        let vz = vec![f64::NAN; junctions.len()];
+        let mut s = TrBdf2 {
             ode,
             n,
             rtol,
@@ -189,6 +239,7 @@ where
                 stale: true,
                 age: 0,
                 rate: 1.0,
+                full: false,
             },
             stats: Stats::default(),
             error: None,
@@ -203,8 +254,12 @@ where
             tmp: vec![0.0; n],
             w: vec![0.0; n],
             all: (0..n).collect(),
+            junctions,
+            vz,
             no_growth: false,
-        })
+        };
+        s.read_junctions(false);
+        Ok(s)
     }
 
     /// Start afresh from the current point (a source corner): `f` there,
@@ -214,8 +269,107 @@ where
             .eval(self.t, &self.y, &mut self.f)
             .map_err(|error| SimError::Eval { error })?;
         self.prev = None;
+        self.read_junctions(false);
         self.stats.restarts += 1;
         Ok(())
+    }
+
+    /// The junction voltage whose charge is `q`, and `Q′` there, from the
+    /// last point the evaluator's inversion evaluated (its registers): one
+    /// Newton step, which is all a predictor needs. `None` before any.
+    fn junction_voltage(&self, ci: ChargeInverse, q: f64) -> Option<(f64, f64)> {
+        let x = self.ode.register(ci.memo);
+        let (qm, c) = (
+            self.ode.register(ci.memo + 1),
+            self.ode.register(ci.memo + 2),
+        );
+        let v = x + (q - qm) / c;
+        (v.is_finite() && c > 0.0).then_some((v, c))
+    }
+
+    /// The junctions' voltages and slopes at the current point (after an
+    /// evaluation near it); `shift` keeps the old ones as the previous.
+    fn read_junctions(&mut self, shift: bool) {
+        for j in 0..self.junctions.len() {
+            let Junction { k, ci, .. } = self.junctions[j];
+            let got = self.junction_voltage(ci, self.y[k]);
+            let jn = &mut self.junctions[j];
+            jn.v_prev = if shift { jn.v } else { f64::NAN };
+            (jn.v, jn.dv) = got.map_or((f64::NAN, f64::NAN), |(v, c)| (v, self.f[k] / c));
+        }
+    }
+
+    /// Each junction's `Q′` and `g_d` at `y`, where the Jacobian was just
+    /// computed (the evaluator's registers are from there).
+    fn note_jacobian_point(&mut self, y: &[f64]) {
+        for j in 0..self.junctions.len() {
+            let Junction { k, ci, .. } = self.junctions[j];
+            let (cap, gd) = match self.junction_voltage(ci, y[k]) {
+                Some((v, _)) => {
+                    let p = &self.ode.tape.diodes[ci.diode as usize];
+                    (p.charge(v)[1], p.current(v)[1])
+                }
+                None => (f64::NAN, f64::NAN),
+            };
+            let jn = &mut self.junctions[j];
+            (jn.cap_j, jn.gd_j) = (cap, gd);
+        }
+    }
+
+    /// Move the kept Jacobian to the predicted junction states. `f` reads a
+    /// junction's charge only through its voltage `v = Q⁻¹(q)`, so its
+    /// column is `∂f/∂v / Q′(v)`; and its own row's `∂f/∂v` holds `-g_d(v)`
+    /// (`q' = i - i_d(v)`), the rest of it the circuit's. Both follow the
+    /// device from where the Jacobian was computed: a decaying junction's
+    /// `Q′` falls by orders of magnitude over a few steps, and without this
+    /// each stage of a rectifier's turn-off took a Jacobian per iteration.
+    fn follow_junctions(&mut self) {
+        let n = self.n;
+        for jn in &mut self.junctions {
+            let (k, ratio) = (jn.k, jn.cap_j / jn.cap_p);
+            if !(ratio.is_finite() && jn.gd_p.is_finite() && jn.gd_j.is_finite()) {
+                continue;
+            }
+            if (ratio - 1.0).abs() <= 1e-3 && (jn.gd_p - jn.gd_j).abs() <= 1e-3 * jn.gd_j.abs() {
+                continue;
+            }
+            let jac = &mut self.newton.jac;
+            for i in 0..n {
+                jac[i * n + k] *= ratio;
+            }
+            jac[k * n + k] += (jn.gd_j - jn.gd_p) / jn.cap_p;
+            (jn.cap_j, jn.gd_j) = (jn.cap_p, jn.gd_p);
+            self.newton.factored = false;
+        }
+    }
+
+    /// Replace the predictor of each junction charge in `y1` by the charge
+    /// at the voltage the quadratic `v(0) = v0`, `v'(0) = dv0`,
+    /// `v(l) = vl` takes at `x` (at `t + x` from the current point).
+    fn predict_junctions(&mut self, l: f64, x: f64, at_l: impl Fn(usize, &Junction) -> f64) {
+        for j in 0..self.junctions.len() {
+            let jn = &self.junctions[j];
+            let vl = at_l(j, jn);
+            let (v0, dv0) = (jn.v, jn.dv);
+            let c2 = (vl - v0 - l * dv0) / (l * l);
+            let v = if c2.is_finite() {
+                v0 + x * dv0 + x * x * c2
+            } else {
+                v0 + x * dv0
+            };
+            if !v.is_finite() {
+                continue;
+            }
+            let p = &self.ode.tape.diodes[jn.ci.diode as usize];
+            let [q, cap, _] = p.charge(v);
+            let gd = p.current(v)[1];
+            if q.is_finite() {
+                let k = jn.k;
+                self.y1[k] = q;
+                let jn = &mut self.junctions[j];
+                (jn.cap_p, jn.gd_p) = (cap, gd);
+            }
+        }
     }
 
     /// One accepted step of at most `h_max`; a step that reaches
@@ -287,7 +441,10 @@ where
         nw.age = 0;
         nw.rate = 1.0;
         match r {
-            Ok(()) => true,
+            Ok(()) => {
+                self.note_jacobian_point(y);
+                true
+            }
             Err(e) => {
                 self.error.get_or_insert(e);
                 false
@@ -385,6 +542,9 @@ where
                     + self.rtol.min(NEWTON_RTOL) * self.y[i].abs().max(self.y1[i].abs()));
         }
         self.pred.copy_from_slice(&self.y1);
+        if self.newton.full {
+            return self.full_newton(t1, beta);
+        }
         if self.newton.stale || self.newton.age >= JACOBIAN_AGE {
             let p = std::mem::take(&mut self.pred);
             let ok = self.jacobian(t1, &p);
@@ -392,6 +552,8 @@ where
             if !ok {
                 return false;
             }
+        } else {
+            self.follow_junctions();
         }
         let ready = (self.newton.factored && self.newton.beta == beta) || self.factor(beta);
         if ready {
@@ -435,6 +597,9 @@ where
                 return false;
             }
             self.newton.factored = false;
+            let y1 = std::mem::take(&mut self.y1);
+            self.note_jacobian_point(&y1);
+            self.y1 = y1;
             if !self.factor(beta) {
                 return false;
             }
@@ -448,6 +613,7 @@ where
             }
             if norm * rate.min(1.0) <= NEWTON_TOLERANCE || norm <= FIRST_CORRECTION {
                 let nw = &mut self.newton;
+                nw.full = it >= 2;
                 nw.stale = false;
                 nw.age = 0;
                 nw.rate = rate.min(1.0);
@@ -476,6 +642,10 @@ where
                 let c2 = (self.y_prev[i] - self.y[i] + hp * self.f[i]) / (hp * hp);
                 self.y1[i] += s * s * c2;
             }
+            self.predict_junctions(-hp, s, |_, jn| jn.v_prev);
+        } else {
+            // The line: a quadratic through v(0) twice.
+            self.predict_junctions(1.0, s, |_, jn| jn.v + jn.dv);
         }
         if !self.stage(tg, beta) {
             return Attempt::NoConvergence;
@@ -483,6 +653,12 @@ where
         for i in 0..n {
             self.z[i] = self.y1[i];
             self.fz[i] = (self.y1[i] - self.c[i]) / beta;
+        }
+        for j in 0..self.junctions.len() {
+            let Junction { k, ci, .. } = self.junctions[j];
+            self.vz[j] = self
+                .junction_voltage(ci, self.z[k])
+                .map_or(f64::NAN, |(v, _)| v);
         }
         // Stage 2, BDF2 through t, t + γh and t + h, predicted by the
         // quadratic through y, y' here and the first stage.
@@ -493,6 +669,9 @@ where
             let c2 = (self.z[i] - self.y[i] - s * self.f[i]) / (s * s);
             self.y1[i] = self.y[i] + h * self.f[i] + h * h * c2;
         }
+        let vz = std::mem::take(&mut self.vz);
+        self.predict_junctions(s, h, |j, _| vz[j]);
+        self.vz = vz;
         if !self.stage(t1, beta) {
             return Attempt::NoConvergence;
         }
@@ -540,6 +719,7 @@ where
         for (p, y) in self.peak.iter_mut().zip(&self.y) {
             *p = p.max(y.abs());
         }
+        self.read_junctions(true);
         self.stats.steps += 1;
         self.newton.age += 1;
         Attempt::Accepted
