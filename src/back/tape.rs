@@ -214,6 +214,11 @@ pub struct Tape {
     /// The states `out_code` reads: (index in `y`, register).
     pub out_inputs: Vec<(usize, u32)>,
     pub out_regs: Vec<u32>,
+    /// `(from, to)`: the inversion memo of a junction charge in `code` and
+    /// of the same charge in `out_code`. An output point after a step
+    /// starts each inversion where the step's last evaluation ended (a
+    /// Halley step or none), not where the last output point did.
+    memo_links: Vec<(u32, u32)>,
     pub sources: Vec<Waveform>,
     pub diodes: Vec<DiodeParams>,
     /// Assignments evaluated by `code` / only by `out_code` / never.
@@ -805,6 +810,7 @@ pub fn compile(
             ChargeInverse { memo, ..ci }
         });
     }
+    let memo_links = memo_links(&c.blocks, &code, &out_code);
     let n_in_f = count(&in_f);
     let n_at_outputs = count(&at_out);
     let source_params: Vec<(u32, f64)> = sys
@@ -825,6 +831,7 @@ pub fn compile(
         out_code,
         out_inputs,
         out_regs,
+        memo_links,
         sources: sys.sources.values().map(|s| s.wave.clone()).collect(),
         diodes: sys.diodes.clone(),
         n_in_f,
@@ -1805,6 +1812,12 @@ impl Tape {
         for &(k, s) in &self.out_inputs {
             regs[s as usize] = y[k];
         }
+        for &(from, to) in &self.memo_links {
+            let (from, to) = (from as usize, to as usize);
+            if regs[from].is_finite() {
+                regs.copy_within(from..from + 4, to);
+            }
+        }
         self.run(&self.out_code, regs, t)?;
         for (k, &o) in self.out_regs.iter().enumerate() {
             out[k] = regs[o as usize];
@@ -1832,6 +1845,134 @@ impl Tape {
             }
         }
         of
+    }
+
+    /// Whether `f` depends on the states nonlinearly only through junctions
+    /// in the way a circuit integrator can follow exactly: each junction
+    /// charge `q` is read only by its inversion `v = Q⁻¹(q)`, `v` enters
+    /// affinely with constant coefficients, and the junction current
+    /// `i_d(v)` enters only its own charge's derivative, as `… - i_d(v)`.
+    /// Then `∂f/∂q` is `∂f/∂v / Q′(v)` with `∂f/∂v` constant but for the
+    /// `-g_d(v)` of its own row, and a Jacobian computed anywhere becomes the
+    /// Jacobian at another point by rescaling each junction's column and
+    /// diagonal (see `sim::trbdf2`). Everything else (time-varying sources,
+    /// parameters) may be arbitrary functions of time.
+    ///
+    /// Conservative: any other use of a state (a resistive diode's block, a
+    /// product of two signals, a coefficient that varies in time) answers
+    /// `false`.
+    pub fn jacobian_follows_junctions(&self) -> bool {
+        let mut dep = vec![Dep::Const; self.n_regs];
+        let charges = self.charge_states();
+        for (k, &s) in self.state_regs.iter().enumerate() {
+            dep[s as usize] = match charges[k] {
+                Some(ci) => Dep::Charge(ci.diode),
+                None => Dep::Lin,
+            };
+        }
+        self.classify(&self.code, &mut dep);
+        self.deriv_regs
+            .iter()
+            .enumerate()
+            .all(|(k, &d)| match dep[d as usize] {
+                Dep::Const | Dep::Time | Dep::Lin | Dep::Volt(_) => true,
+                Dep::IdNeg(diode) => charges[k].is_some_and(|ci| ci.diode == diode),
+                Dep::Charge(_) | Dep::IdPos(_) | Dep::Bad => false,
+            })
+    }
+
+    /// How each register of `code` depends on the states (see
+    /// [`Tape::jacobian_follows_junctions`]).
+    fn classify(&self, code: &[Instr], dep: &mut [Dep]) {
+        for ins in code {
+            let (d, v) = match *ins {
+                Instr::Neg { d, a } => (d, dep[a as usize].negate()),
+                Instr::Add { d, a, b } => (d, Dep::sum(dep[a as usize], dep[b as usize])),
+                Instr::Sub { d, a, b } => (d, Dep::sum(dep[a as usize], dep[b as usize].negate())),
+                Instr::Mul { d, a, b } => (d, Dep::product(dep[a as usize], dep[b as usize])),
+                Instr::Div { d, a, b } => match (dep[a as usize], dep[b as usize]) {
+                    (x, Dep::Const) => (d, Dep::product(x, Dep::Const)),
+                    (x, y) if x.timed() && y.timed() => (d, Dep::Time),
+                    _ => (d, Dep::Bad),
+                },
+                Instr::Pow { d, a, b } => {
+                    match dep[a as usize].timed() && dep[b as usize].timed() {
+                        true => (d, dep[a as usize].max_timed(dep[b as usize])),
+                        false => (d, Dep::Bad),
+                    }
+                }
+                Instr::Call { d, a, .. } => (
+                    d,
+                    if dep[a as usize].timed() {
+                        dep[a as usize]
+                    } else {
+                        Dep::Bad
+                    },
+                ),
+                Instr::Device { d, f, a } => match dep[a as usize] {
+                    x if x.timed() => (d, x),
+                    Dep::Volt(diode)
+                        if diode == f.diode
+                            && f.part == crate::ir::DiodePart::Current
+                            && f.order == 0 =>
+                    {
+                        (d, Dep::IdPos(diode))
+                    }
+                    _ => (d, Dep::Bad),
+                },
+                Instr::Src { d, .. } | Instr::Time { d } => (d, Dep::Time),
+                Instr::Block { k } => {
+                    self.classify_block(&self.blocks[k as usize], dep);
+                    continue;
+                }
+            };
+            dep[d as usize] = v;
+        }
+    }
+
+    fn classify_block(&self, b: &TapeBlock, dep: &mut [Dep]) {
+        if let Some(ci) = b.charge_inverse {
+            let v = match dep[ci.target as usize] {
+                Dep::Charge(diode) if diode == ci.diode => Dep::Volt(diode),
+                x if x.timed() => x,
+                _ => Dep::Bad,
+            };
+            // What the body computes besides the voltage is `Q(v)`: nothing
+            // the analysis can follow if `f` reads it.
+            self.classify_tears(b, dep, Dep::Bad);
+            for &x in &b.tears {
+                dep[x as usize] = v;
+            }
+            return;
+        }
+        // Independent of the states; else affine with constant coefficients.
+        let linear = |dep: &[Dep]| {
+            b.residuals.iter().all(|&r| {
+                matches!(
+                    dep[r as usize],
+                    Dep::Const | Dep::Time | Dep::Lin | Dep::Volt(_)
+                )
+            })
+        };
+        self.classify_tears(b, dep, Dep::Time);
+        if b.residuals.iter().all(|&r| dep[r as usize].timed()) {
+            return;
+        }
+        if b.constant_jacobian {
+            self.classify_tears(b, dep, Dep::Lin);
+            if linear(dep) {
+                return;
+            }
+        }
+        self.classify_tears(b, dep, Dep::Bad);
+    }
+
+    /// Classify `b`'s body with its tears taken as `tear`.
+    fn classify_tears(&self, b: &TapeBlock, dep: &mut [Dep], tear: Dep) {
+        for &x in &b.tears {
+            dep[x as usize] = tear;
+        }
+        self.classify(&b.body, dep);
     }
 
     /// The first register of `code` that became NaN or infinite from finite
@@ -2103,6 +2244,105 @@ fn junctions(b: &TapeBlock, vte_regs: &dyn Fn(u32) -> Option<u32>) -> Vec<(usize
 /// inside an `exp()`): the critical voltage taken as 12 thermal voltages.
 fn pnjlim(new: f64, old: f64, vt: f64) -> f64 {
     crate::ir::pnjlim(new, old, vt, 12.0 * vt)
+}
+
+/// How a register depends on the states (see
+/// [`Tape::jacobian_follows_junctions`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Dep {
+    /// A parameter or constant.
+    Const,
+    /// A function of time alone.
+    Time,
+    /// Affine in the states, constant coefficients.
+    Lin,
+    /// The charge state of a diode's junction.
+    Charge(u32),
+    /// That junction's voltage `Q⁻¹(q)`.
+    Volt(u32),
+    /// Affine plus (`IdPos`) or minus (`IdNeg`) that junction's current.
+    IdPos(u32),
+    IdNeg(u32),
+    /// Anything else that depends on the states.
+    Bad,
+}
+
+impl Dep {
+    fn timed(self) -> bool {
+        matches!(self, Dep::Const | Dep::Time)
+    }
+
+    fn max_timed(self, other: Dep) -> Dep {
+        if self == Dep::Const && other == Dep::Const {
+            Dep::Const
+        } else {
+            Dep::Time
+        }
+    }
+
+    /// As a term that enters affinely (a junction voltage becomes affine).
+    fn affine(self) -> Dep {
+        match self {
+            Dep::Volt(_) => Dep::Lin,
+            x => x,
+        }
+    }
+
+    fn negate(self) -> Dep {
+        match self {
+            Dep::IdPos(d) => Dep::IdNeg(d),
+            Dep::IdNeg(d) => Dep::IdPos(d),
+            Dep::Charge(_) => Dep::Bad,
+            x => x.affine(),
+        }
+    }
+
+    fn sum(a: Dep, b: Dep) -> Dep {
+        match (a.affine(), b.affine()) {
+            (Dep::Bad | Dep::Charge(_), _) | (_, Dep::Bad | Dep::Charge(_)) => Dep::Bad,
+            (x, y) if x.timed() && y.timed() => x.max_timed(y),
+            (Dep::IdPos(_) | Dep::IdNeg(_), Dep::IdPos(_) | Dep::IdNeg(_)) => Dep::Bad,
+            (id @ (Dep::IdPos(_) | Dep::IdNeg(_)), _)
+            | (_, id @ (Dep::IdPos(_) | Dep::IdNeg(_))) => id,
+            _ => Dep::Lin,
+        }
+    }
+
+    /// A product: a state-dependent factor times a constant (a junction
+    /// current only with its coefficient, `±1`, unchanged: never here).
+    fn product(a: Dep, b: Dep) -> Dep {
+        match (a, b) {
+            (x, y) if x.timed() && y.timed() => x.max_timed(y),
+            (Dep::Const, x) | (x, Dep::Const) => match x.affine() {
+                Dep::Lin => Dep::Lin,
+                _ => Dep::Bad,
+            },
+            _ => Dep::Bad,
+        }
+    }
+}
+
+/// The inversion memos of the junction charges that both `code` and
+/// `out_code` invert (see [`Tape::memo_links`]).
+fn memo_links(blocks: &[TapeBlock], code: &[Instr], out_code: &[Instr]) -> Vec<(u32, u32)> {
+    let inversions = |code: &[Instr]| -> Vec<ChargeInverse> {
+        code.iter()
+            .filter_map(|i| match *i {
+                Instr::Block { k } => blocks[k as usize].charge_inverse,
+                _ => None,
+            })
+            .collect()
+    };
+    let in_f = inversions(code);
+    inversions(out_code)
+        .into_iter()
+        .filter_map(|o| {
+            let f = in_f
+                .iter()
+                .find(|f| f.target == o.target && f.diode == o.diode)?;
+            (f.memo != o.memo).then_some((f.memo, o.memo))
+        })
+        .collect()
 }
 
 fn dest(ins: &Instr) -> u32 {

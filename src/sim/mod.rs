@@ -263,8 +263,9 @@ pub fn outputs(sorted: &Sorted, probes: &[String]) -> Result<Vec<(String, Output
 
 /// Per-state absolute tolerances: voltages and currents differ by orders of
 /// magnitude, so each state gets the tolerance of its kind.
-fn atols(sys: &EquationSystem, states: &[VarId], opts: &Options, c: &Circuit) -> Vec<f64> {
-    let (atol_v, atol_i) = match opts.atol {
+/// The absolute tolerances of voltages and currents.
+fn atol_pair(opts: &Options, c: &Circuit) -> (f64, f64) {
+    match opts.atol {
         Some(a) => (a, a * 1e-3),
         None => (
             c.options
@@ -274,7 +275,11 @@ fn atols(sys: &EquationSystem, states: &[VarId], opts: &Options, c: &Circuit) ->
                 .abstol
                 .map_or(DEFAULT_ATOL_I, |v| v.min(DEFAULT_ATOL_I * 1e3)),
         ),
-    };
+    }
+}
+
+fn atols(sys: &EquationSystem, states: &[VarId], opts: &Options, c: &Circuit) -> Vec<f64> {
+    let (atol_v, atol_i) = atol_pair(opts, c);
     states
         .iter()
         .map(|&s| match sys.vars[s].kind {
@@ -1284,6 +1289,7 @@ where
                 &problem.eqn,
                 rtol,
                 atol_own,
+                atol_pair(opts, c).1,
                 y0,
                 problem.h0,
                 rec,

@@ -27,8 +27,17 @@
 //!   current through its series resistance amplified by 1/(C·RS), so a
 //!   corrector that stopped at the looser error-test scale lets the junction
 //!   currents (and from them every other state) drift. The Jacobian is kept
-//!   across steps; when it cannot take a stage there (a junction turning on
-//!   bends `f` faster than one Jacobian follows), each iterate gets its own.
+//!   across steps. Where `f` depends on the states nonlinearly only through
+//!   junctions (`Tape::jacobian_follows_junctions`: every circuit of diodes
+//!   with charge and linear elements), rescaling each junction's column by
+//!   its `Q′` and moving its diagonal by its `g_d` makes the kept Jacobian
+//!   the Jacobian of any iterate: Newton then converges as full Newton for
+//!   an evaluation per iterate, and one iterate suffices where its
+//!   correction barely moves the junctions (measured in the currents
+//!   through their series resistances, as a circuit simulator tests each
+//!   device's current). Elsewhere, when the kept Jacobian cannot take a
+//!   stage (a junction turning on bends `f` faster than one Jacobian
+//!   follows), each iterate gets its own.
 //! - **With junction charges, steps end on every output point** (and every
 //!   source corner): the state there is the solver's own, on its slow
 //!   manifold, where an interpolated one needs its charges settled by Newton
@@ -63,6 +72,14 @@ const NEWTON_RTOL: f64 = 1e-3;
 /// turn-on through with a current 3 A off: the rate was that of the
 /// reverse-biased circuit before it.
 const FIRST_CORRECTION: f64 = 0.01;
+/// The least `θ` of [`TrBdf2::followed_newton`]'s convergence test: a
+/// junction is followed only once its `Q′` or `g_d` moved by 1e-3, so the
+/// Jacobian may be that far from the iterate's.
+const FOLLOW_FLOOR: f64 = 1e-2;
+/// Up to this many states the iteration matrix is refactored whenever a
+/// junction moves at all (an LU of a few states costs less than an
+/// evaluation).
+const EXACT_FOLLOW_STATES: usize = 16;
 /// Steps a Jacobian is kept at most.
 const JACOBIAN_AGE: usize = 20;
 
@@ -110,6 +127,14 @@ struct Junction {
     gd_j: f64,
     cap_p: f64,
     gd_p: f64,
+    /// The relative curvature of `g_d` and `Q′` at the last iterate,
+    /// `max(|g_d′/g_d|, |Q″/Q′|)` (per volt).
+    curv: f64,
+    /// The junction current `i_d` at the last iterate, and the largest
+    /// current through the junction (`q′ + i_d`) so far: the scale of its
+    /// error.
+    id: f64,
+    i_peak: f64,
 }
 
 /// How Newton with the kept Jacobian ended.
@@ -139,6 +164,8 @@ where
     n: usize,
     rtol: f64,
     atol: Vec<f64>,
+    /// The absolute tolerance of a current.
+    atol_i: f64,
     /// The last accepted point and `f` there.
     pub t: f64,
     pub y: Vec<f64>,
@@ -176,16 +203,22 @@ where
     junctions: Vec<Junction>,
     vz: Vec<f64>,
     no_growth: bool,
+    /// `f` depends on the states nonlinearly only through junctions that
+    /// [`TrBdf2::follow_junctions`] follows exactly
+    /// ([`tape::Tape::jacobian_follows_junctions`]).
+    exact: bool,
 }
 
 impl<'a, M: Matrix<T = f64>> TrBdf2<'a, M>
 where
     M::V: HostVec,
 {
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         ode: &'a CircuitOde<M>,
         rtol: f64,
         atol: Vec<f64>,
+        atol_i: f64,
         t0: f64,
         y0: Vec<f64>,
         h0: f64,
@@ -212,6 +245,9 @@ where
                     gd_j: f64::NAN,
                     cap_p: f64::NAN,
                     gd_p: f64::NAN,
+                    curv: f64::NAN,
+                    id: f64::NAN,
+                    i_peak: 0.0,
                 })
             })
             .collect();
@@ -221,6 +257,7 @@ where
             n,
             rtol,
             atol,
+            atol_i,
             t: t0,
             y: y0,
             f,
@@ -257,6 +294,7 @@ where
             junctions,
             vz,
             no_growth: false,
+            exact: ode.tape.jacobian_follows_junctions(),
         };
         s.read_junctions(false);
         Ok(s)
@@ -323,14 +361,16 @@ where
     /// device from where the Jacobian was computed: a decaying junction's
     /// `Q′` falls by orders of magnitude over a few steps, and without this
     /// each stage of a rectifier's turn-off took a Jacobian per iteration.
-    fn follow_junctions(&mut self) {
+    /// A junction whose `Q′` and `g_d` moved by at most `skip` (relative)
+    /// keeps its entries (and the factored matrix its factors).
+    fn follow_junctions(&mut self, skip: f64) {
         let n = self.n;
         for jn in &mut self.junctions {
             let (k, ratio) = (jn.k, jn.cap_j / jn.cap_p);
             if !(ratio.is_finite() && jn.gd_p.is_finite() && jn.gd_j.is_finite()) {
                 continue;
             }
-            if (ratio - 1.0).abs() <= 1e-3 && (jn.gd_p - jn.gd_j).abs() <= 1e-3 * jn.gd_j.abs() {
+            if (ratio - 1.0).abs() <= skip && (jn.gd_p - jn.gd_j).abs() <= skip * jn.gd_j.abs() {
                 continue;
             }
             let jac = &mut self.newton.jac;
@@ -542,6 +582,9 @@ where
                     + self.rtol.min(NEWTON_RTOL) * self.y[i].abs().max(self.y1[i].abs()));
         }
         self.pred.copy_from_slice(&self.y1);
+        if self.exact {
+            return self.followed_newton(t1, beta);
+        }
         if self.newton.full {
             return self.full_newton(t1, beta);
         }
@@ -553,7 +596,7 @@ where
                 return false;
             }
         } else {
-            self.follow_junctions();
+            self.follow_junctions(1e-3);
         }
         let ready = (self.newton.factored && self.newton.beta == beta) || self.factor(beta);
         if ready {
@@ -575,6 +618,123 @@ where
         // with the Jacobian of every iterate, from the predictor.
         self.y1.copy_from_slice(&self.pred);
         self.full_newton(t1, beta)
+    }
+
+    /// Newton where the kept Jacobian follows the junctions exactly
+    /// (`exact`): moved to each iterate's junctions it is that iterate's own
+    /// Jacobian, so the iteration converges as full Newton does for an
+    /// evaluation per iterate. What an iterate leaves is about its
+    /// correction times `θ`, the relative change of the junctions' `g_d` and
+    /// `Q′` over it: one iterate suffices where the junctions barely move
+    /// (and always in a linear circuit), where the kept Jacobian needed a
+    /// second to measure its rate.
+    fn followed_newton(&mut self, t1: f64, beta: f64) -> bool {
+        if self.newton.stale || self.newton.age >= JACOBIAN_AGE {
+            let p = std::mem::take(&mut self.pred);
+            let ok = self.jacobian(t1, &p);
+            self.pred = p;
+            if !ok {
+                return false;
+            }
+        }
+        let mut last = f64::INFINITY;
+        for it in 0..2 * MAX_ITERATIONS {
+            if let Err(e) = self.ode.eval(t1, &self.y1, &mut self.f1) {
+                self.error.get_or_insert(e);
+                return false;
+            }
+            self.stats.rhs_evals += 1;
+            self.follow_iterate();
+            let ready = (self.newton.factored && self.newton.beta == beta) || self.factor(beta);
+            if !ready {
+                return false;
+            }
+            let norm = self.correct(beta);
+            if !norm.is_finite() {
+                return false;
+            }
+            if self.followed_converged(norm) {
+                return true;
+            }
+            if it >= 1 && norm > 2.0 * last {
+                return false;
+            }
+            last = norm;
+        }
+        false
+    }
+
+    /// Move the kept Jacobian to the junctions of the iterate `f` was just
+    /// evaluated at (the inversion's registers hold each junction's voltage
+    /// there, its `Q′` and `Q″`).
+    fn follow_iterate(&mut self) {
+        for jn in &mut self.junctions {
+            let ci = jn.ci;
+            let (x, cap, cap2) = (
+                self.ode.register(ci.memo),
+                self.ode.register(ci.memo + 2),
+                self.ode.register(ci.memo + 3),
+            );
+            let [id, gd, gd2] = self.ode.tape.diodes[ci.diode as usize].current(x);
+            (jn.cap_p, jn.gd_p, jn.id) = (cap, gd, id);
+            jn.curv = (gd2 / gd).abs().max((cap2 / cap).abs());
+        }
+        // A small matrix is refactored for every move: the Jacobian is then
+        // the iterate's own, and a junction current converges in one
+        // iterate where a Jacobian 1e-3 off took two.
+        let skip = if self.n <= EXACT_FOLLOW_STATES {
+            0.0
+        } else {
+            1e-3
+        };
+        self.follow_junctions(skip);
+    }
+
+    /// `θ` of junction `jn`: how far the Jacobian is from the Jacobian
+    /// after the last correction, relatively, at this junction: the change
+    /// of its `g_d` and `Q′` over the correction (its charge correction over
+    /// `Q′`, times their curvature), plus how far the kept entries were from
+    /// the iterate's when following skipped them. What the correction
+    /// leaves is about `θ` times it. NaN where the junction was not followed.
+    fn junction_theta(&self, jn: &Junction) -> f64 {
+        let n = self.n;
+        let k = jn.k;
+        let jkk = self.newton.jac[k * n + k];
+        let kept = (jn.cap_j / jn.cap_p - 1.0)
+            .abs()
+            .max(((jn.gd_j - jn.gd_p) / (jn.cap_p * jkk)).abs());
+        (self.d[k] / jn.cap_p).abs() * jn.curv + kept
+    }
+
+    /// The iteration has converged: what the last correction leaves (`θ`
+    /// times it, at least [`FOLLOW_FLOOR`] times it) is within the Newton
+    /// tolerance, and what it leaves of each junction's charge reaches the
+    /// current through the junction's series resistance amplified by the
+    /// junction's own rate `|∂q′/∂q| ≈ 1/(Q′·RS)`: that current error within
+    /// the Newton tolerance of the largest current the junction carried so
+    /// far (a circuit simulator's per-device current test). Without it one
+    /// iterate left a clamp's nA reverse current 0.7 % of its range off at
+    /// rtol 1e-7; a rectifier's amperes do not ask for more.
+    fn followed_converged(&self, norm: f64) -> bool {
+        let n = self.n;
+        let tol = self.rtol.min(NEWTON_RTOL);
+        let mut theta_max: f64 = 0.0;
+        for jn in &self.junctions {
+            let k = jn.k;
+            let theta = self.junction_theta(jn);
+            if !theta.is_finite() {
+                return norm <= NEWTON_TOLERANCE;
+            }
+            theta_max = theta_max.max(theta);
+            let jkk = self.newton.jac[k * n + k].abs();
+            let di = theta * self.d[k].abs() * jkk;
+            // The current `q` itself carries, rounded.
+            let rounding = 8.0 * f64::EPSILON * self.y1[k].abs() * jkk;
+            if di > NEWTON_TOLERANCE * (self.atol_i + tol * jn.i_peak) + rounding {
+                return false;
+            }
+        }
+        norm * theta_max.max(FOLLOW_FLOOR) <= NEWTON_TOLERANCE
     }
 
     /// Newton with a fresh Jacobian (and `f` with it) at every iterate.
@@ -720,6 +880,12 @@ where
             *p = p.max(y.abs());
         }
         self.read_junctions(true);
+        for jn in &mut self.junctions {
+            let i = (self.f[jn.k] + jn.id).abs();
+            if i.is_finite() {
+                jn.i_peak = jn.i_peak.max(i);
+            }
+        }
         self.stats.steps += 1;
         self.newton.age += 1;
         Attempt::Accepted
@@ -791,6 +957,7 @@ pub(super) fn drive<'p, 's, M>(
     ode: &'p CircuitOde<M>,
     rtol: f64,
     atol: Vec<f64>,
+    atol_i: f64,
     y0: Vec<f64>,
     h0: f64,
     mut rec: Recorder<'p, 's, M>,
@@ -807,7 +974,7 @@ where
     let t_end = rec.grid.last().unwrap_or(0.0);
     let tstart = rec.grid.first().unwrap_or(0.0);
     let h_min = 1e-15 * t_end.abs().max(f64::MIN_POSITIVE);
-    let mut s = TrBdf2::new(ode, rtol, atol, t0, y0, h0, h_min)?;
+    let mut s = TrBdf2::new(ode, rtol, atol, atol_i, t0, y0, h0, h_min)?;
     if rec.grid.first() == Some(t0) {
         if let Some(row) = rec.first.take() {
             rec.rows.push(t0, &row)?;
