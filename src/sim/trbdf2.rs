@@ -130,6 +130,8 @@ struct Junction {
     /// The relative curvature of `g_d` and `Q′` at the last iterate,
     /// `max(|g_d′/g_d|, |Q″/Q′|)` (per volt).
     curv: f64,
+    /// The largest junction voltage so far (magnitude).
+    v_peak: f64,
     /// The junction current `i_d` at the last iterate, and the largest
     /// current through the junction (`q′ + i_d`) so far: the scale of its
     /// error.
@@ -202,6 +204,9 @@ where
     /// junction voltages (see [`Junction`]).
     junctions: Vec<Junction>,
     vz: Vec<f64>,
+    /// Each junction charge's error scale as a voltage error (`Q′` times
+    /// its largest voltage); infinite for the other states.
+    jscale: Vec<f64>,
     no_growth: bool,
     /// `f` depends on the states nonlinearly only through junctions that
     /// [`TrBdf2::follow_junctions`] follows exactly
@@ -246,6 +251,7 @@ where
                     cap_p: f64::NAN,
                     gd_p: f64::NAN,
                     curv: f64::NAN,
+                    v_peak: 0.0,
                     id: f64::NAN,
                     i_peak: 0.0,
                 })
@@ -293,6 +299,7 @@ where
             all: (0..n).collect(),
             junctions,
             vz,
+            jscale: vec![f64::INFINITY; n],
             no_growth: false,
             exact: ode.tape.jacobian_follows_junctions(),
         };
@@ -334,6 +341,9 @@ where
             let jn = &mut self.junctions[j];
             jn.v_prev = if shift { jn.v } else { f64::NAN };
             (jn.v, jn.dv) = got.map_or((f64::NAN, f64::NAN), |(v, c)| (v, self.f[k] / c));
+            if jn.v.is_finite() {
+                jn.v_peak = jn.v_peak.max(jn.v.abs());
+            }
         }
     }
 
@@ -849,9 +859,27 @@ where
             let nw = &self.newton;
             solve(n, &nw.lu, &nw.perm, &mut self.d, &mut self.tmp);
         }
+        // A junction charge's error is also a voltage error, `δq / Q′`, on
+        // the scale of the largest junction voltage so far: a reverse-biased
+        // junction's depletion charge is orders of magnitude below the
+        // diffusion charge of its conduction (its peak), and a floating
+        // bridge's nodes, set by those charges at the zero crossing, were
+        // 1.5e-3 V off at every rtol.
+        for jn in &self.junctions {
+            let cap = self.ode.register(jn.ci.memo + 2);
+            let v = jn.v_peak * cap;
+            self.jscale[jn.k] = if v.is_finite() && v > 0.0 {
+                v
+            } else {
+                f64::INFINITY
+            };
+        }
         let mut err: f64 = 0.0;
         for i in 0..n {
-            let scale = self.peak[i].max(self.y[i].abs()).max(self.y1[i].abs());
+            let scale = self.peak[i]
+                .max(self.y[i].abs())
+                .max(self.y1[i].abs())
+                .min(self.jscale[i]);
             let e = (self.d[i] / (self.atol[i] + self.rtol * scale)).abs();
             // A NaN error is the worst of all.
             if e > err || e.is_nan() && !err.is_nan() {

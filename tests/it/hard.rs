@@ -130,6 +130,38 @@ fn circuit_integrator_on_the_bridges() {
     }
 }
 
+/// The diode bridge floats at each zero crossing of its source (every diode
+/// off, its nodes set by the junctions' depletion charges, orders of
+/// magnitude below the diffusion charges of their conduction): the circuit
+/// integrator's error there shrinks with its tolerance (measured against
+/// each charge's peak alone it stayed 1.5e-3 V at every rtol).
+#[test]
+fn circuit_integrator_error_shrinks_on_a_floating_bridge() {
+    let s = pipeline::sort(
+        &crate::root().join("netlists/diode_bridge.cir"),
+        &FsLoader,
+        &SortOptions::default(),
+    )
+    .unwrap_or_else(|_| panic!("diode_bridge.cir sorts"));
+    let reference = sim(&s, Method::Bdf, 1e-9);
+    let errs: Vec<f64> = [1e-3, 1e-5, 1e-7]
+        .iter()
+        .map(|&rtol| {
+            let w = sim(&s, Method::Circuit, rtol);
+            assert_eq!(w.time, reference.time);
+            w.data
+                .iter()
+                .zip(&reference.data)
+                .flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).abs()))
+                .fold(0.0, f64::max)
+        })
+        .collect();
+    assert!(
+        errs[1] < errs[0] && errs[2] * 20.0 <= errs[0] && errs[2] <= 1e-4,
+        "errors {errs:?} at rtol 1e-3, 1e-5, 1e-7"
+    );
+}
+
 /// A clamp's nA reverse current behind a 7 Ω series resistance, where a
 /// junction charge's Newton error reaches the current amplified by
 /// 1/(C·RS): the circuit integrator at rtol 1e-7 within 1e-4 of each
