@@ -598,11 +598,8 @@ where
         if self.newton.full {
             return self.full_newton(t1, beta);
         }
-        if self.newton.stale || self.newton.age >= JACOBIAN_AGE {
-            let p = std::mem::take(&mut self.pred);
-            let ok = self.jacobian(t1, &p);
-            self.pred = p;
-            if !ok {
+        if self.needs_jacobian() {
+            if !self.jacobian_at_predictor(t1) {
                 return false;
             }
         } else {
@@ -630,6 +627,19 @@ where
         self.full_newton(t1, beta)
     }
 
+    /// The kept Jacobian is stale or too old.
+    fn needs_jacobian(&self) -> bool {
+        self.newton.stale || self.newton.age >= JACOBIAN_AGE
+    }
+
+    /// A fresh Jacobian at the stage's predictor.
+    fn jacobian_at_predictor(&mut self, t1: f64) -> bool {
+        let p = std::mem::take(&mut self.pred);
+        let ok = self.jacobian(t1, &p);
+        self.pred = p;
+        ok
+    }
+
     /// Newton where the kept Jacobian follows the junctions exactly
     /// (`exact`): moved to each iterate's junctions it is that iterate's own
     /// Jacobian, so the iteration converges as full Newton does for an
@@ -639,13 +649,8 @@ where
     /// (and always in a linear circuit), where the kept Jacobian needed a
     /// second to measure its rate.
     fn followed_newton(&mut self, t1: f64, beta: f64) -> bool {
-        if self.newton.stale || self.newton.age >= JACOBIAN_AGE {
-            let p = std::mem::take(&mut self.pred);
-            let ok = self.jacobian(t1, &p);
-            self.pred = p;
-            if !ok {
-                return false;
-            }
+        if self.needs_jacobian() && !self.jacobian_at_predictor(t1) {
+            return false;
         }
         let mut last = f64::INFINITY;
         for it in 0..2 * MAX_ITERATIONS {
