@@ -261,8 +261,6 @@ pub fn outputs(sorted: &Sorted, probes: &[String]) -> Result<Vec<(String, Output
         .collect())
 }
 
-/// Per-state absolute tolerances: voltages and currents differ by orders of
-/// magnitude, so each state gets the tolerance of its kind.
 /// The absolute tolerances of voltages and currents.
 fn atol_pair(opts: &Options, c: &Circuit) -> (f64, f64) {
     match opts.atol {
@@ -278,6 +276,8 @@ fn atol_pair(opts: &Options, c: &Circuit) -> (f64, f64) {
     }
 }
 
+/// Per-state absolute tolerances: voltages and currents differ by orders of
+/// magnitude, so each state gets the tolerance of its kind.
 fn atols(sys: &EquationSystem, states: &[VarId], opts: &Options, c: &Circuit) -> Vec<f64> {
     let (atol_v, atol_i) = atol_pair(opts, c);
     states

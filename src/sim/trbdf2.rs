@@ -72,9 +72,10 @@ const NEWTON_RTOL: f64 = 1e-3;
 /// turn-on through with a current 3 A off: the rate was that of the
 /// reverse-biased circuit before it.
 const FIRST_CORRECTION: f64 = 0.01;
-/// The least `θ` of [`TrBdf2::followed_newton`]'s convergence test: a
-/// junction is followed only once its `Q′` or `g_d` moved by 1e-3, so the
-/// Jacobian may be that far from the iterate's.
+/// The least `θ` of [`TrBdf2::followed_newton`]'s convergence test on the
+/// weighted correction: what the junctions' `θ` does not see (rounding in
+/// the kept Jacobian, which rescaling accumulates over up to
+/// [`JACOBIAN_AGE`] steps) is taken as at most this.
 const FOLLOW_FLOOR: f64 = 1e-2;
 /// Up to this many states the iteration matrix is refactored whenever a
 /// junction moves at all (an LU of a few states costs less than an
@@ -121,8 +122,8 @@ struct Junction {
     v: f64,
     v_prev: f64,
     dv: f64,
-    /// `Q′` and `g_d` where the kept Jacobian was computed, and where the
-    /// predictor put the junction.
+    /// `Q′` and `g_d` where the kept Jacobian is now, and at the point it
+    /// is to follow to (the predictor's, or the last iterate's).
     cap_j: f64,
     gd_j: f64,
     cap_p: f64,
@@ -711,10 +712,9 @@ where
     /// `Q′`, times their curvature), plus how far the kept entries were from
     /// the iterate's when following skipped them. What the correction
     /// leaves is about `θ` times it. NaN where the junction was not followed.
-    fn junction_theta(&self, jn: &Junction) -> f64 {
-        let n = self.n;
+    /// `jkk`: the junction's diagonal entry, in magnitude.
+    fn junction_theta(&self, jn: &Junction, jkk: f64) -> f64 {
         let k = jn.k;
-        let jkk = self.newton.jac[k * n + k];
         let kept = (jn.cap_j / jn.cap_p - 1.0)
             .abs()
             .max(((jn.gd_j - jn.gd_p) / (jn.cap_p * jkk)).abs());
@@ -736,12 +736,12 @@ where
         let mut theta_max: f64 = 0.0;
         for jn in &self.junctions {
             let k = jn.k;
-            let theta = self.junction_theta(jn);
+            let jkk = self.newton.jac[k * n + k].abs();
+            let theta = self.junction_theta(jn, jkk);
             if !theta.is_finite() {
                 return norm <= NEWTON_TOLERANCE;
             }
             theta_max = theta_max.max(theta);
-            let jkk = self.newton.jac[k * n + k].abs();
             let di = theta * self.d[k].abs() * jkk;
             // The current `q` itself carries, rounded.
             let rounding = 8.0 * f64::EPSILON * self.y1[k].abs() * jkk;

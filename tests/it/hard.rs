@@ -18,6 +18,14 @@ fn sorted(name: &str) -> Sorted {
         .unwrap_or_else(|_| panic!("{name} sorts"))
 }
 
+/// The largest absolute difference of two signals on the same points.
+fn max_diff(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
 fn sim(s: &Sorted, method: Method, rtol: f64) -> sim::Waveforms {
     let o = sim::Options {
         method: Some(method),
@@ -113,11 +121,7 @@ fn circuit_integrator_on_the_bridges() {
         let w = sim(&s, Method::Circuit, 1e-2);
         assert_eq!(w.time, reference.time, "{name}: output points");
         for (k, n) in w.names.iter().enumerate() {
-            let err = w.data[k]
-                .iter()
-                .zip(&reference.data[k])
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max);
+            let err = max_diff(&w.data[k], &reference.data[k]);
             assert!(err <= 3e-3, "{name}: {n} is {err:e} off a tight BDF run");
         }
         // Steps end on the output points, a few more at the switching.
@@ -152,7 +156,7 @@ fn circuit_integrator_error_shrinks_on_a_floating_bridge() {
             w.data
                 .iter()
                 .zip(&reference.data)
-                .flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).abs()))
+                .map(|(a, b)| max_diff(a, b))
                 .fold(0.0, f64::max)
         })
         .collect();
@@ -177,11 +181,7 @@ fn circuit_integrator_converges_junction_currents() {
         let r = &reference.data[k];
         let range = r.iter().fold(f64::NEG_INFINITY, |m, v| m.max(*v))
             - r.iter().fold(f64::INFINITY, |m, v| m.min(*v));
-        let err = w.data[k]
-            .iter()
-            .zip(r)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
+        let err = max_diff(&w.data[k], r);
         assert!(
             err <= 1e-4 * range.max(1e-300),
             "{n} is {err:e} off a tight BDF run (range {range:e})"
