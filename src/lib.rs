@@ -28,6 +28,7 @@ pub mod front;
 pub mod generate;
 pub mod io;
 pub mod ir;
+pub mod numeric;
 pub mod pipeline;
 pub mod sim;
 pub mod validate;

@@ -3,9 +3,9 @@
 //! simple on purpose: it is the yardstick the fast evaluator and generated
 //! code are checked against, and it serves tests on small systems.
 
-use super::tape::solve_dense;
 use crate::analysis::{Assignment, Schedule, Solved, Step};
 use crate::ir::{EqId, EquationSystem, Expr, ExprArena, ExprId, VarId};
+use crate::numeric::dense::solve_dense;
 
 /// Why the interpreter failed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]

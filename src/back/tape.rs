@@ -13,7 +13,10 @@ use std::collections::HashMap;
 
 use crate::analysis::{Assignment, Schedule, Solved, Step};
 use crate::ir::{DeviceFn, DiodeParams, EquationSystem, Expr, ExprId, Func, VarId, Waveform};
-use crate::sim::sparse_lu::TripletLu;
+use crate::numeric::colour::{colour_columns, members};
+use crate::numeric::dense::{lu_factor, lu_solve};
+use crate::numeric::newton::{self, Damping};
+use crate::numeric::{DenseLu, Factored, TripletLu};
 
 /// One instruction: `dst = op(a, b)`; operands are registers.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -98,7 +101,7 @@ pub struct TapeBlock {
     /// constants of the tape: the Jacobian is factored once, at first use.
     pub constant_jacobian: bool,
     /// That factorization, once computed.
-    lu: std::cell::OnceCell<BlockLu>,
+    lu: std::cell::OnceCell<Factored>,
     /// The sparsity of a block past [`DENSE_TEARS`], once computed (`None`
     /// inside: too dense to colour).
     pattern: std::cell::OnceCell<Option<Pattern>>,
@@ -145,25 +148,25 @@ pub struct TangentCache {
     /// The registers hold the last tangent run (set by [`Tape::jac_mul`]);
     /// whoever else writes them, or moves to another point, clears this.
     pub valid: bool,
-    lus: Vec<Option<BlockLu>>,
+    lus: Vec<Option<Factored>>,
 }
 
 impl TangentCache {
     /// Keep block `k`'s dense factors (copied into the slot's own buffers).
     fn keep(&mut self, k: usize, n_blocks: usize, jac: &[f64], perm: &[usize]) {
         let slot = self.slot(k, n_blocks);
-        if !matches!(slot, Some(BlockLu::Dense(..))) {
-            *slot = Some(BlockLu::Dense(Vec::new(), Vec::new()));
+        if !matches!(slot, Some(Factored::Dense(..))) {
+            *slot = Some(Factored::Dense(DenseLu::default()));
         }
-        if let Some(BlockLu::Dense(a, p)) = slot {
-            a.clear();
-            a.extend_from_slice(jac);
-            p.clear();
-            p.extend_from_slice(perm);
+        if let Some(Factored::Dense(d)) = slot {
+            d.lu.clear();
+            d.lu.extend_from_slice(jac);
+            d.perm.clear();
+            d.perm.extend_from_slice(perm);
         }
     }
 
-    fn slot(&mut self, k: usize, n_blocks: usize) -> &mut Option<BlockLu> {
+    fn slot(&mut self, k: usize, n_blocks: usize) -> &mut Option<Factored> {
         if self.lus.len() < n_blocks {
             self.lus.resize(n_blocks, None);
         }
@@ -1007,8 +1010,10 @@ impl Tape {
                             _ => None,
                         };
                         let slope = match kept {
-                            Some(BlockLu::Dense(jac, _)) => sign * jac[0],
-                            Some(BlockLu::Sparse(_)) => unreachable!("a charge block has one tear"),
+                            Some(Factored::Dense(d)) => sign * d.lu[0],
+                            Some(Factored::Sparse(_)) => {
+                                unreachable!("a charge block has one tear")
+                            }
                             None => {
                                 self.solve_block(k, r, t)?;
                                 let [_, c, _] = self.diodes[ci.diode as usize].charge(r[x]);
@@ -1053,7 +1058,7 @@ impl Tape {
                             // A constant Jacobian has its own factorization.
                             match sparse.take() {
                                 Some(lu) => {
-                                    *c.slot(k, self.blocks.len()) = Some(BlockLu::Sparse(lu));
+                                    *c.slot(k, self.blocks.len()) = Some(Factored::Sparse(lu));
                                 }
                                 None if b.constant_jacobian => {
                                     c.keep(k, self.blocks.len(), &[], &[])
@@ -1069,11 +1074,11 @@ impl Tape {
                     w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
                     if b.constant_jacobian {
                         self.constant_lu(b, r, t, &mut w)?
-                            .solve(&mut w.res, &mut w.tmp);
+                            .solve_in_place(&mut w.res, &mut w.tmp);
                     } else if cached
                         && let Some(lu) = cache.as_deref().and_then(|c| c.lus.get(k)?.as_ref())
                     {
-                        lu.solve(&mut w.res, &mut w.tmp);
+                        lu.solve_in_place(&mut w.res, &mut w.tmp);
                     } else {
                         solve_factored(sparse.as_ref(), &w.jac, &w.perm, &mut w.res, &mut w.tmp);
                     }
@@ -1219,7 +1224,7 @@ impl Tape {
                                 w.step[i] = -dr[res as usize * m + j];
                             }
                             match constant {
-                                Some(lu) => lu.solve(&mut w.step, &mut w.tmp),
+                                Some(lu) => lu.solve_in_place(&mut w.step, &mut w.tmp),
                                 None => solve_factored(
                                     sparse.as_ref(),
                                     &w.jac,
@@ -1331,7 +1336,7 @@ impl Tape {
         r: &mut [f64],
         t: f64,
         w: &mut Work,
-    ) -> Result<&'t BlockLu, EvalError> {
+    ) -> Result<&'t Factored, EvalError> {
         if let Some(lu) = b.lu.get() {
             return Ok(lu);
         }
@@ -1339,8 +1344,11 @@ impl Tape {
         let factored = self.factor_jacobian(b, r, &mut dr, t, w);
         w.dr = dr;
         let lu = match factored? {
-            Some(sparse) => BlockLu::Sparse(sparse),
-            None => BlockLu::Dense(w.jac.clone(), w.perm.clone()),
+            Some(sparse) => Factored::Sparse(sparse),
+            None => Factored::Dense(DenseLu {
+                lu: w.jac.clone(),
+                perm: w.perm.clone(),
+            }),
         };
         Ok(b.lu.get_or_init(|| lu))
     }
@@ -1389,14 +1397,10 @@ impl Tape {
         let pattern = b.pattern.get_or_init(|| {
             tear_pattern(b).map(|rows| {
                 let (colour, n_colours) = colour_columns(n, &rows);
-                let mut members = vec![Vec::new(); n_colours as usize];
-                for (j, &c) in colour.iter().enumerate() {
-                    members[c as usize].push(j as u32);
-                }
                 Pattern {
+                    members: members(&colour, n_colours),
                     rows,
                     colour,
-                    members,
                 }
             })
         });
@@ -1450,7 +1454,7 @@ impl Tape {
         if w.step.iter().all(|v| *v == 0.0) {
             return Ok(());
         }
-        lu.solve(&mut w.step, &mut w.tmp);
+        lu.solve_in_place(&mut w.step, &mut w.tmp);
         if w.step.iter().any(|v| !v.is_finite()) {
             return Err(b.singular(t));
         }
@@ -1547,12 +1551,9 @@ impl Tape {
             let (fx, slope, xv) = (r[res], w.dr[res], r[x]);
             if let Some((x0, step0, slope0, full0, lambda)) = last {
                 let simplified = (fx / slope0).abs() / (1.0 + x0.abs());
-                let accepted = (simplified.is_finite()
-                    && simplified <= (1.0 - lambda / 4.0) * full0)
-                    || simplified == 0.0;
-                if !accepted {
+                if !newton::monotone(simplified, full0, lambda) {
                     let lambda = lambda * 0.5;
-                    if lambda < 1e-10 {
+                    if lambda < newton::MIN_DAMPING {
                         if full0 <= 1e-9 {
                             return Ok(());
                         }
@@ -1575,8 +1576,7 @@ impl Tape {
                 return finish(r, xv - step);
             }
             if let Some((_, _, _, full0, 1.0)) = last
-                && full <= 1e-10
-                && full <= 1e-2 * full0
+                && newton::converged_quadratically(full0, full)
             {
                 // Quadratic convergence: what this step leaves is below rounding.
                 return finish(r, xv - step);
@@ -1624,12 +1624,7 @@ impl Tape {
                 .fold(0.0, f64::max);
             b.no_convergence(residual, t)
         };
-        let scaled = |d: &[f64], x: &[f64]| -> f64 {
-            d.iter()
-                .zip(x)
-                .map(|(d, x)| d.abs() / (1.0 + x.abs()))
-                .fold(0.0, f64::max)
-        };
+        let scaled = |d: &[f64], x: &[f64]| newton::scaled_norm(d, |k| 1.0 + x[k].abs());
         let set = |r: &mut [f64], x0: &[f64], step: &[f64], lambda: f64| {
             for (j, &x) in b.tears.iter().enumerate() {
                 r[x as usize] = x0[j] - lambda * step[j];
@@ -1677,8 +1672,7 @@ impl Tape {
                 set(r, &w.x0, &w.step, 1.0);
                 continue;
             }
-            let mut lambda = 1.0;
-            let simplified = loop {
+            let damping = newton::damp(full, |lambda| {
                 set(r, &w.x0, &w.step, lambda);
                 self.run(&b.body, r, t)?;
                 for (j, &x) in b.residuals.iter().enumerate() {
@@ -1687,25 +1681,19 @@ impl Tape {
                 solve_factored(sparse.as_ref(), &w.jac, &w.perm, &mut w.bar, &mut w.tmp);
                 // The same scaling as the full correction: a scale that moved
                 // with x would make a shrinking |x| look like no progress.
-                let simplified = scaled(&w.bar, &w.x0);
-                if (simplified.is_finite() && simplified <= (1.0 - lambda / 4.0) * full)
-                    || simplified == 0.0
-                {
-                    break simplified;
+                Ok(scaled(&w.bar, &w.x0))
+            })?;
+            let Damping::Accepted { lambda, simplified } = damping else {
+                if full <= 1e-9 {
+                    // Stalled at rounding level: converged as far as f64 allows.
+                    return Ok(());
                 }
-                lambda *= 0.5;
-                if lambda < 1e-10 {
-                    if full <= 1e-9 {
-                        // Stalled at rounding level: converged as far as f64 allows.
-                        return Ok(());
-                    }
-                    return Err(no_convergence(r));
-                }
+                return Err(no_convergence(r));
             };
             if b.linear && lambda == 1.0 && b.junctions.is_empty() {
                 return Ok(());
             }
-            if lambda == 1.0 && simplified <= 1e-10 && simplified <= 1e-2 * full {
+            if lambda == 1.0 && newton::converged_quadratically(full, simplified) {
                 // Quadratic convergence has set in: the simplified correction
                 // leaves an error of order `simplified * full`, below rounding.
                 for (j, &x) in b.tears.iter().enumerate() {
@@ -2433,38 +2421,6 @@ impl Work {
     }
 }
 
-/// LU-factorize the row-major `n`×`n` matrix `a` in place (partial
-/// pivoting, row order into `perm`); false if it is singular.
-pub(crate) fn lu_factor(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
-    for (k, p) in perm.iter_mut().enumerate() {
-        *p = k;
-    }
-    for k in 0..n {
-        let p = (k..n)
-            .max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs()))
-            .unwrap_or(k);
-        if a[p * n + k] == 0.0 || !a[p * n + k].is_finite() {
-            return false;
-        }
-        if p != k {
-            for j in 0..n {
-                a.swap(k * n + j, p * n + j);
-            }
-            perm.swap(k, p);
-        }
-        for i in k + 1..n {
-            let f = a[i * n + k] / a[k * n + k];
-            a[i * n + k] = f;
-            if f != 0.0 {
-                for j in k + 1..n {
-                    a[i * n + j] -= f * a[k * n + j];
-                }
-            }
-        }
-    }
-    true
-}
-
 /// Which tears each residual of `b` depends on (sorted), followed through
 /// the body as sets per register; `None` when a set grows past
 /// [`PATTERN_MAX`] (dense enough for one column per run) or the body holds a
@@ -2507,40 +2463,8 @@ fn tear_pattern(b: &TapeBlock) -> Option<Vec<Vec<u32>>> {
 /// Dependency sets larger than this make [`tear_pattern`] give up.
 const PATTERN_MAX: usize = 64;
 
-/// Greedy colouring of `n` columns so that no row has two of one colour.
-fn colour_columns(n: usize, rows: &[Vec<u32>]) -> (Vec<u32>, u32) {
-    let mut col_rows: Vec<Vec<u32>> = vec![Vec::new(); n];
-    for (i, row) in rows.iter().enumerate() {
-        for &j in row {
-            col_rows[j as usize].push(i as u32);
-        }
-    }
-    let mut colour = vec![u32::MAX; n];
-    let mut n_colours = 0;
-    let mut taken: Vec<u32> = Vec::new();
-    for j in 0..n {
-        taken.clear();
-        for &i in &col_rows[j] {
-            taken.extend(rows[i as usize].iter().map(|&k| colour[k as usize]));
-        }
-        taken.sort_unstable();
-        let c = (0..).find(|c| taken.binary_search(c).is_err()).unwrap_or(0);
-        colour[j] = c;
-        n_colours = n_colours.max(c + 1);
-    }
-    (colour, n_colours)
-}
-
 /// Blocks with more tears than this factor a constant Jacobian as sparse.
 const DENSE_TEARS: usize = 48;
-
-/// A constant block Jacobian, factored.
-#[derive(Clone)]
-enum BlockLu {
-    /// Row-major LU with its row order ([`lu_factor`]).
-    Dense(Vec<f64>, Vec<usize>),
-    Sparse(TripletLu),
-}
 
 /// Which tears each residual of a block depends on ([`tear_pattern`]) and
 /// a colouring of the tears in which no residual sees two of one colour
@@ -2553,7 +2477,7 @@ struct Pattern {
 }
 
 /// Solve with a sparse factorization when there is one, else with the
-/// dense factors of [`lu_factor`].
+/// dense factors of [`lu_factor`] in the block's work buffers.
 fn solve_factored(
     sparse: Option<&TripletLu>,
     jac: &[f64],
@@ -2565,54 +2489,4 @@ fn solve_factored(
         Some(lu) => lu.solve_in_place(b, tmp),
         None => lu_solve(perm.len(), jac, perm, b, tmp),
     }
-}
-
-impl std::fmt::Debug for BlockLu {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            BlockLu::Dense(_, perm) => write!(f, "Dense({}x{0})", perm.len()),
-            BlockLu::Sparse(_) => f.write_str("Sparse"),
-        }
-    }
-}
-
-impl BlockLu {
-    /// `b := J⁻¹ b`; `tmp` is scratch of the block's size.
-    fn solve(&self, b: &mut [f64], tmp: &mut [f64]) {
-        match self {
-            BlockLu::Dense(a, perm) => lu_solve(perm.len(), a, perm, b, tmp),
-            BlockLu::Sparse(lu) => lu.solve_in_place(b, tmp),
-        }
-    }
-}
-
-/// Solve with the factors of [`lu_factor`]; `tmp` is scratch of length `n`.
-pub(crate) fn lu_solve(n: usize, a: &[f64], perm: &[usize], b: &mut [f64], tmp: &mut [f64]) {
-    for (x, &p) in tmp.iter_mut().zip(perm) {
-        *x = b[p];
-    }
-    for i in 0..n {
-        for j in 0..i {
-            tmp[i] -= a[i * n + j] * tmp[j];
-        }
-    }
-    for i in (0..n).rev() {
-        for j in i + 1..n {
-            tmp[i] -= a[i * n + j] * tmp[j];
-        }
-        tmp[i] /= a[i * n + i];
-    }
-    b[..n].copy_from_slice(&tmp[..n]);
-}
-
-/// Solve a small dense system `a x = b` in place (partial pivoting); false
-/// if `a` is singular.
-pub fn solve_dense(n: usize, a: &mut [f64], b: &mut [f64]) -> bool {
-    let mut perm = vec![0; n];
-    if !lu_factor(n, a, &mut perm) {
-        return false;
-    }
-    let mut tmp = vec![0.0; n];
-    lu_solve(n, a, &perm, b, &mut tmp);
-    true
 }

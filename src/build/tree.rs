@@ -5,6 +5,7 @@
 use super::ElemVars;
 use crate::elab::{Circuit, ElementKind, GROUND};
 use crate::ir::{EquationSystem, ExprId, Name, Origin, OriginKind, VarKind};
+use crate::numeric::UnionFind;
 
 /// Tree preference of an element: lower goes into the tree first.
 fn rank(k: &ElementKind) -> u8 {
@@ -19,19 +20,11 @@ fn rank(k: &ElementKind) -> u8 {
     }
 }
 
-fn find(parent: &mut [usize], mut x: usize) -> usize {
-    while parent[x] != x {
-        parent[x] = parent[parent[x]];
-        x = parent[x];
-    }
-    x
-}
-
 /// Tree membership per element, computed by Kruskal over the ranks.
 fn tree_elements(c: &Circuit) -> Vec<bool> {
     let mut order: Vec<usize> = (0..c.elements.len()).collect();
     order.sort_by_key(|&i| rank(&c.elements.as_slice()[i].kind));
-    let mut parent: Vec<usize> = (0..c.nodes.len()).collect();
+    let mut sets = UnionFind::new(c.nodes.len());
     let mut in_tree = vec![false; c.elements.len()];
     for i in order {
         let e = &c.elements.as_slice()[i];
@@ -39,9 +32,7 @@ fn tree_elements(c: &Circuit) -> Vec<bool> {
             continue;
         }
         let (a, b) = (e.nodes[0].0 as usize, e.nodes[1].0 as usize);
-        let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
-        if ra != rb {
-            parent[ra] = rb;
+        if sets.union(a, b) {
             in_tree[i] = true;
         }
     }

@@ -10,6 +10,7 @@
 
 use super::{Circuit, ElemId, ElementKind, GROUND, NodeId};
 use crate::diag::{Diagnostic, Severity, Span, ToDiagnostic};
+use crate::numeric::UnionFind;
 
 /// What fixes an element's branch: its voltage, its current, or neither.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -78,7 +79,7 @@ struct Forest {
     parent: Vec<usize>,
     /// The element that joined a node to its parent in the spanning forest.
     via: Vec<Option<ElemId>>,
-    uf: Vec<usize>,
+    sets: UnionFind,
 }
 
 impl Forest {
@@ -86,30 +87,21 @@ impl Forest {
         Forest {
             parent: (0..n).collect(),
             via: vec![None; n],
-            uf: (0..n).collect(),
+            sets: UnionFind::new(n),
         }
-    }
-
-    fn find(&mut self, mut x: usize) -> usize {
-        while self.uf[x] != x {
-            self.uf[x] = self.uf[self.uf[x]];
-            x = self.uf[x];
-        }
-        x
     }
 
     /// Add edge `e` between `a` and `b`; if it closes a loop, return the
     /// forest path from `a` to `b` (the loop's other elements).
     fn add(&mut self, a: usize, b: usize, e: ElemId) -> Option<Vec<ElemId>> {
-        let (ra, rb) = (self.find(a), self.find(b));
-        if ra == rb {
+        if self.sets.find(a) == self.sets.find(b) {
             return Some(self.path(a, b));
         }
         // Re-root b's tree at b, then hang it under a.
         self.reroot(b);
         self.parent[b] = a;
         self.via[b] = Some(e);
-        self.uf[rb] = ra;
+        self.sets.union(b, a);
         None
     }
 
@@ -162,14 +154,11 @@ impl Forest {
 }
 
 fn components(n: usize, edges: impl Iterator<Item = (usize, usize)>) -> Vec<usize> {
-    let mut f = Forest::new(n);
+    let mut sets = UnionFind::new(n);
     for (a, b) in edges {
-        let (ra, rb) = (f.find(a), f.find(b));
-        if ra != rb {
-            f.uf[ra] = rb;
-        }
+        sets.union(a, b);
     }
-    (0..n).map(|x| f.find(x)).collect()
+    sets.representatives()
 }
 
 /// Which storage elements are directly tied to a source: a capacitor

@@ -9,7 +9,6 @@
 mod ic;
 pub mod ode;
 pub mod output;
-pub(crate) mod sparse_lu;
 mod trbdf2;
 
 use std::collections::HashMap;
@@ -25,6 +24,10 @@ use crate::back::tape::{self, EvalError, OutputRef, Tape};
 use crate::build::Built;
 use crate::elab::{Circuit, ElementKind, GROUND, Output};
 use crate::ir::{EquationSystem, VarId};
+use crate::numeric::dense::{lu_factor, lu_solve};
+use crate::numeric::newton::{self, Damping};
+use crate::numeric::sparse_lu::CircuitLu;
+use crate::numeric::{DenseLu, Factored, TripletLu, UnionFind};
 use crate::pipeline::Sorted;
 use ode::{CircuitOde, EvalCounts, HostVec, Regs};
 
@@ -424,24 +427,13 @@ where
 /// For each node, a representative of the nodes that the elements `joins`
 /// selects connect it to (union-find with path halving).
 fn node_components(c: &Circuit, joins: impl Fn(&ElementKind) -> bool) -> Vec<usize> {
-    let mut parent: Vec<usize> = (0..c.nodes.len()).collect();
-    fn find(parent: &mut [usize], mut x: usize) -> usize {
-        while parent[x] != x {
-            parent[x] = parent[parent[x]];
-            x = parent[x];
-        }
-        x
-    }
+    let mut sets = UnionFind::new(c.nodes.len());
     for e in c.elements.values() {
         if e.nodes.len() >= 2 && joins(&e.kind) {
-            let (a, b) = (
-                find(&mut parent, e.nodes[0].0 as usize),
-                find(&mut parent, e.nodes[1].0 as usize),
-            );
-            parent[a] = b;
+            sets.union(e.nodes[0].0 as usize, e.nodes[1].0 as usize);
         }
     }
-    (0..parent.len()).map(|x| find(&mut parent, x)).collect()
+    sets.representatives()
 }
 
 /// The nodes with no DC path to ground (joined to the rest only through
@@ -594,8 +586,8 @@ where
             let (at, vals) = jm.triplet_iter();
             let entries: Vec<(usize, usize, f64)> =
                 at.zip(vals).map(|((i, j), v)| (i, j, v)).collect();
-            sparse_lu::TripletLu::new(n, entries)
-                .map(DcJacobian::Sparse)
+            TripletLu::new(n, entries)
+                .map(Factored::Sparse)
                 .ok_or_else(singular)
         })
     } else {
@@ -604,12 +596,12 @@ where
         Box::new(move |y: &[f64]| {
             ode.jacobian_columns(Regs::Solver, t0, y, &all, &mut cols, &mut fy)
                 .map_err(|error| SimError::Eval { error })?;
-            let mut lu = cols.clone();
-            let mut perm = vec![0; n];
-            if !(lu.iter().all(|v| v.is_finite()) && tape::lu_factor(n, &mut lu, &mut perm)) {
-                return Err(singular());
+            match cols.iter().all(|v| v.is_finite()) {
+                true => DenseLu::new(n, cols.clone())
+                    .map(Factored::Dense)
+                    .ok_or_else(singular),
+                false => Err(singular()),
             }
-            Ok(DcJacobian::Dense(lu, perm))
         })
     };
     let solve = &mut *jacobian;
@@ -669,29 +661,8 @@ fn direct_dc() -> bool {
 }
 
 /// The factored DC Jacobian at a point.
-type JacobianAt<'a> = dyn FnMut(&[f64]) -> Result<DcJacobian, SimError> + 'a;
-
-/// A factored DC Jacobian (rows of held states are identity rows).
-enum DcJacobian {
-    Dense(Vec<f64>, Vec<usize>),
-    Sparse(sparse_lu::TripletLu),
-}
-
-impl DcJacobian {
-    /// `J⁻¹ b`, `None` when singular.
-    fn solve(&self, b: &[f64]) -> Option<Vec<f64>> {
-        let x = match self {
-            DcJacobian::Dense(lu, perm) => {
-                let mut x = b.to_vec();
-                let mut tmp = vec![0.0; b.len()];
-                tape::lu_solve(b.len(), lu, perm, &mut x, &mut tmp);
-                x
-            }
-            DcJacobian::Sparse(lu) => lu.solve(b),
-        };
-        x.iter().all(|v| v.is_finite()).then_some(x)
-    }
-}
+/// Rows of held states are identity rows.
+type JacobianAt<'a> = dyn FnMut(&[f64]) -> Result<Factored, SimError> + 'a;
 
 /// Damped Newton from `y` (Deuflhard's natural monotonicity test, which
 /// compares corrections in the states' own units rather than residuals of
@@ -716,13 +687,7 @@ fn dc_newton(
     }
     let singular = || SimError::DcSingular;
     // Corrections measured against |y| + 1e7 atol: 1e-10 of it converges.
-    let scaled = |d: &[f64], y: &[f64]| -> f64 {
-        d.iter()
-            .zip(y)
-            .zip(atol)
-            .map(|((d, x), a)| d.abs() / (x.abs() + 1e7 * a))
-            .fold(0.0, f64::max)
-    };
+    let scaled = |d: &[f64], y: &[f64]| newton::scaled_norm(d, |k| y[k].abs() + 1e7 * atol[k]);
     let mut trial = vec![0.0; n];
     let mut ft = vec![0.0; n];
     for _ in 0..200 {
@@ -742,40 +707,32 @@ fn dc_newton(
             norm = resid(&y, &mut f)?;
             continue;
         }
-        let mut lambda = 1.0;
-        loop {
+        let damping = newton::damp(full, |lambda| {
             for k in 0..n {
                 trial[k] = y[k] - lambda * step[k];
             }
             // A trial point where the circuit cannot be evaluated (a loop
             // without solution that far out) is too far: halve the step.
-            let simplified = match resid(&trial, &mut ft) {
+            Ok::<_, SimError>(match resid(&trial, &mut ft) {
                 Ok(nn) if nn.is_finite() => {
                     jac.solve(&ft).map_or(f64::INFINITY, |b| scaled(&b, &y))
                 }
                 _ => f64::INFINITY,
-            };
-            if simplified <= (1.0 - lambda / 4.0) * full {
-                break;
+            })
+        })?;
+        if damping == Damping::Stalled {
+            // No step along the correction is better: rounding, not the
+            // circuit, sets the corrections now. When they are already within
+            // 1e-7 of the integration's scale and f is at the level of
+            // ngspice's ABSTOL (1 pA), this is the operating point; with a
+            // larger f it is not, as a charge's correction reaches its
+            // current amplified by 1/(C·RS) (source stepping goes on).
+            if full <= 1e-7 && norm <= 1e-12 {
+                return Ok(y);
             }
-            lambda *= 0.5;
-            if lambda < 1e-10 {
-                // No step along the correction is better: rounding, not the
-                // circuit, sets the corrections now. When they are already
-                // within the integration's own tolerances and f is at the
-                // level of ngspice's ABSTOL (1 pA), this is the operating
-                // point (a clamp's junction charge of 1e-18 C, computed
-                // through a 27 mΩ RS, kept corrections of 6e-23 C: 6e-9 of
-                // its scale, not 1e-10, with f at 2e-15 A). A charge's
-                // correction is amplified into a current by 1/(C·RS): with
-                // f at 4e-9 A this is not the point (source stepping goes on).
-                if full <= 1e-7 && norm <= 1e-12 {
-                    return Ok(y);
-                }
-                return Err(SimError::DcFailed {
-                    message: format!("Newton stalled (residual {norm:.3e})"),
-                });
-            }
+            return Err(SimError::DcFailed {
+                message: format!("Newton stalled (residual {norm:.3e})"),
+            });
         }
         std::mem::swap(&mut y, &mut trial);
         std::mem::swap(&mut f, &mut ft);
@@ -862,7 +819,7 @@ fn simulate_rows(
             sink,
         )?
     } else {
-        run::<FaerSparseMat<f64>, sparse_lu::CircuitLu>(
+        run::<FaerSparseMat<f64>, CircuitLu>(
             sorted,
             sys,
             tape.clone(),
@@ -1141,7 +1098,7 @@ where
                 }
             }
             let mut perm = vec![0; m];
-            let regular = a.iter().all(|v| v.is_finite()) && tape::lu_factor(m, &mut a, &mut perm);
+            let regular = a.iter().all(|v| v.is_finite()) && lu_factor(m, &mut a, &mut perm);
             self.settle = Some(Settle {
                 step,
                 lu: regular.then_some((a, perm)),
@@ -1160,7 +1117,7 @@ where
             for (dk, &k) in d.iter_mut().zip(&self.charges) {
                 *dk = f[k] - dy[k];
             }
-            tape::lu_solve(m, lu, perm, &mut d, &mut tmp);
+            lu_solve(m, lu, perm, &mut d, &mut tmp);
             if !d.iter().all(|d| d.is_finite()) {
                 return;
             }

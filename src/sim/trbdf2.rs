@@ -46,8 +46,9 @@
 
 use super::ode::{CircuitOde, HostVec, Regs};
 use super::{Recorder, SimError, Stats};
-use crate::back::tape::{self, ChargeInverse, EvalError};
+use crate::back::tape::{ChargeInverse, EvalError};
 use crate::ir::EquationSystem;
+use crate::numeric::dense::{lu_factor, lu_solve};
 use diffsol::Matrix;
 
 /// `γ = 2 - √2`: both stages then share one iteration matrix, and the
@@ -211,7 +212,7 @@ where
     no_growth: bool,
     /// `f` depends on the states nonlinearly only through junctions that
     /// [`TrBdf2::follow_junctions`] follows exactly
-    /// ([`tape::Tape::jacobian_follows_junctions`]).
+    /// ([`crate::back::tape::Tape::jacobian_follows_junctions`]).
     exact: bool,
 }
 
@@ -515,8 +516,7 @@ where
         }
         self.stats.lu_factorizations += 1;
         nw.beta = beta;
-        nw.factored =
-            nw.lu.iter().all(|v| v.is_finite()) && tape::lu_factor(n, &mut nw.lu, &mut nw.perm);
+        nw.factored = nw.lu.iter().all(|v| v.is_finite()) && lu_factor(n, &mut nw.lu, &mut nw.perm);
         nw.factored
     }
 
@@ -528,7 +528,7 @@ where
             self.d[i] = self.c[i] + beta * self.f1[i] - self.y1[i];
         }
         let nw = &self.newton;
-        solve(n, &nw.lu, &nw.perm, &mut self.d, &mut self.tmp);
+        lu_solve(n, &nw.lu, &nw.perm, &mut self.d, &mut self.tmp);
         let mut norm: f64 = 0.0;
         for i in 0..n {
             self.y1[i] += self.d[i];
@@ -862,7 +862,7 @@ where
         }
         {
             let nw = &self.newton;
-            solve(n, &nw.lu, &nw.perm, &mut self.d, &mut self.tmp);
+            lu_solve(n, &nw.lu, &nw.perm, &mut self.d, &mut self.tmp);
         }
         // A junction charge's error is also a voltage error, `δq / Q′`, on
         // the scale of the largest junction voltage so far: a reverse-biased
@@ -923,35 +923,6 @@ where
         self.newton.age += 1;
         Attempt::Accepted
     }
-}
-
-/// Solve with the factors of [`tape::lu_factor`] (`tmp`: scratch of `n`),
-/// by row slices: the indexed loops of the tape's general solve were a
-/// twelfth of a rectifier's run here, where every Newton iteration solves.
-fn solve(n: usize, lu: &[f64], perm: &[usize], b: &mut [f64], tmp: &mut [f64]) {
-    let (lu, tmp) = (&lu[..n * n], &mut tmp[..n]);
-    for (x, &p) in tmp.iter_mut().zip(&perm[..n]) {
-        *x = b[p];
-    }
-    for (i, row) in lu.chunks_exact(n).enumerate() {
-        let (done, rest) = tmp.split_at_mut(i);
-        rest[0] -= row[..i]
-            .iter()
-            .zip(done.iter())
-            .map(|(l, x)| l * x)
-            .sum::<f64>();
-    }
-    for (i, row) in lu.chunks_exact(n).enumerate().rev() {
-        let (head, rest) = tmp.split_at_mut(i + 1);
-        let x = &mut head[i];
-        *x -= row[i + 1..]
-            .iter()
-            .zip(rest.iter())
-            .map(|(u, y)| u * y)
-            .sum::<f64>();
-        *x /= row[i];
-    }
-    b[..n].copy_from_slice(tmp);
 }
 
 impl<M: Matrix<T = f64>> TrBdf2<'_, M>

@@ -1,4 +1,6 @@
-//! Sparse LU for circuit Jacobians, as a diffsol linear solver.
+//! Sparse LU for circuit Jacobians: factored once from triplets
+//! ([`TripletLu`]) or refactored per step as a diffsol linear solver
+//! ([`CircuitLu`]).
 //!
 //! Circuit matrices are very sparse, nearly structurally symmetric and
 //! refactored thousands of times with one pattern. The method is the one
@@ -19,13 +21,11 @@
 
 use std::cell::RefCell;
 
-use diffsol::{FaerSparseMat, Matrix, MatrixCommon};
+use diffsol::{FaerSparseMat, Matrix, MatrixCommon, Vector};
 use diffsol_la::LinearOp;
 use diffsol_la::LinearSolver as LaLinearSolver;
 use diffsol_la::error::{LaError, LinearSolverError};
 use faer::dyn_stack::{MemBuffer, MemStack};
-
-use super::ode::HostVec;
 
 /// A pivot is kept on the diagonal while it is at least this fraction of the
 /// largest candidate in its column (KLU's default).
@@ -371,7 +371,7 @@ impl CircuitLu {
         }
         let mut y = self.y.borrow_mut();
         y.resize(self.f.n, 0.0);
-        let b = b.slice_mut();
+        let b = b.inner_mut().col_as_slice_mut(0);
         if transpose {
             self.f.solve_transpose(b, &mut y);
         } else {

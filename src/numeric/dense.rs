@@ -1,0 +1,160 @@
+//! Dense LU with partial pivoting, row-major, for small blocks: the tape's
+//! torn loops, the operating point and kausal's own integrator.
+//!
+//! The factors live in the caller's buffers ([`lu_factor`], [`lu_solve`]) so
+//! that hot loops allocate nothing; [`DenseLu`] owns them where that is
+//! simpler.
+
+/// LU-factorize the row-major `n`×`n` matrix `a` in place (partial
+/// pivoting, row order into `perm`); false if it is singular or not finite.
+pub fn lu_factor(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
+    for (k, p) in perm.iter_mut().enumerate() {
+        *p = k;
+    }
+    for k in 0..n {
+        let p = (k..n)
+            .max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs()))
+            .unwrap_or(k);
+        if a[p * n + k] == 0.0 || !a[p * n + k].is_finite() {
+            return false;
+        }
+        if p != k {
+            for j in 0..n {
+                a.swap(k * n + j, p * n + j);
+            }
+            perm.swap(k, p);
+        }
+        for i in k + 1..n {
+            let f = a[i * n + k] / a[k * n + k];
+            a[i * n + k] = f;
+            if f != 0.0 {
+                for j in k + 1..n {
+                    a[i * n + j] -= f * a[k * n + j];
+                }
+            }
+        }
+    }
+    true
+}
+
+/// `b := A⁻¹ b` with the factors of [`lu_factor`]; `tmp` is scratch of
+/// length `n`. Row slices, not indexed loops: every Newton iteration of the
+/// circuit integrator solves, and bounds checks per entry showed in its
+/// profile.
+pub fn lu_solve(n: usize, lu: &[f64], perm: &[usize], b: &mut [f64], tmp: &mut [f64]) {
+    let (lu, tmp) = (&lu[..n * n], &mut tmp[..n]);
+    for (x, &p) in tmp.iter_mut().zip(&perm[..n]) {
+        *x = b[p];
+    }
+    for (i, row) in lu.chunks_exact(n).enumerate() {
+        let (done, rest) = tmp.split_at_mut(i);
+        rest[0] -= row[..i]
+            .iter()
+            .zip(done.iter())
+            .map(|(l, x)| l * x)
+            .sum::<f64>();
+    }
+    for (i, row) in lu.chunks_exact(n).enumerate().rev() {
+        let (head, rest) = tmp.split_at_mut(i + 1);
+        let x = &mut head[i];
+        *x -= row[i + 1..]
+            .iter()
+            .zip(rest.iter())
+            .map(|(u, y)| u * y)
+            .sum::<f64>();
+        *x /= row[i];
+    }
+    b[..n].copy_from_slice(tmp);
+}
+
+/// Solve a small dense system `a x = b` in place; false if `a` is singular.
+pub fn solve_dense(n: usize, a: &mut [f64], b: &mut [f64]) -> bool {
+    let mut perm = vec![0; n];
+    if !lu_factor(n, a, &mut perm) {
+        return false;
+    }
+    let mut tmp = vec![0.0; n];
+    lu_solve(n, a, &perm, b, &mut tmp);
+    true
+}
+
+/// A factored dense matrix that owns its factors.
+#[derive(Clone, Debug, Default)]
+pub struct DenseLu {
+    /// The row-major factors of [`lu_factor`].
+    pub lu: Vec<f64>,
+    /// Their row order; its length is the matrix's order.
+    pub perm: Vec<usize>,
+}
+
+impl DenseLu {
+    /// Factor the row-major `n`×`n` matrix `a`; `None` if it is singular.
+    pub fn new(n: usize, mut a: Vec<f64>) -> Option<DenseLu> {
+        let mut perm = vec![0; n];
+        lu_factor(n, &mut a, &mut perm).then_some(DenseLu { lu: a, perm })
+    }
+
+    /// The order of the matrix.
+    pub fn n(&self) -> usize {
+        self.perm.len()
+    }
+
+    /// `b := A⁻¹ b`; `tmp` is scratch of length `n`.
+    pub fn solve_in_place(&self, b: &mut [f64], tmp: &mut [f64]) {
+        lu_solve(self.n(), &self.lu, &self.perm, b, tmp);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `A x` for a row-major `A`.
+    fn mul(a: &[f64], x: &[f64]) -> Vec<f64> {
+        let n = x.len();
+        (0..n)
+            .map(|i| (0..n).map(|j| a[i * n + j] * x[j]).sum())
+            .collect()
+    }
+
+    #[test]
+    fn solves_a_system_that_needs_pivoting() {
+        // A zero on the first diagonal: without a row exchange the
+        // elimination divides by zero.
+        let a = vec![0.0, 2.0, 1.0, 1.0, 1.0, 0.0, 3.0, 0.0, 4.0];
+        let x = [1.0, -2.0, 0.5];
+        let mut b = mul(&a, &x);
+        assert!(solve_dense(3, &mut a.clone(), &mut b));
+        for (got, want) in b.iter().zip(x) {
+            assert!((got - want).abs() < 1e-14, "{got} vs {want}");
+        }
+    }
+
+    #[test]
+    fn the_owned_factors_solve_many_right_hand_sides() {
+        let n = 6;
+        // Diagonally weak and unsymmetric, so both pivoting and both sweeps
+        // matter.
+        let a: Vec<f64> = (0..n * n)
+            .map(|k| ((k * 7 + 3) % 11) as f64 - 5.0 + if k % (n + 1) == 0 { 0.5 } else { 0.0 })
+            .collect();
+        let lu = DenseLu::new(n, a.clone()).expect("regular");
+        let mut tmp = vec![0.0; n];
+        for s in 0..3 {
+            let x: Vec<f64> = (0..n).map(|i| (i as f64 - s as f64).sin()).collect();
+            let mut b = mul(&a, &x);
+            lu.solve_in_place(&mut b, &mut tmp);
+            for (got, want) in b.iter().zip(&x) {
+                assert!((got - want).abs() < 1e-12, "{got} vs {want}");
+            }
+        }
+    }
+
+    #[test]
+    fn singular_and_non_finite_matrices_are_refused() {
+        let mut perm = [0; 2];
+        assert!(!lu_factor(2, &mut [1.0, 2.0, 2.0, 4.0], &mut perm));
+        assert!(!lu_factor(2, &mut [f64::NAN, 0.0, 0.0, 1.0], &mut perm));
+        assert!(DenseLu::new(2, vec![0.0; 4]).is_none());
+    }
+}
