@@ -2,8 +2,8 @@
 //! tape against a hand-written Rust loop computing the same derivatives.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use kausal::back::tape;
 use kausal::pipeline::{self, SortOptions};
+use kausal::tape;
 
 #[global_allocator]
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;

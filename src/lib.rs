@@ -31,4 +31,5 @@ pub mod ir;
 pub mod numeric;
 pub mod pipeline;
 pub mod sim;
+pub mod tape;
 pub mod validate;

@@ -5,4 +5,3 @@
 pub mod codegen;
 pub mod interp;
 pub mod listing;
-pub mod tape;

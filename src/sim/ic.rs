@@ -14,11 +14,11 @@ use diffsol::{FaerSparseMat, Matrix, NalgebraMat};
 
 use super::ode::{CircuitOde, HostVec};
 use super::{DENSE_STATES, Options, SimError, atols, dc_point, output_ref};
-use crate::back::tape;
 use crate::diag::Diagnostic;
 use crate::elab::{Circuit, ElemId, Element, ElementKind, GROUND, NodeIc, Output};
 use crate::ir::{IdVec, VarId, VarKind, Waveform};
 use crate::pipeline::{Elaborated, SortOptions, Sorted};
+use crate::tape;
 
 /// The held operating point.
 pub(super) struct Held {

@@ -20,7 +20,6 @@ use diffsol::{
     OdeSolverProblem, OdeSolverState, OdeSolverStopReason,
 };
 
-use crate::back::tape::{self, EvalError, OutputRef, Tape};
 use crate::build::Built;
 use crate::elab::{Circuit, ElementKind, GROUND, Output};
 use crate::ir::{EquationSystem, VarId};
@@ -29,6 +28,7 @@ use crate::numeric::newton::{self, Damping};
 use crate::numeric::sparse_lu::CircuitLu;
 use crate::numeric::{DenseLu, Factored, TripletLu, UnionFind};
 use crate::pipeline::Sorted;
+use crate::tape::{self, EvalError, OutputRef, Tape};
 use ode::{CircuitOde, EvalCounts, HostVec, Regs};
 
 /// The integration method.

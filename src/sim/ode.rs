@@ -13,7 +13,7 @@ use diffsol::{
 
 use diffsol_la::matrix::sparsity::MatrixSparsity;
 
-use crate::back::tape::{EvalError, TangentCache, Tape};
+use crate::tape::{EvalError, TangentCache, Tape};
 
 /// Vectors whose storage is one host slice.
 pub trait HostVec: Vector<T = f64> {

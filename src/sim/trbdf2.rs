@@ -46,9 +46,9 @@
 
 use super::ode::{CircuitOde, HostVec, Regs};
 use super::{Recorder, SimError, Stats};
-use crate::back::tape::{ChargeInverse, EvalError};
 use crate::ir::EquationSystem;
 use crate::numeric::dense::{lu_factor, lu_solve};
+use crate::tape::{ChargeInverse, EvalError};
 use diffsol::Matrix;
 
 /// `γ = 2 - √2`: both stages then share one iteration matrix, and the
@@ -212,7 +212,7 @@ where
     no_growth: bool,
     /// `f` depends on the states nonlinearly only through junctions that
     /// [`TrBdf2::follow_junctions`] follows exactly
-    /// ([`crate::back::tape::Tape::jacobian_follows_junctions`]).
+    /// ([`crate::tape::Tape::jacobian_follows_junctions`]).
     exact: bool,
 }
 

@@ -5,9 +5,9 @@ use std::io::Write;
 use std::process::{Command, Stdio};
 
 use kausal::back::codegen::{self, Lang};
-use kausal::back::tape;
 use kausal::io::FsLoader;
 use kausal::pipeline::{self, SortOptions};
+use kausal::tape;
 
 use crate::root;
 

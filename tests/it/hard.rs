@@ -190,7 +190,7 @@ fn circuit_integrator_converges_junction_currents() {
 }
 
 /// Where the tape says `f` depends on the states nonlinearly only through
-/// junctions ([`kausal::back::tape::Tape::jacobian_follows_junctions`], on
+/// junctions ([`kausal::tape::Tape::jacobian_follows_junctions`], on
 /// which the circuit integrator keeps one Jacobian and trusts a single
 /// Newton iterate), following really is exact: the Jacobian at one point,
 /// each junction's column rescaled by its `Q′` and its diagonal moved by its
@@ -199,7 +199,7 @@ fn circuit_integrator_converges_junction_currents() {
 /// with a resistive diode is not taken for one.
 #[test]
 fn junction_following_is_exact_where_the_tape_claims_it() {
-    use kausal::back::tape::{self, Tape};
+    use kausal::tape::{self, Tape};
     fn jacobian(t: &Tape, time: f64, y: &[f64]) -> Vec<f64> {
         let n = y.len();
         let (mut regs, mut dregs) = (t.init.clone(), Vec::new());

@@ -9,6 +9,7 @@ mod hard;
 mod simulate;
 mod singular;
 mod sort;
+mod tidy;
 mod validate;
 
 use std::path::{Path, PathBuf};

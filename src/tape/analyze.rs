@@ -1,0 +1,508 @@
+//! Abstract interpretations of the compiled tape: which blocks are private,
+//! charge inversions or affine, how registers depend on the states, and the
+//! Jacobian's sparsity.
+
+use std::collections::HashMap;
+
+use super::*;
+
+/// Mark the blocks whose body values (other than the tears) are read only
+/// inside the body itself.
+pub(super) fn set_private(blocks: &mut [TapeBlock], programs: &[&[Instr]], direct: &[&[u32]]) {
+    // Who reads each register: `None` for top-level code, `Some(k)` for the
+    // body of block k, and a conflict (read by two) as top level.
+    let mut reader: HashMap<u32, Option<usize>> = HashMap::new();
+    let mut note = |r: u32, by: Option<usize>| {
+        reader
+            .entry(r)
+            .and_modify(|old| {
+                if *old != by {
+                    *old = None;
+                }
+            })
+            .or_insert(by);
+    };
+    for code in programs {
+        for ins in code.iter() {
+            for r in ins.operands() {
+                note(r, None);
+            }
+        }
+    }
+    for regs in direct {
+        for &r in regs.iter() {
+            note(r, None);
+        }
+    }
+    for (k, b) in blocks.iter().enumerate() {
+        for ins in &b.body {
+            for r in ins.operands() {
+                note(r, Some(k));
+            }
+        }
+    }
+    for (k, b) in blocks.iter_mut().enumerate() {
+        // A set: a block can have 10^4 tears and 10^5 instructions.
+        let tears: std::collections::HashSet<u32> = b.tears.iter().copied().collect();
+        b.private = b.body.iter().all(|ins| {
+            let d = ins.dest();
+            d == NONE || reader.get(&d).is_none_or(|by| *by == Some(k)) || tears.contains(&d)
+        });
+    }
+}
+
+/// `Some` when the block is exactly `r = s - Q(x)` (or `Q(x) - s`) for the
+/// charge `Q` of a diode, its one tear `x` and a register `s` it does not write.
+pub(super) fn charge_inverse(b: &TapeBlock) -> Option<ChargeInverse> {
+    let (&[x], &[res]) = (b.tears.as_slice(), b.residuals.as_slice()) else {
+        return None;
+    };
+    let [Instr::Device { d: q, f, a }, Instr::Sub { d, a: l, b: r }] = b.body[..] else {
+        return None;
+    };
+    let charge = f.part == crate::ir::DiodePart::Charge && f.order == 0;
+    let target = match (l == q, r == q) {
+        (false, true) => l,
+        (true, false) => r,
+        _ => return None,
+    };
+    (charge && a == x && d == res && target != x && target != q).then_some(ChargeInverse {
+        diode: f.diode,
+        target,
+        memo: NONE,
+    })
+}
+
+/// Mark the blocks whose Jacobian is constant: every path from a tear to a
+/// residual goes through negations, sums and products (or quotients) with
+/// registers no code writes (constants and parameters).
+pub(super) fn set_constant_jacobians(
+    blocks: &mut [TapeBlock],
+    programs: &[&[Instr]],
+    states: &[u32],
+) {
+    let mut written: std::collections::HashSet<u32> = states.iter().copied().collect();
+    for ins in programs
+        .iter()
+        .flat_map(|c| c.iter())
+        .chain(blocks.iter().flat_map(|b| b.body.iter()))
+    {
+        written.insert(ins.dest());
+    }
+    written.extend(blocks.iter().flat_map(|b| b.tears.iter().copied()));
+    for b in blocks.iter_mut() {
+        let mut varies: std::collections::HashSet<u32> = b.tears.iter().copied().collect();
+        let mut constant = !b.tears.is_empty();
+        for ins in &b.body {
+            let v = |x: u32| varies.contains(&x);
+            let coefficient = |x: u32| !written.contains(&x);
+            // Whether the result moves with the tears, and whether its
+            // derivative with respect to them is still a constant.
+            let (moves, stays_affine) = match *ins {
+                Instr::Neg { a, .. } => (v(a), true),
+                Instr::Add { a, b, .. } | Instr::Sub { a, b, .. } => (v(a) || v(b), true),
+                Instr::Mul { a, b, .. } => match (v(a), v(b)) {
+                    (true, true) => (true, false),
+                    (true, false) => (true, coefficient(b)),
+                    (false, true) => (true, coefficient(a)),
+                    (false, false) => (false, true),
+                },
+                Instr::Div { a, b, .. } => (v(a) || v(b), !v(b) && (!v(a) || coefficient(b))),
+                Instr::Pow { a, b, .. } => (v(a) || v(b), !(v(a) || v(b))),
+                Instr::Call { a, .. } | Instr::Device { a, .. } => (v(a), !v(a)),
+                Instr::Src { .. } | Instr::Time { .. } => (false, true),
+                Instr::Block { .. } => (true, false),
+            };
+            if !stays_affine {
+                constant = false;
+                break;
+            }
+            if moves {
+                varies.insert(ins.dest());
+            }
+        }
+        b.constant_jacobian = constant;
+    }
+}
+
+/// Tears `x` of a block whose body computes `exp(x / vt)`.
+pub(super) fn junctions(b: &TapeBlock, vte_regs: &dyn Fn(u32) -> Option<u32>) -> Vec<(usize, u32)> {
+    let mut out = Vec::new();
+    // Maps, not scans: a block can hold 10^4 tears and junctions.
+    let tear_index: HashMap<u32, usize> =
+        b.tears.iter().enumerate().map(|(j, &x)| (x, j)).collect();
+    let mut by_dest: HashMap<u32, &Instr> = HashMap::new();
+    for i in &b.body {
+        by_dest.entry(i.dest()).or_insert(i);
+    }
+    let mut found = std::collections::HashSet::new();
+    for ins in &b.body {
+        if let Instr::Device { f, a, .. } = *ins
+            && let Some(&j) = tear_index.get(&a)
+            && let Some(vt) = vte_regs(f.diode)
+            && found.insert(j)
+        {
+            out.push((j, vt));
+        }
+        let Instr::Call {
+            f: Func::Exp, a, ..
+        } = *ins
+        else {
+            continue;
+        };
+        let Some(&&Instr::Div { a: num, b: den, .. }) = by_dest.get(&a) else {
+            continue;
+        };
+        if let Some(&j) = tear_index.get(&num)
+            && found.insert(j)
+        {
+            out.push((j, den));
+        }
+    }
+    out
+}
+
+/// How a register depends on the states (see
+/// [`Tape::jacobian_follows_junctions`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Dep {
+    /// A parameter or constant.
+    Const,
+    /// A function of time alone.
+    Time,
+    /// Affine in the states, constant coefficients.
+    Lin,
+    /// The charge state of a diode's junction.
+    Charge(u32),
+    /// That junction's voltage `Q⁻¹(q)`.
+    Volt(u32),
+    /// Affine plus (`IdPos`) or minus (`IdNeg`) that junction's current.
+    IdPos(u32),
+    IdNeg(u32),
+    /// Anything else that depends on the states.
+    Bad,
+}
+
+impl Dep {
+    fn timed(self) -> bool {
+        matches!(self, Dep::Const | Dep::Time)
+    }
+
+    fn max_timed(self, other: Dep) -> Dep {
+        if self == Dep::Const && other == Dep::Const {
+            Dep::Const
+        } else {
+            Dep::Time
+        }
+    }
+
+    /// As a term that enters affinely (a junction voltage becomes affine).
+    fn affine(self) -> Dep {
+        match self {
+            Dep::Volt(_) => Dep::Lin,
+            x => x,
+        }
+    }
+
+    fn negate(self) -> Dep {
+        match self {
+            Dep::IdPos(d) => Dep::IdNeg(d),
+            Dep::IdNeg(d) => Dep::IdPos(d),
+            Dep::Charge(_) => Dep::Bad,
+            x => x.affine(),
+        }
+    }
+
+    fn sum(a: Dep, b: Dep) -> Dep {
+        match (a.affine(), b.affine()) {
+            (Dep::Bad | Dep::Charge(_), _) | (_, Dep::Bad | Dep::Charge(_)) => Dep::Bad,
+            (x, y) if x.timed() && y.timed() => x.max_timed(y),
+            (Dep::IdPos(_) | Dep::IdNeg(_), Dep::IdPos(_) | Dep::IdNeg(_)) => Dep::Bad,
+            (id @ (Dep::IdPos(_) | Dep::IdNeg(_)), _)
+            | (_, id @ (Dep::IdPos(_) | Dep::IdNeg(_))) => id,
+            _ => Dep::Lin,
+        }
+    }
+
+    /// A product: a state-dependent factor times a constant (a junction
+    /// current only with its coefficient, `±1`, unchanged: never here).
+    fn product(a: Dep, b: Dep) -> Dep {
+        match (a, b) {
+            (x, y) if x.timed() && y.timed() => x.max_timed(y),
+            (Dep::Const, x) | (x, Dep::Const) => match x.affine() {
+                Dep::Lin => Dep::Lin,
+                _ => Dep::Bad,
+            },
+            _ => Dep::Bad,
+        }
+    }
+}
+
+/// The inversion memos of the junction charges that both `code` and
+/// `out_code` invert (see [`Tape::memo_links`]).
+pub(super) fn memo_links(
+    blocks: &[TapeBlock],
+    code: &[Instr],
+    out_code: &[Instr],
+) -> Vec<(u32, u32)> {
+    let inversions = |code: &[Instr]| -> Vec<ChargeInverse> {
+        code.iter()
+            .filter_map(|i| match *i {
+                Instr::Block { k } => blocks[k as usize].charge_inverse,
+                _ => None,
+            })
+            .collect()
+    };
+    let in_f = inversions(code);
+    inversions(out_code)
+        .into_iter()
+        .filter_map(|o| {
+            let f = in_f
+                .iter()
+                .find(|f| f.target == o.target && f.diode == o.diode)?;
+            (f.memo != o.memo).then_some((f.memo, o.memo))
+        })
+        .collect()
+}
+
+impl Tape {
+    /// For each state, the junction-charge inversion whose charge it is
+    /// (the block that finds the junction voltage from it), if any.
+    pub fn charge_states(&self) -> Vec<Option<ChargeInverse>> {
+        let slot: HashMap<u32, usize> = self
+            .state_regs
+            .iter()
+            .enumerate()
+            .map(|(k, &s)| (s, k))
+            .collect();
+        let mut of = vec![None; self.states.len()];
+        for ins in &self.code {
+            if let Instr::Block { k } = *ins
+                && let Some(ci) = self.blocks[k as usize].charge_inverse
+                && let Some(&k) = slot.get(&ci.target)
+                && of[k].is_none()
+            {
+                of[k] = Some(ci);
+            }
+        }
+        of
+    }
+
+    /// Whether `f` depends on the states nonlinearly only through junctions
+    /// in the way a circuit integrator can follow exactly: each junction
+    /// charge `q` is read only by its inversion `v = Q⁻¹(q)`, `v` enters
+    /// affinely with constant coefficients, and the junction current
+    /// `i_d(v)` enters only its own charge's derivative, as `… - i_d(v)`.
+    /// Then `∂f/∂q` is `∂f/∂v / Q′(v)` with `∂f/∂v` constant but for the
+    /// `-g_d(v)` of its own row, and a Jacobian computed anywhere becomes the
+    /// Jacobian at another point by rescaling each junction's column and
+    /// diagonal (see `sim::trbdf2`). Everything else (time-varying sources,
+    /// parameters) may be arbitrary functions of time.
+    ///
+    /// Conservative: any other use of a state (a resistive diode's block, a
+    /// product of two signals, a coefficient that varies in time) answers
+    /// `false`.
+    pub fn jacobian_follows_junctions(&self) -> bool {
+        let mut dep = vec![Dep::Const; self.n_regs];
+        let charges = self.charge_states();
+        for (k, &s) in self.state_regs.iter().enumerate() {
+            dep[s as usize] = match charges[k] {
+                Some(ci) => Dep::Charge(ci.diode),
+                None => Dep::Lin,
+            };
+        }
+        self.classify(&self.code, &mut dep);
+        self.deriv_regs
+            .iter()
+            .enumerate()
+            .all(|(k, &d)| match dep[d as usize] {
+                Dep::Const | Dep::Time | Dep::Lin | Dep::Volt(_) => true,
+                Dep::IdNeg(diode) => charges[k].is_some_and(|ci| ci.diode == diode),
+                Dep::Charge(_) | Dep::IdPos(_) | Dep::Bad => false,
+            })
+    }
+
+    /// How each register of `code` depends on the states (see
+    /// [`Tape::jacobian_follows_junctions`]).
+    pub(super) fn classify(&self, code: &[Instr], dep: &mut [Dep]) {
+        for ins in code {
+            let (d, v) = match *ins {
+                Instr::Neg { d, a } => (d, dep[a as usize].negate()),
+                Instr::Add { d, a, b } => (d, Dep::sum(dep[a as usize], dep[b as usize])),
+                Instr::Sub { d, a, b } => (d, Dep::sum(dep[a as usize], dep[b as usize].negate())),
+                Instr::Mul { d, a, b } => (d, Dep::product(dep[a as usize], dep[b as usize])),
+                Instr::Div { d, a, b } => match (dep[a as usize], dep[b as usize]) {
+                    (x, Dep::Const) => (d, Dep::product(x, Dep::Const)),
+                    (x, y) if x.timed() && y.timed() => (d, Dep::Time),
+                    _ => (d, Dep::Bad),
+                },
+                Instr::Pow { d, a, b } => {
+                    match dep[a as usize].timed() && dep[b as usize].timed() {
+                        true => (d, dep[a as usize].max_timed(dep[b as usize])),
+                        false => (d, Dep::Bad),
+                    }
+                }
+                Instr::Call { d, a, .. } => (
+                    d,
+                    if dep[a as usize].timed() {
+                        dep[a as usize]
+                    } else {
+                        Dep::Bad
+                    },
+                ),
+                Instr::Device { d, f, a } => match dep[a as usize] {
+                    x if x.timed() => (d, x),
+                    Dep::Volt(diode)
+                        if diode == f.diode
+                            && f.part == crate::ir::DiodePart::Current
+                            && f.order == 0 =>
+                    {
+                        (d, Dep::IdPos(diode))
+                    }
+                    _ => (d, Dep::Bad),
+                },
+                Instr::Src { d, .. } | Instr::Time { d } => (d, Dep::Time),
+                Instr::Block { k } => {
+                    self.classify_block(&self.blocks[k as usize], dep);
+                    continue;
+                }
+            };
+            dep[d as usize] = v;
+        }
+    }
+
+    pub(super) fn classify_block(&self, b: &TapeBlock, dep: &mut [Dep]) {
+        if let Some(ci) = b.charge_inverse {
+            let v = match dep[ci.target as usize] {
+                Dep::Charge(diode) if diode == ci.diode => Dep::Volt(diode),
+                x if x.timed() => x,
+                _ => Dep::Bad,
+            };
+            // What the body computes besides the voltage is `Q(v)`: nothing
+            // the analysis can follow if `f` reads it.
+            self.classify_tears(b, dep, Dep::Bad);
+            for &x in &b.tears {
+                dep[x as usize] = v;
+            }
+            return;
+        }
+        // Independent of the states; else affine with constant coefficients.
+        let linear = |dep: &[Dep]| {
+            b.residuals.iter().all(|&r| {
+                matches!(
+                    dep[r as usize],
+                    Dep::Const | Dep::Time | Dep::Lin | Dep::Volt(_)
+                )
+            })
+        };
+        self.classify_tears(b, dep, Dep::Time);
+        if b.residuals.iter().all(|&r| dep[r as usize].timed()) {
+            return;
+        }
+        if b.constant_jacobian {
+            self.classify_tears(b, dep, Dep::Lin);
+            if linear(dep) {
+                return;
+            }
+        }
+        self.classify_tears(b, dep, Dep::Bad);
+    }
+
+    /// Classify `b`'s body with its tears taken as `tear`.
+    pub(super) fn classify_tears(&self, b: &TapeBlock, dep: &mut [Dep], tear: Dep) {
+        for &x in &b.tears {
+            dep[x as usize] = tear;
+        }
+        self.classify(&b.body, dep);
+    }
+
+    /// The sparsity of `∂f/∂y`: for each derivative, the states it depends on.
+    pub fn jacobian_pattern(&self) -> Vec<(usize, usize)> {
+        // Dependencies propagate through the program as sorted state lists.
+        let mut deps: Vec<Vec<u32>> = vec![Vec::new(); self.n_regs];
+        for (k, &s) in self.state_regs.iter().enumerate() {
+            deps[s as usize] = vec![k as u32];
+        }
+        fn merge(into: &mut Vec<u32>, from: &[u32]) {
+            if from.is_empty() {
+                return;
+            }
+            let mut m = Vec::with_capacity(into.len() + from.len());
+            let (mut i, mut j) = (0, 0);
+            while i < into.len() || j < from.len() {
+                let next = match (into.get(i), from.get(j)) {
+                    (Some(&a), Some(&b)) if a == b => {
+                        i += 1;
+                        j += 1;
+                        a
+                    }
+                    (Some(&a), Some(&b)) if a < b => {
+                        i += 1;
+                        a
+                    }
+                    (Some(_), Some(&b)) | (None, Some(&b)) => {
+                        j += 1;
+                        b
+                    }
+                    (Some(&a), None) => {
+                        i += 1;
+                        a
+                    }
+                    (None, None) => unreachable!(),
+                };
+                m.push(next);
+            }
+            *into = m;
+        }
+        fn walk(tape: &Tape, code: &[Instr], deps: &mut Vec<Vec<u32>>) {
+            for ins in code {
+                if let Instr::Block { k } = ins {
+                    let b = &tape.blocks[*k as usize];
+                    // Everything in a block depends on everything it reads.
+                    let mut all = Vec::new();
+                    for i in &b.body {
+                        for s in i.operands() {
+                            let from = std::mem::take(&mut deps[s as usize]);
+                            merge(&mut all, &from);
+                            deps[s as usize] = from;
+                        }
+                    }
+                    for i in &b.body {
+                        let d = i.dest();
+                        if d != NONE {
+                            deps[d as usize] = all.clone();
+                        }
+                    }
+                    for &x in &b.tears {
+                        deps[x as usize] = all.clone();
+                    }
+                    // Second pass: body values depend on the tears' dependencies.
+                    walk(tape, &b.body, deps);
+                    for i in &b.body {
+                        let d = i.dest();
+                        if d != NONE {
+                            let mut v = std::mem::take(&mut deps[d as usize]);
+                            merge(&mut v, &all);
+                            deps[d as usize] = v;
+                        }
+                    }
+                    continue;
+                }
+                let d = ins.dest();
+                let mut acc = Vec::new();
+                for s in ins.operands() {
+                    merge(&mut acc, &deps[s as usize]);
+                }
+                deps[d as usize] = acc;
+            }
+        }
+        walk(self, &self.code, &mut deps);
+        let mut out = Vec::new();
+        for (i, &d) in self.deriv_regs.iter().enumerate() {
+            for &j in &deps[d as usize] {
+                out.push((i, j as usize));
+            }
+        }
+        out
+    }
+}

@@ -1,0 +1,602 @@
+//! Solving a tape block: a junction-charge inversion, an affine block with
+//! a constant Jacobian, Newton on one tear, or damped Newton on many, with
+//! the work buffers they share.
+
+use super::*;
+
+impl Tape {
+    /// The registers of a charge-inversion block `0 = ±(target - Q(x))`:
+    /// (x, q = Q(x), residual), and the sign of `∂residual/∂x = ±Q′(x)`.
+    pub(super) fn charge_regs(b: &TapeBlock) -> (usize, usize, usize, f64) {
+        let [Instr::Device { d: q, .. }, Instr::Sub { d: res, a: l, .. }] = b.body[..] else {
+            unreachable!("a charge inversion is [Device, Sub]")
+        };
+        let sign = if l == q { 1.0 } else { -1.0 };
+        (b.tears[0] as usize, q as usize, res as usize, sign)
+    }
+
+    /// ∂residuals/∂tears at the current point into `jac` (row-major n×n),
+    /// evaluating the body there too; leaves `dr` of the body registers dirty.
+    pub(super) fn block_jacobian(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        dr: &mut [f64],
+        t: f64,
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
+        let n = b.tears.len();
+        if n == 0 {
+            return self.run(&b.body, r, t);
+        }
+        for j in 0..n {
+            // Registers read by the body but not written are constants here.
+            for &x in &b.touched {
+                dr[x as usize] = 0.0;
+            }
+            dr[b.tears[j] as usize] = 1.0;
+            self.run_tangent(&b.body, r, dr, t, None)?;
+            for (i, &res) in b.residuals.iter().enumerate() {
+                jac[i * n + j] = dr[res as usize];
+            }
+        }
+        Ok(())
+    }
+
+    /// Damped Newton on a block's tearing variables, warm-started from their
+    /// current values; on failure the warm start is left for the solver's
+    /// retry.
+    pub(super) fn solve_block(&self, k: usize, r: &mut [f64], t: f64) -> Result<(), EvalError> {
+        let b = &self.blocks[k];
+        if let Some(ci) = b.charge_inverse
+            && self.invert_charge(b, ci, r)
+        {
+            return self.settle(b, r, t);
+        }
+        let mut w = Work::take(b.tears.len(), r.len());
+        w.start.extend(b.tears.iter().map(|&x| r[x as usize]));
+        let result = if b.constant_jacobian {
+            self.solve_affine(b, r, t, &mut w)
+        } else if b.tears.len() == 1 {
+            self.newton_scalar(b, r, t, &mut w)
+        } else {
+            self.newton_iterate(b, r, t, &mut w)
+        };
+        if result.is_err() {
+            for (j, &x) in b.tears.iter().enumerate() {
+                r[x as usize] = w.start[j];
+            }
+        }
+        w.give();
+        result
+    }
+
+    /// After the last correction of `b`'s tears: bring its body up to date
+    /// unless nothing outside reads it (`private`).
+    pub(super) fn settle(&self, b: &TapeBlock, r: &mut [f64], t: f64) -> Result<(), EvalError> {
+        if b.private {
+            Ok(())
+        } else {
+            self.run(&b.body, r, t)
+        }
+    }
+
+    /// The factored constant Jacobian of `b`, computed at the first call
+    /// that finds it finite and regular (a failure is not remembered: the
+    /// registers it was computed from may have held a failed trial point),
+    /// by [`Tape::factor_jacobian`]: dense up to [`DENSE_TEARS`] tears,
+    /// sparse beyond (a ladder torn every few sections couples each residual
+    /// to a few neighbouring tears; its dense LU, cubic in the tears, took
+    /// 50 s at 5000).
+    pub(super) fn constant_lu<'t>(
+        &self,
+        b: &'t TapeBlock,
+        r: &mut [f64],
+        t: f64,
+        w: &mut Work,
+    ) -> Result<&'t Factored, EvalError> {
+        if let Some(lu) = b.lu.get() {
+            return Ok(lu);
+        }
+        let mut dr = std::mem::take(&mut w.dr);
+        let factored = self.factor_jacobian(b, r, &mut dr, t, w);
+        w.dr = dr;
+        let lu = match factored? {
+            Some(sparse) => Factored::Sparse(sparse),
+            None => Factored::Dense(DenseLu {
+                lu: w.jac.clone(),
+                perm: w.perm.clone(),
+            }),
+        };
+        Ok(b.lu.get_or_init(|| lu))
+    }
+
+    /// `b`'s Jacobian at the current point, factored (the body is evaluated
+    /// there too; `dr`'s tangents of the body are left dirty): dense into
+    /// `w.jac` and `w.perm` (`None`), or past [`DENSE_TEARS`] sparse.
+    pub(super) fn factor_jacobian(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        dr: &mut [f64],
+        t: f64,
+        w: &mut Work,
+    ) -> Result<Option<TripletLu>, EvalError> {
+        let n = b.tears.len();
+        if n > DENSE_TEARS {
+            let entries = self.sparse_columns(b, r, dr, t)?;
+            return match entries.iter().all(|e| e.2.is_finite()) {
+                true => TripletLu::new(n, entries)
+                    .map(Some)
+                    .ok_or_else(|| b.singular(t)),
+                false => Err(b.singular(t)),
+            };
+        }
+        w.dense_jac(n);
+        self.block_jacobian(b, r, dr, t, &mut w.jac)?;
+        if !(w.jac.iter().all(|v| v.is_finite()) && lu_factor(n, &mut w.jac, &mut w.perm)) {
+            return Err(b.singular(t));
+        }
+        Ok(None)
+    }
+
+    /// The nonzero entries `(residual, tear, ∂)` of `b`'s Jacobian at the
+    /// current point: columns that share no residual ([`tear_pattern`],
+    /// coloured once per block) in one tangent run, else one run a column.
+    pub(super) fn sparse_columns(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        dr: &mut [f64],
+        t: f64,
+    ) -> Result<Vec<(usize, usize, f64)>, EvalError> {
+        let n = b.tears.len();
+        let mut entries = Vec::new();
+        let pattern = b.pattern.get_or_init(|| {
+            tear_pattern(b).map(|rows| {
+                let (colour, n_colours) = colour_columns(n, &rows);
+                Pattern {
+                    members: members(&colour, n_colours),
+                    rows,
+                    colour,
+                }
+            })
+        });
+        // Without a pattern every column is its own colour.
+        let n_colours = pattern.as_ref().map_or(n, |p| p.members.len()) as u32;
+        for c in 0..n_colours {
+            for &x in &b.touched {
+                dr[x as usize] = 0.0;
+            }
+            let seeds = match pattern {
+                Some(p) => &p.members[c as usize][..],
+                None => std::slice::from_ref(&c),
+            };
+            for &j in seeds {
+                dr[b.tears[j as usize] as usize] = 1.0;
+            }
+            self.run_tangent(&b.body, r, dr, t, None)?;
+            for (i, &res) in b.residuals.iter().enumerate() {
+                let v = dr[res as usize];
+                let j = match pattern {
+                    Some(p) => p.rows[i]
+                        .iter()
+                        .find(|&&j| p.colour[j as usize] == c)
+                        .copied(),
+                    None => Some(c),
+                };
+                if let Some(j) = j
+                    && v != 0.0
+                {
+                    entries.push((i, j as usize, v));
+                }
+            }
+        }
+        Ok(entries)
+    }
+
+    /// A block whose residuals are affine in the tears with a constant
+    /// Jacobian: one correction from the current tears solves it.
+    pub(super) fn solve_affine(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        t: f64,
+        w: &mut Work,
+    ) -> Result<(), EvalError> {
+        let lu = self.constant_lu(b, r, t, w)?;
+        self.run(&b.body, r, t)?;
+        for (j, &x) in b.residuals.iter().enumerate() {
+            w.step[j] = r[x as usize];
+        }
+        if w.step.iter().all(|v| *v == 0.0) {
+            return Ok(());
+        }
+        lu.solve_in_place(&mut w.step, &mut w.tmp);
+        if w.step.iter().any(|v| !v.is_finite()) {
+            return Err(b.singular(t));
+        }
+        for (j, &x) in b.tears.iter().enumerate() {
+            r[x as usize] -= w.step[j];
+        }
+        self.settle(b, r, t)
+    }
+
+    /// Halley's method on `Q(x) = q` with the device's `Q′` and `Q″`, from the
+    /// warm start in the tear. What a Halley step leaves is about its cube
+    /// times `Q″²/(4Q′²) - Q‴/(6Q′)`, bounded here from the junction's
+    /// parameters: a warm start within a few microvolts converges in one
+    /// evaluation where Newton needs two. Far steps are limited as ngspice
+    /// limits junctions. `false` (the tear as it was) when the iteration
+    /// cannot proceed: the damped Newton takes over.
+    pub(super) fn invert_charge(&self, b: &TapeBlock, ci: ChargeInverse, r: &mut [f64]) -> bool {
+        let p = &self.diodes[ci.diode as usize];
+        let (x_reg, target) = (b.tears[0] as usize, r[ci.target as usize]);
+        let memo = ci.memo as usize;
+        let start = r[x_reg];
+        // From the last evaluated point when there is one: its values are
+        // known, so the first step is free.
+        let mut x = if r[memo].is_finite() { r[memo] } else { start };
+        for _ in 0..100 {
+            let [q, c, c2] = if x == r[memo] {
+                [r[memo + 1], r[memo + 2], r[memo + 3]]
+            } else {
+                let v = p.charge(x);
+                r[memo] = x;
+                r[memo + 1..memo + 4].copy_from_slice(&v);
+                v
+            };
+            let f = q - target;
+            if f == 0.0 {
+                r[x_reg] = x;
+                return true;
+            }
+            if !(c > 0.0 && f.is_finite() && c2.is_finite()) {
+                break;
+            }
+            let newton = f / c;
+            let k = c2 / c;
+            let h = 0.5 * newton * k;
+            let (step, left) = if h.abs() <= 0.5 {
+                let step = newton / (1.0 - h);
+                let constant = 0.25 * k * k + p.third_derivative_bound(x);
+                (step, step.abs().powi(3) * constant)
+            } else {
+                (newton, 0.5 * newton * newton * k.abs())
+            };
+            let next = x - step;
+            let limited = pnjlim(next, x, p.vte);
+            if limited != next {
+                x = limited;
+                continue;
+            }
+            x = next;
+            if left <= 1e-13 * (1.0 + x.abs()) {
+                r[x_reg] = x;
+                return true;
+            }
+        }
+        r[x_reg] = start;
+        false
+    }
+
+    /// Newton on a one-tear block: each iteration is one tangent run of the
+    /// body, which gives the residual and its slope together. The step is
+    /// damped by the same natural monotonicity test as [`Self::newton_iterate`]
+    /// (checked with the residual the next iteration computes anyway) and
+    /// junction tears are limited as ngspice limits them.
+    pub(super) fn newton_scalar(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        t: f64,
+        w: &mut Work,
+    ) -> Result<(), EvalError> {
+        let (x, res) = (b.tears[0] as usize, b.residuals[0] as usize);
+        let vt = b.junctions.first().map(|&(_, vt)| vt as usize);
+        let finish = |r: &mut [f64], value: f64| {
+            r[x] = value;
+            self.settle(b, r, t)
+        };
+        // The last full step: start, correction, slope, scaled size, damping.
+        let mut last: Option<(f64, f64, f64, f64, f64)> = None;
+        for _ in 0..400 {
+            for &z in &b.touched {
+                w.dr[z as usize] = 0.0;
+            }
+            w.dr[x] = 1.0;
+            self.run_tangent(&b.body, r, &mut w.dr, t, None)?;
+            let (fx, slope, xv) = (r[res], w.dr[res], r[x]);
+            if let Some((x0, step0, slope0, full0, lambda)) = last {
+                let simplified = (fx / slope0).abs() / (1.0 + x0.abs());
+                if !newton::monotone(simplified, full0, lambda) {
+                    let lambda = lambda * 0.5;
+                    if lambda < newton::MIN_DAMPING {
+                        if full0 <= 1e-9 {
+                            return Ok(());
+                        }
+                        return Err(b.no_convergence(fx.abs(), t));
+                    }
+                    r[x] = x0 - lambda * step0;
+                    last = Some((x0, step0, slope0, full0, lambda));
+                    continue;
+                }
+            }
+            if fx == 0.0 {
+                return Ok(());
+            }
+            let step = fx / slope;
+            let full = step.abs() / (1.0 + xv.abs());
+            if !full.is_finite() {
+                return Err(b.singular(t));
+            }
+            if full <= 1e-13 {
+                return finish(r, xv - step);
+            }
+            if let Some((_, _, _, full0, 1.0)) = last
+                && newton::converged_quadratically(full0, full)
+            {
+                // Quadratic convergence: what this step leaves is below rounding.
+                return finish(r, xv - step);
+            }
+            if let Some(vt) = vt {
+                let vt = r[vt].abs();
+                // A junction's residual curves like exp(x/vt): Newton's error
+                // after this step is about step²/(2 vt). Below rounding, the
+                // step is the last one.
+                if vt > 0.0 && step * step <= 2e-13 * vt * (1.0 + xv.abs()) {
+                    return finish(r, xv - step);
+                }
+                if vt > 0.0 {
+                    let limited = pnjlim(xv - step, xv, vt);
+                    if limited != xv - step {
+                        r[x] = limited;
+                        last = None;
+                        continue;
+                    }
+                }
+            }
+            r[x] = xv - step;
+            last = Some((xv, step, slope, full, 1.0));
+        }
+        Err(b.no_convergence(r[res].abs(), t))
+    }
+
+    /// Damped Newton with the natural monotonicity test (Deuflhard): a step
+    /// is accepted when the simplified Newton correction at the new point,
+    /// `J⁻¹ r(x_new)` with the old `J`, is shorter than the full correction.
+    /// Affine invariant, so badly scaled residuals (amperes beside volts)
+    /// do not mislead the damping. Allocation-free: `w` holds the buffers.
+    pub(super) fn newton_iterate(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        t: f64,
+        w: &mut Work,
+    ) -> Result<(), EvalError> {
+        let no_convergence = |r: &[f64]| {
+            let residual = b
+                .residuals
+                .iter()
+                .map(|&x| r[x as usize].abs())
+                .fold(0.0, f64::max);
+            b.no_convergence(residual, t)
+        };
+        let scaled = |d: &[f64], x: &[f64]| newton::scaled_norm(d, |k| 1.0 + x[k].abs());
+        let set = |r: &mut [f64], x0: &[f64], step: &[f64], lambda: f64| {
+            for (j, &x) in b.tears.iter().enumerate() {
+                r[x as usize] = x0[j] - lambda * step[j];
+            }
+        };
+        // The Jacobian's tangent runs evaluate the body too.
+        for _ in 0..200 {
+            let mut dr = std::mem::take(&mut w.dr);
+            let factored = self.factor_jacobian(b, r, &mut dr, t, w);
+            w.dr = dr;
+            let sparse = factored?;
+            for (j, &x) in b.residuals.iter().enumerate() {
+                w.step[j] = r[x as usize];
+            }
+            if w.step.iter().all(|v| *v == 0.0) {
+                return Ok(());
+            }
+            solve_factored(sparse.as_ref(), &w.jac, &w.perm, &mut w.step, &mut w.tmp);
+            for (j, &x) in b.tears.iter().enumerate() {
+                w.x0[j] = r[x as usize];
+            }
+            let full = scaled(&w.step, &w.x0);
+            if !full.is_finite() {
+                return Err(b.singular(t));
+            }
+            if full <= 1e-13 {
+                // Converged to rounding: take the last correction and stop.
+                set(r, &w.x0, &w.step, 1.0);
+                return self.settle(b, r, t);
+            }
+            // Junction limiting (ngspice's pnjlim) on tears inside an exp().
+            // A limited step is taken as it is, as SPICE does.
+            let mut limited = false;
+            for &(j, vt) in &b.junctions {
+                let vt = r[vt as usize].abs();
+                if vt > 0.0 {
+                    let new = pnjlim(w.x0[j] - w.step[j], w.x0[j], vt);
+                    if new != w.x0[j] - w.step[j] {
+                        limited = true;
+                    }
+                    w.step[j] = w.x0[j] - new;
+                }
+            }
+            if limited {
+                set(r, &w.x0, &w.step, 1.0);
+                continue;
+            }
+            let damping = newton::damp(full, |lambda| {
+                set(r, &w.x0, &w.step, lambda);
+                self.run(&b.body, r, t)?;
+                for (j, &x) in b.residuals.iter().enumerate() {
+                    w.bar[j] = r[x as usize];
+                }
+                solve_factored(sparse.as_ref(), &w.jac, &w.perm, &mut w.bar, &mut w.tmp);
+                // The same scaling as the full correction: a scale that moved
+                // with x would make a shrinking |x| look like no progress.
+                Ok(scaled(&w.bar, &w.x0))
+            })?;
+            let Damping::Accepted { lambda, simplified } = damping else {
+                if full <= 1e-9 {
+                    // Stalled at rounding level: converged as far as f64 allows.
+                    return Ok(());
+                }
+                return Err(no_convergence(r));
+            };
+            if b.linear && lambda == 1.0 && b.junctions.is_empty() {
+                return Ok(());
+            }
+            if lambda == 1.0 && newton::converged_quadratically(full, simplified) {
+                // Quadratic convergence has set in: the simplified correction
+                // leaves an error of order `simplified * full`, below rounding.
+                for (j, &x) in b.tears.iter().enumerate() {
+                    r[x as usize] -= w.bar[j];
+                }
+                return self.settle(b, r, t);
+            }
+            // Otherwise go on: the next correction (at most 1e-13) is applied
+            // at the top, so the solution is as exact as f64 allows; the
+            // integrator's Newton needs f to be smooth to its own tolerance.
+        }
+        Err(no_convergence(r))
+    }
+}
+
+/// [`crate::ir::pnjlim`] where the saturation current is not known (tears
+/// inside an `exp()`): the critical voltage taken as 12 thermal voltages.
+pub(super) fn pnjlim(new: f64, old: f64, vt: f64) -> f64 {
+    crate::ir::pnjlim(new, old, vt, 12.0 * vt)
+}
+
+/// Buffers of one Newton solve, pooled per thread so that evaluating `f`
+/// allocates nothing once warm (blocks can nest, so it is a pool).
+#[derive(Default)]
+pub(super) struct Work {
+    pub(super) jac: Vec<f64>,
+    pub(super) perm: Vec<usize>,
+    pub(super) step: Vec<f64>,
+    pub(super) x0: Vec<f64>,
+    pub(super) bar: Vec<f64>,
+    pub(super) tmp: Vec<f64>,
+    /// The tears on entry (empty until filled).
+    pub(super) start: Vec<f64>,
+    /// Saved tangents (empty until filled).
+    pub(super) saved: Vec<f64>,
+    /// Residual right-hand side (empty until filled).
+    pub(super) res: Vec<f64>,
+    /// Register-sized tangents.
+    pub(super) dr: Vec<f64>,
+}
+
+thread_local! {
+    // Boxed so that taking and giving back moves a pointer, not ten vectors.
+    #[allow(clippy::vec_box)]
+    static WORK: std::cell::RefCell<Vec<Box<Work>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+impl Work {
+    /// Buffers for an `n`-tear block and `regs` tangent registers.
+    pub(super) fn take(n: usize, regs: usize) -> Box<Work> {
+        let mut w = WORK.with(|p| p.borrow_mut().pop()).unwrap_or_default();
+        for v in [&mut w.step, &mut w.x0, &mut w.bar, &mut w.tmp] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+        w.perm.clear();
+        w.perm.resize(n, 0);
+        w.start.clear();
+        w.saved.clear();
+        w.res.clear();
+        if w.dr.len() < regs {
+            w.dr.resize(regs, 0.0);
+        }
+        w
+    }
+
+    /// The dense `n`×`n` Jacobian buffer, zeroed (only blocks that factor
+    /// a Jacobian per call pay for it: a constant one is factored once).
+    pub(super) fn dense_jac(&mut self, n: usize) -> &mut Vec<f64> {
+        self.jac.clear();
+        self.jac.resize(n * n, 0.0);
+        &mut self.jac
+    }
+
+    pub(super) fn give(self: Box<Work>) {
+        WORK.with(|p| p.borrow_mut().push(self));
+    }
+}
+
+/// Which tears each residual of `b` depends on (sorted), followed through
+/// the body as sets per register; `None` when a set grows past
+/// [`PATTERN_MAX`] (dense enough for one column per run) or the body holds a
+/// nested block.
+pub(super) fn tear_pattern(b: &TapeBlock) -> Option<Vec<Vec<u32>>> {
+    let mut deps: HashMap<u32, Vec<u32>> = HashMap::new();
+    for (j, &x) in b.tears.iter().enumerate() {
+        deps.insert(x, vec![j as u32]);
+    }
+    for ins in &b.body {
+        if matches!(ins, Instr::Block { .. }) {
+            return None;
+        }
+        let mut set: Vec<u32> = Vec::new();
+        for a in ins.operands() {
+            if let Some(s) = deps.get(&a) {
+                set.extend_from_slice(s);
+            }
+        }
+        set.sort_unstable();
+        set.dedup();
+        if set.len() > PATTERN_MAX {
+            return None;
+        }
+        let d = ins.dest();
+        if set.is_empty() {
+            deps.remove(&d);
+        } else {
+            deps.insert(d, set);
+        }
+    }
+    Some(
+        b.residuals
+            .iter()
+            .map(|r| deps.get(r).cloned().unwrap_or_default())
+            .collect(),
+    )
+}
+
+/// Dependency sets larger than this make [`tear_pattern`] give up.
+pub(super) const PATTERN_MAX: usize = 64;
+
+/// Blocks with more tears than this factor a constant Jacobian as sparse.
+pub(super) const DENSE_TEARS: usize = 48;
+
+/// Which tears each residual of a block depends on ([`tear_pattern`]) and
+/// a colouring of the tears in which no residual sees two of one colour
+/// (each tear's colour, and the tears of each colour).
+#[derive(Clone, Debug)]
+pub(super) struct Pattern {
+    rows: Vec<Vec<u32>>,
+    colour: Vec<u32>,
+    members: Vec<Vec<u32>>,
+}
+
+/// Solve with a sparse factorization when there is one, else with the
+/// dense factors of [`lu_factor`] in the block's work buffers.
+pub(super) fn solve_factored(
+    sparse: Option<&TripletLu>,
+    jac: &[f64],
+    perm: &[usize],
+    b: &mut [f64],
+    tmp: &mut [f64],
+) {
+    match sparse {
+        Some(lu) => lu.solve_in_place(b, tmp),
+        None => lu_solve(perm.len(), jac, perm, b, tmp),
+    }
+}

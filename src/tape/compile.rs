@@ -1,0 +1,595 @@
+//! Compiling a [`Schedule`] into a [`Tape`]: registers for variables,
+//! parameters and constants, instructions in the schedule's order, blocks
+//! for algebraic loops, and the outputs' own program.
+
+use std::collections::HashMap;
+
+use super::*;
+
+pub(super) struct Compiler<'a> {
+    sys: &'a EquationSystem,
+    sched: &'a Schedule,
+    n_regs: u32,
+    init: Vec<f64>,
+    memo: HashMap<ExprId, u32>,
+    var_reg: Vec<u32>,
+    param_reg: Vec<u32>,
+    /// Constant registers (constants, parameters, reciprocals) by value.
+    consts: HashMap<u64, u32>,
+    reg_var: Vec<Option<VarId>>,
+    blocks: Vec<TapeBlock>,
+}
+
+impl Compiler<'_> {
+    fn reg(&mut self, value: f64) -> u32 {
+        let r = self.n_regs;
+        self.n_regs += 1;
+        self.init.push(value);
+        self.reg_var.push(None);
+        r
+    }
+
+    /// Emit `e` into `out` (post-order, memoized); returns its register.
+    /// The register of a constant value, one per distinct value: a ladder
+    /// of 10^5 equal resistors reads one `1/R`, which stays in cache.
+    fn const_reg(&mut self, v: f64) -> u32 {
+        if let Some(&r) = self.consts.get(&v.to_bits()) {
+            return r;
+        }
+        let r = self.reg(v);
+        self.consts.insert(v.to_bits(), r);
+        r
+    }
+
+    /// The value of a constant or parameter expression.
+    fn constant(&self, e: ExprId) -> Option<f64> {
+        match self.sched.exprs.get(e) {
+            Expr::Const(b) => Some(f64::from_bits(b)),
+            Expr::Param(p) => Some(self.sys.params[p].value),
+            _ => None,
+        }
+    }
+
+    /// The register of `e`, its code appended to `out` (each node once).
+    fn emit(&mut self, e: ExprId, out: &mut Vec<Instr>) -> u32 {
+        self.emit_at(e, out, 0)
+    }
+
+    /// Whether `e` already has its register.
+    fn emitted(&self, e: ExprId) -> bool {
+        self.memo.contains_key(&e)
+            || match self.sched.exprs.get(e) {
+                Expr::Var(v) => self.var_reg[v.0 as usize] != NONE,
+                Expr::Param(p) => self.param_reg[p.0 as usize] != NONE,
+                _ => false,
+            }
+    }
+
+    /// [`Compiler::emit`] at recursion depth `depth`. Past 128 levels (the
+    /// loop formulation's node potentials are tree-path sums 10^5 deep,
+    /// which overflowed the stack) the operands are emitted bottom-up with
+    /// an explicit stack, each then found memoized.
+    fn emit_at(&mut self, e: ExprId, out: &mut Vec<Instr>, depth: usize) -> u32 {
+        if let Some(&r) = self.memo.get(&e) {
+            return r;
+        }
+        if depth > 128 {
+            let mut stack = vec![(e, false)];
+            while let Some((n, expanded)) = stack.pop() {
+                if n == e && expanded {
+                    break;
+                }
+                if self.emitted(n) {
+                    continue;
+                }
+                if expanded {
+                    self.emit_at(n, out, 0);
+                    continue;
+                }
+                stack.push((n, true));
+                let x = &self.sched.exprs;
+                let children = match x.get(n) {
+                    Expr::Var(v) if self.var_reg[v.0 as usize] == NONE => {
+                        [self.sys.vars[v].alias, None]
+                    }
+                    Expr::Var(_)
+                    | Expr::Const(_)
+                    | Expr::Param(_)
+                    | Expr::Time
+                    | Expr::Source(..) => [None, None],
+                    op => op.operands(),
+                };
+                stack.extend(children.into_iter().rev().flatten().map(|c| (c, false)));
+            }
+        }
+        let depth = depth + 1;
+        let x = &self.sched.exprs;
+        let r = match x.get(e) {
+            Expr::Const(b) => {
+                let r = self.const_reg(f64::from_bits(b));
+                self.memo.insert(e, r);
+                return r;
+            }
+            Expr::Param(p) => {
+                let k = p.0 as usize;
+                if self.param_reg[k] == NONE {
+                    let param = &self.sys.params[p];
+                    // A source's value gets a register of its own (source
+                    // stepping scales it); other parameters share constants.
+                    self.param_reg[k] = if param.source {
+                        self.reg(param.value)
+                    } else {
+                        self.const_reg(param.value)
+                    };
+                }
+                return self.param_reg[k];
+            }
+            Expr::Var(v) => {
+                let r = self.var_reg[v.0 as usize];
+                if r != NONE {
+                    return r;
+                }
+                // An eliminated alias: its expression.
+                let alias = self.sys.vars[v]
+                    .alias
+                    .expect("variables are computed before use");
+                let r = self.emit_at(alias, out, depth);
+                self.var_reg[v.0 as usize] = r;
+                return r;
+            }
+            Expr::Time => {
+                let d = self.reg(0.0);
+                out.push(Instr::Time { d });
+                d
+            }
+            Expr::Source(s, order) => {
+                let d = self.reg(0.0);
+                out.push(Instr::Src { d, s: s.0, order });
+                d
+            }
+            Expr::Neg(a) => {
+                let a = self.emit_at(a, out, depth);
+                let d = self.reg(0.0);
+                out.push(Instr::Neg { d, a });
+                d
+            }
+            Expr::Call(f, a) => {
+                let a = self.emit_at(a, out, depth);
+                let d = self.reg(0.0);
+                out.push(Instr::Call { d, f, a });
+                d
+            }
+            Expr::Device(f, a) => {
+                let a = self.emit_at(a, out, depth);
+                let d = self.reg(0.0);
+                out.push(Instr::Device { d, f, a });
+                d
+            }
+            // Division by a constant is multiplication by its reciprocal,
+            // computed once here (within an ulp of dividing; a division costs
+            // several multiplications).
+            Expr::Div(a, b) if self.constant(b).is_some_and(|c| c != 0.0 && c.is_finite()) => {
+                let ra = self.emit_at(a, out, depth);
+                let rb = self.const_reg(1.0 / self.constant(b).unwrap_or(1.0));
+                let d = self.reg(0.0);
+                out.push(Instr::Mul { d, a: ra, b: rb });
+                d
+            }
+            Expr::Add(a, b)
+            | Expr::Sub(a, b)
+            | Expr::Mul(a, b)
+            | Expr::Div(a, b)
+            | Expr::Pow(a, b) => {
+                let (ra, rb) = (self.emit_at(a, out, depth), self.emit_at(b, out, depth));
+                let d = self.reg(0.0);
+                out.push(match x.get(e) {
+                    Expr::Add(..) => Instr::Add { d, a: ra, b: rb },
+                    Expr::Sub(..) => Instr::Sub { d, a: ra, b: rb },
+                    Expr::Mul(..) => Instr::Mul { d, a: ra, b: rb },
+                    Expr::Div(..) => Instr::Div { d, a: ra, b: rb },
+                    _ => Instr::Pow { d, a: ra, b: rb },
+                });
+                d
+            }
+        };
+        self.memo.insert(e, r);
+        r
+    }
+
+    /// Find a block's junction tears; diode thermal voltages get registers.
+    /// A nested block (compiled before its enclosing one) contributes its
+    /// own registers: a Jacobian column must clear those tangents too.
+    fn set_touched(&mut self, k: usize) {
+        let mut touched: Vec<u32> = Vec::new();
+        for ins in &self.blocks[k].body {
+            match *ins {
+                Instr::Block { k: inner } => {
+                    touched.extend_from_slice(&self.blocks[inner as usize].touched)
+                }
+                _ => touched.extend(ins.operands().into_iter().chain([ins.dest()])),
+            }
+        }
+        touched.retain(|&x| x != NONE);
+        touched.sort_unstable();
+        touched.dedup();
+        self.blocks[k].touched = touched;
+    }
+
+    fn set_junctions(&mut self, k: usize) {
+        let diodes: Vec<u32> = self.blocks[k]
+            .body
+            .iter()
+            .filter_map(|i| match i {
+                Instr::Device { f, .. } => Some(f.diode),
+                _ => None,
+            })
+            .collect();
+        let mut regs = HashMap::new();
+        for d in diodes {
+            if let std::collections::hash_map::Entry::Vacant(e) = regs.entry(d) {
+                let vte = self.sys.diodes[d as usize].vte;
+                e.insert(self.reg(vte));
+            }
+        }
+        let j = junctions(&self.blocks[k], &|d| regs.get(&d).copied());
+        self.blocks[k].junctions = j;
+    }
+
+    /// The register of variable `v` (an alias is emitted on first use).
+    fn var(&mut self, v: VarId, out: &mut Vec<Instr>) -> u32 {
+        let r = self.var_reg[v.0 as usize];
+        if r != NONE {
+            return r;
+        }
+        match self.sys.vars[v].alias {
+            Some(a) => {
+                let r = self.emit(a, out);
+                self.var_reg[v.0 as usize] = r;
+                r
+            }
+            // Not needed by anything that ran: a constant zero.
+            None => self.reg(0.0),
+        }
+    }
+
+    fn assign(&mut self, a: &Assignment, out: &mut Vec<Instr>) {
+        match a.solved {
+            Solved::Explicit(e) => {
+                let r = self.emit(e, out);
+                self.var_reg[a.var.0 as usize] = r;
+                if self.reg_var[r as usize].is_none() {
+                    self.reg_var[r as usize] = Some(a.var);
+                }
+            }
+            Solved::Implicit(f) => {
+                // A one-equation block: guess the unknown, zero the residual.
+                let t = self.reg(0.0);
+                self.var_reg[a.var.0 as usize] = t;
+                self.reg_var[t as usize] = Some(a.var);
+                let mut body = Vec::new();
+                let r = self.emit(f, &mut body);
+                let k = self.blocks.len() as u32;
+                self.blocks.push(TapeBlock {
+                    index: 0,
+                    tears: vec![t],
+                    residuals: vec![r],
+                    body,
+                    linear: false,
+                    elements: self.sys.eqs[a.eq]
+                        .origin
+                        .elements()
+                        .into_iter()
+                        .map(String::from)
+                        .collect(),
+                    junctions: Vec::new(),
+                    touched: Vec::new(),
+                    private: false,
+                    constant_jacobian: false,
+                    lu: std::cell::OnceCell::new(),
+                    pattern: std::cell::OnceCell::new(),
+                    charge_inverse: None,
+                });
+                let kk = k as usize;
+                self.set_junctions(kk);
+                self.set_touched(kk);
+                out.push(Instr::Block { k });
+            }
+        }
+    }
+
+    fn step(&mut self, step: &Step, out: &mut Vec<Instr>) {
+        match step {
+            Step::Assign(a) => self.assign(a, out),
+            Step::Block(b) => {
+                // A large linear loop is solved whole: every unknown a Newton
+                // unknown, every equation a residual. Its Jacobian then has the
+                // circuit's own sparsity, where the torn one fills in (a
+                // 100×100 resistor mesh: 7471 tears, 4.5 ms a solve).
+                let whole = b.solved_whole();
+                let unknowns: Vec<VarId> = if whole {
+                    b.inner.iter().chain(&b.residuals).map(|a| a.var).collect()
+                } else {
+                    b.tears.clone()
+                };
+                let tears: Vec<u32> = unknowns
+                    .iter()
+                    .map(|&v| {
+                        let r = self.reg(0.0);
+                        self.var_reg[v.0 as usize] = r;
+                        self.reg_var[r as usize] = Some(v);
+                        r
+                    })
+                    .collect();
+                let mut body = Vec::new();
+                if !whole {
+                    for a in &b.inner {
+                        self.assign(a, &mut body);
+                    }
+                }
+                let equations = if whole { &b.inner[..] } else { &[][..] };
+                let mut residuals = Vec::new();
+                for a in equations.iter().chain(&b.residuals) {
+                    let eq = &self.sys.eqs[a.eq];
+                    let l = self.emit(eq.lhs, &mut body);
+                    let r = self.emit(eq.rhs, &mut body);
+                    let d = self.reg(0.0);
+                    body.push(Instr::Sub { d, a: l, b: r });
+                    residuals.push(d);
+                }
+                let k = self.blocks.len() as u32;
+                self.blocks.push(TapeBlock {
+                    index: b.index,
+                    tears,
+                    residuals,
+                    body,
+                    linear: b.linear,
+                    elements: b.elements.clone(),
+                    junctions: Vec::new(),
+                    touched: Vec::new(),
+                    private: false,
+                    constant_jacobian: false,
+                    lu: std::cell::OnceCell::new(),
+                    pattern: std::cell::OnceCell::new(),
+                    charge_inverse: None,
+                });
+                let kk = k as usize;
+                self.set_junctions(kk);
+                self.set_touched(kk);
+                out.push(Instr::Block { k });
+            }
+        }
+    }
+}
+
+/// The variables a step computes and the ones it reads.
+pub(super) fn step_vars(
+    sys: &EquationSystem,
+    c: &crate::analysis::StructureGraph,
+    step: &Step,
+) -> (Vec<VarId>, Vec<VarId>) {
+    let assigns: Vec<&Assignment> = match step {
+        Step::Assign(a) => vec![a],
+        Step::Block(b) => b.inner.iter().chain(&b.residuals).collect(),
+    };
+    let writes: Vec<VarId> = assigns.iter().map(|a| a.var).collect();
+    // A block can write 10^5 variables: look them up in a set, not a scan.
+    let written: std::collections::HashSet<VarId> = writes.iter().copied().collect();
+    let mut reads = Vec::new();
+    let (mut vars, mut stack) = (Vec::new(), Vec::new());
+    for a in &assigns {
+        sys.eq_vars(a.eq, &mut vars, &mut stack);
+        reads.extend(vars.iter().copied().filter(|v| !written.contains(v)));
+    }
+    let _ = c;
+    (writes, reads)
+}
+
+/// Compile `sched` of `sys`. `outputs` are evaluated at output points only.
+pub fn compile(
+    sys: &EquationSystem,
+    graph: &crate::analysis::StructureGraph,
+    sched: &Schedule,
+    outputs: &[OutputRef],
+) -> Tape {
+    let states: Vec<VarId> = sys.states().collect();
+    let mut c = Compiler {
+        sys,
+        sched,
+        n_regs: 0,
+        init: Vec::new(),
+        memo: HashMap::new(),
+        var_reg: vec![NONE; sys.vars.len()],
+        param_reg: vec![NONE; sys.params.len()],
+        consts: HashMap::new(),
+        reg_var: Vec::new(),
+        blocks: Vec::new(),
+    };
+    let state_regs: Vec<u32> = states
+        .iter()
+        .map(|&s| {
+            let r = c.reg(0.0);
+            c.var_reg[s.0 as usize] = r;
+            c.reg_var[r as usize] = Some(s);
+            r
+        })
+        .collect();
+    // Which steps the derivatives need: walk the schedule backwards.
+    let ders: Vec<VarId> = states
+        .iter()
+        .map(|&s| match sys.vars[s].role {
+            crate::ir::VarRole::State { der } => der,
+            _ => unreachable!("states have derivatives"),
+        })
+        .collect();
+    let mut needed = vec![false; sys.vars.len()];
+    for &d in &ders {
+        needed[d.0 as usize] = true;
+    }
+    let info: Vec<(Vec<VarId>, Vec<VarId>)> = sched
+        .steps
+        .iter()
+        .map(|s| step_vars(sys, graph, s))
+        .collect();
+    let mut in_f = vec![false; sched.steps.len()];
+    for (k, (writes, reads)) in info.iter().enumerate().rev() {
+        if writes.iter().any(|w| needed[w.0 as usize]) {
+            in_f[k] = true;
+            for r in reads {
+                needed[r.0 as usize] = true;
+            }
+        }
+    }
+    // Which of the rest the outputs need: one pass over the outputs'
+    // expression DAG, through aliases (the loop formulation's node
+    // potentials share their tree paths: a pass per output was quadratic).
+    let mut out_needed = vec![false; sys.vars.len()];
+    let mut seen: std::collections::HashSet<ExprId> = std::collections::HashSet::new();
+    let mut stack: Vec<ExprId> = Vec::new();
+    let mark = |v: VarId, out_needed: &mut [bool], stack: &mut Vec<ExprId>| {
+        if !std::mem::replace(&mut out_needed[v.0 as usize], true)
+            && let Some(a) = sys.vars[v].alias
+        {
+            stack.push(a);
+        }
+    };
+    for &o in outputs {
+        match o {
+            OutputRef::Expr(e) => stack.push(e),
+            OutputRef::Diff(a, b) => stack.extend([a, b]),
+            OutputRef::Var(v) => mark(v, &mut out_needed, &mut stack),
+        }
+        while let Some(e) = stack.pop() {
+            if !seen.insert(e) {
+                continue;
+            }
+            match sys.exprs.get(e) {
+                Expr::Var(v) => mark(v, &mut out_needed, &mut stack),
+                op => stack.extend(op.operands().into_iter().flatten()),
+            }
+        }
+    }
+    // Every step the outputs need, in f or not: the output program is
+    // independent of `code`, so output points cost only what they read.
+    let mut for_out = vec![false; sched.steps.len()];
+    for (k, (writes, reads)) in info.iter().enumerate().rev() {
+        if writes.iter().any(|w| out_needed[w.0 as usize]) {
+            for_out[k] = true;
+            for r in reads {
+                out_needed[r.0 as usize] = true;
+            }
+        }
+    }
+    let at_out: Vec<bool> = for_out.iter().zip(&in_f).map(|(o, f)| *o && !f).collect();
+    let mut code = Vec::new();
+    for (k, step) in sched.steps.iter().enumerate() {
+        if in_f[k] {
+            c.step(step, &mut code);
+        }
+    }
+    let deriv_regs: Vec<u32> = ders.iter().map(|d| c.var_reg[d.0 as usize]).collect();
+    // The output program gets its own registers for everything computed.
+    c.memo
+        .retain(|&e, _| matches!(sched.exprs.get(e), Expr::Const(_)));
+    for v in sys.vars.ids() {
+        if !sys.vars[v].is_state() {
+            c.var_reg[v.0 as usize] = NONE;
+        }
+    }
+    let mut out_code = Vec::new();
+    for (k, step) in sched.steps.iter().enumerate() {
+        if for_out[k] {
+            c.step(step, &mut out_code);
+        }
+    }
+    let out_regs: Vec<u32> = outputs
+        .iter()
+        .map(|&o| match o {
+            OutputRef::Expr(e) => c.emit(e, &mut out_code),
+            OutputRef::Diff(a, b) => {
+                let (ra, rb) = (c.emit(a, &mut out_code), c.emit(b, &mut out_code));
+                let d = c.reg(0.0);
+                out_code.push(Instr::Sub { d, a: ra, b: rb });
+                d
+            }
+            OutputRef::Var(v) => c.var(v, &mut out_code),
+        })
+        .collect();
+    let count = |flags: &[bool]| -> usize {
+        sched
+            .steps
+            .iter()
+            .zip(flags)
+            .filter(|(_, f)| **f)
+            .map(|(s, _)| match s {
+                Step::Assign(_) => 1,
+                Step::Block(b) => b.n_eqs(),
+            })
+            .sum()
+    };
+    let read: std::collections::HashSet<u32> = out_code
+        .iter()
+        .flat_map(|i| match i {
+            Instr::Block { k } => c.blocks[*k as usize]
+                .body
+                .iter()
+                .flat_map(|b| b.operands())
+                .collect::<Vec<_>>(),
+            other => other.operands().into_iter().collect(),
+        })
+        .chain(out_regs.iter().copied())
+        .collect();
+    let out_inputs: Vec<(usize, u32)> = state_regs
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| read.contains(r))
+        .map(|(k, &r)| (k, r))
+        .collect();
+    set_private(
+        &mut c.blocks,
+        &[&code, &out_code],
+        &[&deriv_regs, &out_regs],
+    );
+    set_constant_jacobians(&mut c.blocks, &[&code, &out_code], &state_regs);
+    for k in 0..c.blocks.len() {
+        c.blocks[k].charge_inverse = charge_inverse(&c.blocks[k]).map(|ci| {
+            let memo = c.reg(f64::NAN);
+            for _ in 1..4 {
+                c.reg(f64::NAN);
+            }
+            ChargeInverse { memo, ..ci }
+        });
+    }
+    let memo_links = memo_links(&c.blocks, &code, &out_code);
+    let n_in_f = count(&in_f);
+    let n_at_outputs = count(&at_out);
+    let source_params: Vec<(u32, f64)> = sys
+        .params
+        .iter()
+        .zip(&c.param_reg)
+        .filter(|((_, p), r)| p.source && **r != NONE)
+        .map(|((_, p), &r)| (r, p.value))
+        .collect();
+    Tape {
+        n_regs: c.n_regs as usize,
+        state_regs,
+        states,
+        deriv_regs,
+        init: c.init,
+        code,
+        blocks: c.blocks,
+        out_code,
+        out_inputs,
+        out_regs,
+        memo_links,
+        sources: sys.sources.values().map(|s| s.wave.clone()).collect(),
+        diodes: sys.diodes.clone(),
+        n_in_f,
+        n_at_outputs,
+        n_unused: sys.eqs.len() - n_in_f - n_at_outputs,
+        reg_var: c.reg_var,
+        dc: std::cell::Cell::new(false),
+        source_scale: std::cell::Cell::new(1.0),
+        source_params,
+        source_memo: vec![std::cell::Cell::new((f64::NAN, 0.0)); sys.sources.len()],
+    }
+}

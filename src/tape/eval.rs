@@ -1,0 +1,130 @@
+//! Running the tape: `f(t, y)`, the outputs, the sources and the register
+//! file.
+
+use super::*;
+
+impl Tape {
+    #[inline]
+    pub(super) fn source(&self, s: u32, t: f64, order: u8) -> f64 {
+        if order > 0 && self.dc.get() {
+            0.0
+        } else {
+            let value = if order == 0 {
+                let memo = &self.source_memo[s as usize];
+                let (at, v) = memo.get();
+                if at == t {
+                    v
+                } else {
+                    let v = self.sources[s as usize].eval(t, 0);
+                    memo.set((t, v));
+                    v
+                }
+            } else {
+                self.sources[s as usize].eval(t, order)
+            };
+            value * self.source_scale.get()
+        }
+    }
+
+    /// Fresh registers (parameters and constants set).
+    pub fn registers(&self) -> Vec<f64> {
+        self.init.clone()
+    }
+
+    /// Scale every independent source by `s`: the waveforms (through
+    /// `source_scale`) and the DC values held in `regs`.
+    pub fn scale_sources(&self, regs: &mut [f64], s: f64) {
+        self.source_scale.set(s);
+        for &(r, v) in &self.source_params {
+            regs[r as usize] = v * s;
+        }
+    }
+
+    pub(super) fn run(&self, code: &[Instr], r: &mut [f64], t: f64) -> Result<(), EvalError> {
+        for ins in code {
+            match *ins {
+                Instr::Neg { d, a } => r[d as usize] = -r[a as usize],
+                Instr::Add { d, a, b } => r[d as usize] = r[a as usize] + r[b as usize],
+                Instr::Sub { d, a, b } => r[d as usize] = r[a as usize] - r[b as usize],
+                Instr::Mul { d, a, b } => r[d as usize] = r[a as usize] * r[b as usize],
+                Instr::Div { d, a, b } => r[d as usize] = r[a as usize] / r[b as usize],
+                Instr::Pow { d, a, b } => r[d as usize] = r[a as usize].powf(r[b as usize]),
+                Instr::Call { d, f, a } => r[d as usize] = call(f, r[a as usize]),
+                Instr::Device { d, f, a } => {
+                    r[d as usize] =
+                        self.diodes[f.diode as usize].eval(f.part, f.order, r[a as usize])
+                }
+                Instr::Src { d, s, order } => r[d as usize] = self.source(s, t, order),
+                Instr::Time { d } => r[d as usize] = t,
+                Instr::Block { k } => self.solve_block(k as usize, r, t)?,
+            }
+        }
+        Ok(())
+    }
+
+    /// `f(t, y)`: load the states, run the program, read the derivatives.
+    pub fn rhs(
+        &self,
+        regs: &mut [f64],
+        t: f64,
+        y: &[f64],
+        dy: &mut [f64],
+    ) -> Result<(), EvalError> {
+        for (k, &s) in self.state_regs.iter().enumerate() {
+            regs[s as usize] = y[k];
+        }
+        self.run(&self.code, regs, t)?;
+        for (k, &d) in self.deriv_regs.iter().enumerate() {
+            dy[k] = regs[d as usize];
+        }
+        Ok(())
+    }
+
+    /// The outputs, after `rhs` has run at the same point.
+    /// The outputs at `(t, y)` (independent of [`Tape::rhs`]).
+    pub fn outputs(
+        &self,
+        regs: &mut [f64],
+        t: f64,
+        y: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), EvalError> {
+        for &(k, s) in &self.out_inputs {
+            regs[s as usize] = y[k];
+        }
+        for &(from, to) in &self.memo_links {
+            let (from, to) = (from as usize, to as usize);
+            if regs[from].is_finite() {
+                regs.copy_within(from..from + 4, to);
+            }
+        }
+        self.run(&self.out_code, regs, t)?;
+        for (k, &o) in self.out_regs.iter().enumerate() {
+            out[k] = regs[o as usize];
+        }
+        Ok(())
+    }
+
+    /// The first register of `code` that became NaN or infinite from finite
+    /// operands, and the variable it holds (if any).
+    pub fn first_non_finite(&self, regs: &[f64]) -> Option<(usize, Option<VarId>)> {
+        for ins in self
+            .code
+            .iter()
+            .chain(self.blocks.iter().flat_map(|b| b.body.iter()))
+        {
+            let d = ins.dest();
+            if d == NONE || regs[d as usize].is_finite() {
+                continue;
+            }
+            let inputs_finite = ins
+                .operands()
+                .into_iter()
+                .all(|s| regs[s as usize].is_finite());
+            if inputs_finite {
+                return Some((d as usize, self.reg_var[d as usize]));
+            }
+        }
+        None
+    }
+}

@@ -1,0 +1,183 @@
+//! The in-process evaluator: a schedule compiled into a flat register
+//! program over an `f64` slice. No tree walking and no hashing when it runs:
+//! one `match` per instruction. Assignments alias registers (`x := y` costs
+//! nothing), common subexpressions share one register (the expression arena
+//! is hash-consed), and algebraic blocks are solved by damped Newton on their
+//! tearing variables with an analytic Jacobian from forward-mode tangents.
+//!
+//! Only what the scene needs is computed during integration: the state
+//! derivatives, with the blocks they need. Requested outputs are computed by
+//! a second program, at output points only.
+
+use std::collections::HashMap;
+
+use crate::analysis::{Assignment, Schedule, Solved, Step};
+use crate::ir::{DiodeParams, EquationSystem, Expr, ExprId, Func, VarId, Waveform};
+use crate::numeric::colour::{colour_columns, members};
+use crate::numeric::dense::{lu_factor, lu_solve};
+use crate::numeric::newton::{self, Damping};
+use crate::numeric::{DenseLu, Factored, TripletLu};
+
+mod analyze;
+mod block;
+mod compile;
+mod eval;
+mod instr;
+mod tangent;
+
+pub use compile::compile;
+pub use instr::Instr;
+pub use tangent::TangentCache;
+
+use analyze::*;
+use block::*;
+use instr::*;
+
+/// An algebraic loop: guess the tearing registers, run `body`, drive the
+/// residual registers to zero.
+#[derive(Clone, Debug)]
+pub struct TapeBlock {
+    /// 1-based index in the schedule (for messages).
+    pub index: usize,
+    pub tears: Vec<u32>,
+    pub residuals: Vec<u32>,
+    pub body: Vec<Instr>,
+    pub linear: bool,
+    /// The circuit elements of the block, for messages.
+    pub elements: Vec<String>,
+    /// Tears that enter an `exp(x/vt)` (junction voltages), with the register
+    /// of `vt`: their Newton steps are limited as ngspice limits junctions.
+    pub junctions: Vec<(usize, u32)>,
+    /// Registers the body reads or writes, each once: the tangents a
+    /// Jacobian column clears before it runs.
+    pub touched: Vec<u32>,
+    /// Nothing outside the body reads what it computes but the tears: a
+    /// converged Newton may move the tears last without re-running it.
+    pub private: bool,
+    /// The residuals are affine in the tears with coefficients that are
+    /// constants of the tape: the Jacobian is factored once, at first use.
+    pub constant_jacobian: bool,
+    /// That factorization, once computed.
+    lu: std::cell::OnceCell<Factored>,
+    /// The sparsity of a block past [`DENSE_TEARS`], once computed (`None`
+    /// inside: too dense to colour).
+    pattern: std::cell::OnceCell<Option<Pattern>>,
+    /// The block is `0 = q - Q(x)` for a junction charge `Q`: it is solved
+    /// by Halley's method on the device's own derivatives.
+    pub charge_inverse: Option<ChargeInverse>,
+}
+
+/// A junction-charge block: find `x` with `Q_diode(x) = r[target]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ChargeInverse {
+    pub diode: u32,
+    pub target: u32,
+    /// Four registers: the last voltage the inversion evaluated the junction
+    /// at, and its charge, `Q′` and `Q″` there (NaN: none yet). The next
+    /// inversion starts from it and takes its first step without evaluating:
+    /// one junction evaluation per inversion where there were two.
+    pub memo: u32,
+}
+
+impl TapeBlock {
+    fn singular(&self, t: f64) -> EvalError {
+        EvalError::Singular {
+            block: self.index,
+            elements: self.elements.clone(),
+            t,
+        }
+    }
+
+    fn no_convergence(&self, residual: f64, t: f64) -> EvalError {
+        EvalError::NoConvergence {
+            block: self.index,
+            elements: self.elements.clone(),
+            residual,
+            t,
+        }
+    }
+}
+
+/// Why an evaluation failed.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum EvalError {
+    #[error(
+        "Newton did not converge in algebraic loop {block} through {} (residual {residual:.3e} at t = {t:e})",
+        crate::back::listing::shortened(elements, crate::back::listing::ELEMENTS_SHOWN)
+    )]
+    NoConvergence {
+        block: usize,
+        elements: Vec<String>,
+        residual: f64,
+        t: f64,
+    },
+    #[error(
+        "singular Jacobian in algebraic loop {block} through {} at t = {t:e}",
+        crate::back::listing::shortened(elements, crate::back::listing::ELEMENTS_SHOWN)
+    )]
+    Singular {
+        block: usize,
+        elements: Vec<String>,
+        t: f64,
+    },
+}
+
+/// A compiled schedule.
+#[derive(Clone, Debug)]
+pub struct Tape {
+    pub n_regs: usize,
+    /// Register of each state, in state order (the ODE's `y`).
+    pub state_regs: Vec<u32>,
+    /// The state variables, in the same order.
+    pub states: Vec<VarId>,
+    /// Register of each state's derivative (the ODE's `f`).
+    pub deriv_regs: Vec<u32>,
+    /// Initial register contents (parameters and constants).
+    pub init: Vec<f64>,
+    pub code: Vec<Instr>,
+    pub blocks: Vec<TapeBlock>,
+    /// Computes the outputs from the states, on its own registers.
+    pub out_code: Vec<Instr>,
+    /// The states `out_code` reads: (index in `y`, register).
+    pub out_inputs: Vec<(usize, u32)>,
+    pub out_regs: Vec<u32>,
+    /// `(from, to)`: the inversion memo of a junction charge in `code` and
+    /// of the same charge in `out_code`. An output point after a step
+    /// starts each inversion where the step's last evaluation ended (a
+    /// Halley step or none), not where the last output point did.
+    memo_links: Vec<(u32, u32)>,
+    pub sources: Vec<Waveform>,
+    pub diodes: Vec<DiodeParams>,
+    /// Assignments evaluated by `code` / only by `out_code` / never.
+    pub n_in_f: usize,
+    pub n_at_outputs: usize,
+    pub n_unused: usize,
+    /// For each register, the assignment (variable) whose value it holds,
+    /// when it holds one: to name the source of a NaN.
+    pub reg_var: Vec<Option<VarId>>,
+    /// DC mode: sources' time derivatives read as zero (the operating point,
+    /// where capacitors are open and inductors shorted whatever the sources do).
+    pub dc: std::cell::Cell<bool>,
+    /// Every independent source's value is multiplied by this (1 but while
+    /// the DC solve ramps the sources up): waveforms as they are evaluated,
+    /// DC values in their registers (see [`Tape::scale_sources`]).
+    pub source_scale: std::cell::Cell<f64>,
+    /// The registers of DC sources' values, and the values.
+    pub source_params: Vec<(u32, f64)>,
+    /// Each source's last `(t, value)` (unscaled, order 0): the Newton
+    /// iterations of an implicit stage evaluate `f` at one time again and
+    /// again, and a SIN source's `sin` was a twentieth of a rectifier's
+    /// evaluation.
+    source_memo: Vec<std::cell::Cell<(f64, f64)>>,
+}
+
+/// What an output computes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum OutputRef {
+    /// An expression of the system's arena (a node potential).
+    Expr(ExprId),
+    /// The difference of two expressions (`v(a,b)`).
+    Diff(ExprId, ExprId),
+    /// A variable (a branch current).
+    Var(VarId),
+}

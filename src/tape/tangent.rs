@@ -1,0 +1,418 @@
+//! Forward-mode tangents through the tape: `J v` and Jacobian columns,
+//! with blocks differentiated by the implicit function theorem.
+
+use super::*;
+
+/// What the tangent runs of one point share: each block's factored
+/// Jacobian, so that the columns of a Jacobian solve the blocks once.
+#[derive(Debug, Default)]
+pub struct TangentCache {
+    /// The registers hold the last tangent run (set by [`Tape::jac_mul`]);
+    /// whoever else writes them, or moves to another point, clears this.
+    pub valid: bool,
+    lus: Vec<Option<Factored>>,
+}
+
+impl TangentCache {
+    /// Keep block `k`'s dense factors (copied into the slot's own buffers).
+    fn keep(&mut self, k: usize, n_blocks: usize, jac: &[f64], perm: &[usize]) {
+        let slot = self.slot(k, n_blocks);
+        if !matches!(slot, Some(Factored::Dense(..))) {
+            *slot = Some(Factored::Dense(DenseLu::default()));
+        }
+        if let Some(Factored::Dense(d)) = slot {
+            d.lu.clear();
+            d.lu.extend_from_slice(jac);
+            d.perm.clear();
+            d.perm.extend_from_slice(perm);
+        }
+    }
+
+    fn slot(&mut self, k: usize, n_blocks: usize) -> &mut Option<Factored> {
+        if self.lus.len() < n_blocks {
+            self.lus.resize(n_blocks, None);
+        }
+        &mut self.lus[k]
+    }
+}
+
+impl Tape {
+    /// Tangents of `code` given tangents of its inputs in `dr` (registers not
+    /// written by `code` keep their tangent).
+    pub(super) fn run_tangent(
+        &self,
+        code: &[Instr],
+        r: &mut [f64],
+        dr: &mut [f64],
+        t: f64,
+        mut cache: Option<&mut TangentCache>,
+    ) -> Result<(), EvalError> {
+        for ins in code {
+            match *ins {
+                Instr::Neg { d, a } => {
+                    r[d as usize] = -r[a as usize];
+                    dr[d as usize] = -dr[a as usize];
+                }
+                Instr::Add { d, a, b } => {
+                    r[d as usize] = r[a as usize] + r[b as usize];
+                    dr[d as usize] = dr[a as usize] + dr[b as usize];
+                }
+                Instr::Sub { d, a, b } => {
+                    r[d as usize] = r[a as usize] - r[b as usize];
+                    dr[d as usize] = dr[a as usize] - dr[b as usize];
+                }
+                Instr::Mul { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    r[d as usize] = x * y;
+                    dr[d as usize] = dr[a as usize] * y + x * dr[b as usize];
+                }
+                Instr::Div { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let q = x / y;
+                    r[d as usize] = q;
+                    dr[d as usize] = (dr[a as usize] - q * dr[b as usize]) / y;
+                }
+                Instr::Pow { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let p = x.powf(y);
+                    r[d as usize] = p;
+                    let (dx, dy) = (dr[a as usize], dr[b as usize]);
+                    let mut dp = y * x.powf(y - 1.0) * dx;
+                    if dy != 0.0 {
+                        dp += p * x.ln() * dy;
+                    }
+                    dr[d as usize] = dp;
+                }
+                Instr::Call { d, f, a } => {
+                    let x = r[a as usize];
+                    let fx = call(f, x);
+                    r[d as usize] = fx;
+                    dr[d as usize] = call_deriv(f, x, fx) * dr[a as usize];
+                }
+                Instr::Device { d, f, a } => {
+                    let x = r[a as usize];
+                    let p = &self.diodes[f.diode as usize];
+                    let (v, slope) = p.eval_with_slope(f.part, f.order, x);
+                    r[d as usize] = v;
+                    dr[d as usize] = slope * dr[a as usize];
+                }
+                Instr::Src { d, s, order } => {
+                    r[d as usize] = self.source(s, t, order);
+                    dr[d as usize] = 0.0;
+                }
+                Instr::Time { d } => {
+                    r[d as usize] = t;
+                    dr[d as usize] = 0.0;
+                }
+                Instr::Block { k } => {
+                    // Value first (Newton), then the tangent of the solution by
+                    // the implicit function theorem: J dt = -(dR/dx) dx.
+                    let k = k as usize;
+                    let b = &self.blocks[k];
+                    if let Some(ci) = b.charge_inverse {
+                        // Q(x) = target: dx = d(target)/Q′(x), no body runs.
+                        let (x, q, res, sign) = Self::charge_regs(b);
+                        let kept = match cache.as_deref() {
+                            Some(c) if c.valid => c.lus.get(k).and_then(|l| l.as_ref()),
+                            _ => None,
+                        };
+                        let slope = match kept {
+                            Some(Factored::Dense(d)) => sign * d.lu[0],
+                            Some(Factored::Sparse(_)) => {
+                                unreachable!("a charge block has one tear")
+                            }
+                            None => {
+                                self.solve_block(k, r, t)?;
+                                let [_, c, _] = self.diodes[ci.diode as usize].charge(r[x]);
+                                if let Some(cache) = cache.as_deref_mut() {
+                                    cache.keep(k, self.blocks.len(), &[sign * c], &[0]);
+                                }
+                                c
+                            }
+                        };
+                        if !(slope.is_finite() && slope != 0.0) {
+                            return Err(b.singular(t));
+                        }
+                        let dq = dr[ci.target as usize];
+                        dr[x] = dq / slope;
+                        dr[q] = dq;
+                        dr[res] = 0.0;
+                        continue;
+                    }
+                    let n = b.tears.len();
+                    let mut w = Work::take(n, r.len());
+                    // Another column at the point of the last run: the block
+                    // is solved and its Jacobian factored already.
+                    let kept = match cache.as_deref() {
+                        Some(c) if c.valid => c.lus.get(k).is_some_and(|l| l.is_some()),
+                        _ => false,
+                    };
+                    let mut sparse = None;
+                    // Whether the factors to solve with are in the cache.
+                    let mut cached = kept;
+                    if !kept {
+                        self.solve_block(k, r, t)?;
+                        if !b.constant_jacobian {
+                            w.saved.extend(b.touched.iter().map(|&x| dr[x as usize]));
+                            let factored = self.factor_jacobian(b, r, dr, t, &mut w);
+                            for (&x, &v) in b.touched.iter().zip(&w.saved) {
+                                dr[x as usize] = v;
+                            }
+                            sparse = factored?;
+                        }
+                        if let Some(c) = cache.as_deref_mut() {
+                            cached = true;
+                            // A constant Jacobian has its own factorization.
+                            match sparse.take() {
+                                Some(lu) => {
+                                    *c.slot(k, self.blocks.len()) = Some(Factored::Sparse(lu));
+                                }
+                                None if b.constant_jacobian => {
+                                    c.keep(k, self.blocks.len(), &[], &[])
+                                }
+                                None => c.keep(k, self.blocks.len(), &w.jac, &w.perm),
+                            }
+                        }
+                    }
+                    for &x in &b.tears {
+                        dr[x as usize] = 0.0;
+                    }
+                    self.run_tangent(&b.body, r, dr, t, None)?;
+                    w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
+                    if b.constant_jacobian {
+                        self.constant_lu(b, r, t, &mut w)?
+                            .solve_in_place(&mut w.res, &mut w.tmp);
+                    } else if cached
+                        && let Some(lu) = cache.as_deref().and_then(|c| c.lus.get(k)?.as_ref())
+                    {
+                        lu.solve_in_place(&mut w.res, &mut w.tmp);
+                    } else {
+                        solve_factored(sparse.as_ref(), &w.jac, &w.perm, &mut w.res, &mut w.tmp);
+                    }
+                    for (j, &x) in b.tears.iter().enumerate() {
+                        dr[x as usize] = w.res[j];
+                    }
+                    w.give();
+                    self.run_tangent(&b.body, r, dr, t, None)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Tangents of `code` in `m` directions at once: the tangent of register
+    /// `x` in direction `j` is `dr[x * m + j]`. Each instruction's value and
+    /// slope are computed once for all directions (a device's exponential
+    /// once, not once per column).
+    pub(super) fn run_tangents(
+        &self,
+        code: &[Instr],
+        r: &mut [f64],
+        dr: &mut [f64],
+        m: usize,
+        t: f64,
+    ) -> Result<(), EvalError> {
+        // dr[d] = ka·dr[a] (+ kb·dr[b]) in every direction.
+        fn lin(dr: &mut [f64], m: usize, d: u32, a: (u32, f64), b: Option<(u32, f64)>) {
+            let (d, a0, ka) = (d as usize * m, a.0 as usize * m, a.1);
+            match b {
+                Some((b, kb)) => {
+                    let b0 = b as usize * m;
+                    for j in 0..m {
+                        dr[d + j] = ka * dr[a0 + j] + kb * dr[b0 + j];
+                    }
+                }
+                None => {
+                    for j in 0..m {
+                        dr[d + j] = ka * dr[a0 + j];
+                    }
+                }
+            }
+        }
+        for ins in code {
+            match *ins {
+                Instr::Neg { d, a } => {
+                    r[d as usize] = -r[a as usize];
+                    lin(dr, m, d, (a, -1.0), None);
+                }
+                Instr::Add { d, a, b } => {
+                    r[d as usize] = r[a as usize] + r[b as usize];
+                    lin(dr, m, d, (a, 1.0), Some((b, 1.0)));
+                }
+                Instr::Sub { d, a, b } => {
+                    r[d as usize] = r[a as usize] - r[b as usize];
+                    lin(dr, m, d, (a, 1.0), Some((b, -1.0)));
+                }
+                Instr::Mul { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    r[d as usize] = x * y;
+                    lin(dr, m, d, (a, y), Some((b, x)));
+                }
+                Instr::Div { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let q = x / y;
+                    r[d as usize] = q;
+                    lin(dr, m, d, (a, 1.0 / y), Some((b, -q / y)));
+                }
+                Instr::Pow { d, a, b } => {
+                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let p = x.powf(y);
+                    r[d as usize] = p;
+                    let ka = y * x.powf(y - 1.0);
+                    let b0 = b as usize * m;
+                    if dr[b0..b0 + m].iter().all(|v| *v == 0.0) {
+                        lin(dr, m, d, (a, ka), None);
+                    } else {
+                        lin(dr, m, d, (a, ka), Some((b, p * x.ln())));
+                    }
+                }
+                Instr::Call { d, f, a } => {
+                    let x = r[a as usize];
+                    let fx = call(f, x);
+                    r[d as usize] = fx;
+                    lin(dr, m, d, (a, call_deriv(f, x, fx)), None);
+                }
+                Instr::Device { d, f, a } => {
+                    let p = &self.diodes[f.diode as usize];
+                    let (v, slope) = p.eval_with_slope(f.part, f.order, r[a as usize]);
+                    r[d as usize] = v;
+                    lin(dr, m, d, (a, slope), None);
+                }
+                Instr::Src { d, s, order } => {
+                    r[d as usize] = self.source(s, t, order);
+                    dr[d as usize * m..(d as usize + 1) * m].fill(0.0);
+                }
+                Instr::Time { d } => {
+                    r[d as usize] = t;
+                    dr[d as usize * m..(d as usize + 1) * m].fill(0.0);
+                }
+                Instr::Block { k } => {
+                    // The value (Newton), the block's Jacobian factored once,
+                    // then the implicit function theorem in each direction.
+                    let b = &self.blocks[k as usize];
+                    if let Some(ci) = b.charge_inverse {
+                        self.solve_block(k as usize, r, t)?;
+                        let (x, q, res, _) = Self::charge_regs(b);
+                        let [_, c, _] = self.diodes[ci.diode as usize].charge(r[x]);
+                        if !(c.is_finite() && c != 0.0) {
+                            return Err(b.singular(t));
+                        }
+                        let target = ci.target as usize * m;
+                        for j in 0..m {
+                            let dq = dr[target + j];
+                            dr[x * m + j] = dq / c;
+                            dr[q * m + j] = dq;
+                            dr[res * m + j] = 0.0;
+                        }
+                        continue;
+                    }
+                    let n = b.tears.len();
+                    let mut w = Work::take(n, r.len());
+                    self.solve_block(k as usize, r, t)?;
+                    let result = (|| {
+                        let mut sparse = None;
+                        let constant = if b.constant_jacobian {
+                            Some(self.constant_lu(b, r, t, &mut w)?)
+                        } else {
+                            let mut scratch = std::mem::take(&mut w.dr);
+                            let got = self.factor_jacobian(b, r, &mut scratch, t, &mut w);
+                            w.dr = scratch;
+                            sparse = got?;
+                            None
+                        };
+                        for &x in &b.tears {
+                            dr[x as usize * m..(x as usize + 1) * m].fill(0.0);
+                        }
+                        self.run_tangents(&b.body, r, dr, m, t)?;
+                        // Direction by direction; a tear's slot in direction
+                        // j is not read by the other directions' solves.
+                        for j in 0..m {
+                            for (i, &res) in b.residuals.iter().enumerate() {
+                                w.step[i] = -dr[res as usize * m + j];
+                            }
+                            match constant {
+                                Some(lu) => lu.solve_in_place(&mut w.step, &mut w.tmp),
+                                None => solve_factored(
+                                    sparse.as_ref(),
+                                    &w.jac,
+                                    &w.perm,
+                                    &mut w.step,
+                                    &mut w.tmp,
+                                ),
+                            }
+                            for (i, &x) in b.tears.iter().enumerate() {
+                                dr[x as usize * m + j] = w.step[i];
+                            }
+                        }
+                        self.run_tangents(&b.body, r, dr, m, t)
+                    })();
+                    w.give();
+                    result?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// `J(t, y) v`, by forward-mode tangents. `dregs` is scratch. With a
+    /// valid `cache` (the registers hold the last run at this same point),
+    /// blocks are not solved again and their factored Jacobians are reused.
+    #[allow(clippy::too_many_arguments)]
+    pub fn jac_mul(
+        &self,
+        regs: &mut [f64],
+        dregs: &mut [f64],
+        t: f64,
+        y: &[f64],
+        v: &[f64],
+        jv: &mut [f64],
+        cache: Option<&mut TangentCache>,
+    ) -> Result<(), EvalError> {
+        dregs.iter_mut().for_each(|x| *x = 0.0);
+        for (k, &s) in self.state_regs.iter().enumerate() {
+            regs[s as usize] = y[k];
+            dregs[s as usize] = v[k];
+        }
+        let mut cache = cache;
+        let r = self.run_tangent(&self.code, regs, dregs, t, cache.as_deref_mut());
+        if let Some(c) = cache {
+            c.valid = r.is_ok();
+        }
+        r?;
+        for (k, &d) in self.deriv_regs.iter().enumerate() {
+            jv[k] = dregs[d as usize];
+        }
+        Ok(())
+    }
+
+    /// Columns `cols` of `∂f/∂y` at `(t, y)` in one pass (row-major into
+    /// `jac`: `jac[i * cols.len() + j] = ∂f_i/∂y_cols[j]`), `f` into `dy`.
+    /// `dregs` is scratch.
+    #[allow(clippy::too_many_arguments)]
+    pub fn jacobian_columns(
+        &self,
+        regs: &mut [f64],
+        dregs: &mut Vec<f64>,
+        t: f64,
+        y: &[f64],
+        cols: &[usize],
+        jac: &mut [f64],
+        dy: &mut [f64],
+    ) -> Result<(), EvalError> {
+        let m = cols.len();
+        dregs.clear();
+        dregs.resize(self.n_regs * m, 0.0);
+        for (k, &s) in self.state_regs.iter().enumerate() {
+            regs[s as usize] = y[k];
+        }
+        for (j, &c) in cols.iter().enumerate() {
+            dregs[self.state_regs[c] as usize * m + j] = 1.0;
+        }
+        self.run_tangents(&self.code, regs, dregs, m, t)?;
+        for (i, &d) in self.deriv_regs.iter().enumerate() {
+            jac[i * m..(i + 1) * m].copy_from_slice(&dregs[d as usize * m..(d as usize + 1) * m]);
+            dy[i] = regs[d as usize];
+        }
+        Ok(())
+    }
+}
