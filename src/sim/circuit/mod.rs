@@ -45,7 +45,7 @@
 //!   output points are the step's cubic Hermite interpolant.
 
 use super::ode::{CircuitOde, HostVec, Regs};
-use super::{Recorder, SimError, Stats};
+use super::*;
 use crate::ir::EquationSystem;
 use crate::numeric::dense::{lu_factor, lu_solve};
 use crate::tape::{ChargeInverse, EvalError};
@@ -220,17 +220,21 @@ impl<'a, M: Matrix<T = f64>> TrBdf2<'a, M>
 where
     M::V: HostVec,
 {
-    #[allow(clippy::too_many_arguments)]
+    /// The integrator at `t0` from `setup`, with steps no shorter than
+    /// `h_min`.
     pub fn new(
         ode: &'a CircuitOde<M>,
-        rtol: f64,
-        atol: Vec<f64>,
-        atol_i: f64,
+        setup: Setup,
         t0: f64,
-        y0: Vec<f64>,
-        h0: f64,
         h_min: f64,
     ) -> Result<Self, SimError> {
+        let Setup {
+            rtol,
+            atol,
+            atol_current: atol_i,
+            y0,
+            h0,
+        } = setup;
         let n = y0.len();
         let mut f = vec![0.0; n];
         ode.eval(t0, &y0, &mut f)
@@ -955,19 +959,25 @@ where
 
 /// Integrate from the recorder's start to its last output point, landing
 /// on every output point and every breakpoint in `hard` (restarting there).
-#[allow(clippy::too_many_arguments)]
+/// How a run of the circuit integrator starts: its tolerances (per state,
+/// and the absolute tolerance of junction currents), initial state and
+/// first step.
+pub struct Setup {
+    pub rtol: f64,
+    pub atol: Vec<f64>,
+    pub atol_current: f64,
+    pub y0: Vec<f64>,
+    pub h0: f64,
+}
+
+/// Integrate to the end of `rec`'s grid with kausal's TR-BDF2, stopping on
+/// the hard breakpoints of `stops_at` (restarting there) and on every output
+/// point when junction charges are present.
 pub(super) fn drive<'p, 's, M>(
-    sys: &EquationSystem,
     ode: &'p CircuitOde<M>,
-    rtol: f64,
-    atol: Vec<f64>,
-    atol_i: f64,
-    y0: Vec<f64>,
-    h0: f64,
+    setup: Setup,
     mut rec: Recorder<'p, 's, M>,
-    hard: &[f64],
-    all_steps: bool,
-    progress: Option<fn(f64)>,
+    stops_at: &Stops<'p, M>,
     stats: &mut Stats,
 ) -> Result<Recorder<'p, 's, M>, SimError>
 where
@@ -978,7 +988,11 @@ where
     let t_end = rec.grid.last().unwrap_or(0.0);
     let tstart = rec.grid.first().unwrap_or(0.0);
     let h_min = 1e-15 * t_end.abs().max(f64::MIN_POSITIVE);
-    let mut s = TrBdf2::new(ode, rtol, atol, atol_i, t0, y0, h0, h_min)?;
+    let Stops {
+        sys, hard, opts, ..
+    } = *stops_at;
+    let (all_steps, progress) = (opts.all_steps, opts.progress);
+    let mut s = TrBdf2::new(ode, setup, t0, h_min)?;
     if rec.grid.first() == Some(t0) {
         if let Some(row) = rec.first.take() {
             rec.rows.push(t0, &row)?;

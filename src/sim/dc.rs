@@ -1,0 +1,434 @@
+//! The start of a run: the DC operating point (damped Newton on `f = 0` in
+//! DC mode, then source stepping), `.ic`/`uic` starts, and the diagnostics
+//! that name what has no DC solution.
+
+use super::*;
+
+/// The start of a run.
+pub(super) struct Start {
+    pub(super) y: Vec<f64>,
+    pub(super) warnings: Vec<crate::diag::Diagnostic>,
+    /// The outputs at t = 0 when they are not those of `y`: the operating
+    /// point with the `.ic` nodes held, before they are released.
+    pub(super) row: Option<Vec<f64>>,
+}
+
+/// The element that owns each branch variable.
+pub(super) fn element_of_vars(sorted: &Sorted) -> HashMap<VarId, crate::elab::ElemId> {
+    let mut owner = HashMap::new();
+    for (e, ev) in sorted.built.elem_vars.iter().enumerate() {
+        if let Some(ev) = ev {
+            let id = crate::elab::ElemId(e as u32);
+            owner.insert(ev.u, id);
+            owner.insert(ev.i, id);
+        }
+    }
+    owner
+}
+
+/// The initial states: `uic` (element `ic=` and `.ic` values), the DC
+/// operating point with the `.ic` nodes held (see [`ic`]), or the DC
+/// operating point (capacitors open, inductors shorted: `f(0, y) = 0`).
+pub(super) fn initial_state<M: Matrix<T = f64>>(
+    sorted: &Sorted,
+    ode: &CircuitOde<M>,
+    t0: f64,
+    atol: &[f64],
+    outputs: &[Output],
+    opts: &Options,
+) -> Result<Start, SimError>
+where
+    M::V: HostVec,
+{
+    let c = &sorted.elaborated.circuit;
+    let tape = &ode.tape;
+    let n = tape.states.len();
+    let uic = c.tran.as_ref().is_some_and(|t| t.uic);
+    let mut warnings = Vec::new();
+    if !uic && !c.ics.is_empty() {
+        match ic::held_operating_point(sorted, &tape.states, outputs, opts, &c.ics, ".ic") {
+            Ok(held) => {
+                return Ok(Start {
+                    y: held.y,
+                    warnings: held.warnings,
+                    row: Some(held.row),
+                });
+            }
+            Err(ic::Unheld::Sim(e)) => return Err(name_dc_failure(c, e)),
+            Err(ic::Unheld::Structure(why)) => warnings.push(ic::unheld_warning(c, &why)),
+        }
+    }
+    let mut y = vec![0.0; n];
+    if uic {
+        // Element initial conditions, and `.ic` node voltages across
+        // capacitors with a terminal on the `.ic` line; as in ngspice, a node
+        // not on it starts at 0 V (a capacitor from a named node to an
+        // unnamed one started at 0 V instead of the named node's value).
+        let ic_node = |node: crate::elab::NodeId| -> f64 {
+            c.ics
+                .iter()
+                .find(|i| i.node == node && node != GROUND)
+                .map_or(0.0, |i| i.value)
+        };
+        let owner = element_of_vars(sorted);
+        for (k, &s) in tape.states.iter().enumerate() {
+            let Some(&e) = owner.get(&s) else {
+                continue;
+            };
+            let el = &c.elements[e];
+            match el.kind {
+                ElementKind::Capacitor { ic: Some(v), .. }
+                | ElementKind::Inductor { ic: Some(v), .. } => y[k] = v,
+                ElementKind::Capacitor { ic: None, .. } => {
+                    let named = |node| node != GROUND && c.ics.iter().any(|i| i.node == node);
+                    if named(el.nodes[0]) || named(el.nodes[1]) {
+                        y[k] = ic_node(el.nodes[0]) - ic_node(el.nodes[1]);
+                    }
+                }
+                _ => {}
+            }
+        }
+        return Ok(Start {
+            y,
+            warnings,
+            row: None,
+        });
+    }
+    // `.nodeset`: the operating point with those nodes held is the first
+    // guess of the free one (ngspice holds them for its first iterations);
+    // where it cannot be had, the guess is zero as without.
+    if !c.nodesets.is_empty()
+        && let Ok(held) =
+            ic::held_operating_point(sorted, &tape.states, outputs, opts, &c.nodesets, ".nodeset")
+    {
+        y = held.y;
+        warnings.extend(held.warnings);
+    }
+    tape.dc.set(true);
+    let r = dc_point::<M>(ode, t0, y, atol);
+    tape.dc.set(false);
+    Ok(Start {
+        y: r.map_err(|e| name_dc_failure(c, e))?,
+        warnings,
+        row: None,
+    })
+}
+
+/// For each node, a representative of the nodes that the elements `joins`
+/// selects connect it to (union-find with path halving).
+pub(super) fn node_components(c: &Circuit, joins: impl Fn(&ElementKind) -> bool) -> Vec<usize> {
+    let mut sets = UnionFind::new(c.nodes.len());
+    for e in c.elements.values() {
+        if e.nodes.len() >= 2 && joins(&e.kind) {
+            sets.union(e.nodes[0].0 as usize, e.nodes[1].0 as usize);
+        }
+    }
+    sets.representatives()
+}
+
+/// The nodes with no DC path to ground (joined to the rest only through
+/// capacitors and current sources), in islands, each with the elements that
+/// touch it.
+pub(super) fn floating_islands(c: &Circuit) -> Vec<(Vec<crate::elab::NodeId>, Vec<String>)> {
+    let root = node_components(c, |k| {
+        matches!(
+            k,
+            ElementKind::Resistor { .. }
+                | ElementKind::Inductor { .. }
+                | ElementKind::VSource { .. }
+                | ElementKind::Diode { .. }
+                | ElementKind::Vcvs { .. }
+                | ElementKind::Ccvs { .. }
+        )
+    });
+    let ground = root[GROUND.0 as usize];
+    // Islands in order of their first node; each node's island by its root.
+    let mut index: HashMap<usize, usize> = HashMap::new();
+    let mut islands: Vec<(Vec<crate::elab::NodeId>, Vec<String>)> = Vec::new();
+    for id in c.nodes.ids() {
+        let r = root[id.0 as usize];
+        if r == ground {
+            continue;
+        }
+        let k = *index.entry(r).or_insert_with(|| {
+            islands.push((Vec::new(), Vec::new()));
+            islands.len() - 1
+        });
+        islands[k].0.push(id);
+    }
+    for e in c.elements.values() {
+        let n = e.nodes.len().min(2);
+        let mut of: Vec<usize> = e.nodes[..n]
+            .iter()
+            .filter_map(|x| index.get(&root[x.0 as usize]).copied())
+            .collect();
+        of.dedup();
+        for k in of {
+            islands[k].1.push(e.name.clone());
+        }
+    }
+    islands
+}
+
+/// A singular DC Jacobian explained by the nodes that have no DC path.
+pub(super) fn name_dc_failure(c: &Circuit, e: SimError) -> SimError {
+    match &e {
+        SimError::DcSingular => {
+            let islands = floating_islands(c);
+            if islands.is_empty() {
+                return e;
+            }
+            let text: Vec<String> = islands
+                .iter()
+                .take(3)
+                .map(|(nodes, elems)| {
+                    let names: Vec<String> = nodes
+                        .iter()
+                        .map(|&n| format!("`{}`", c.nodes[n].name))
+                        .collect();
+                    format!(
+                        "{} {} no DC path to ground (only {} {} {})",
+                        crate::back::listing::shortened(&names, 8),
+                        if nodes.len() == 1 { "has" } else { "have" },
+                        crate::back::listing::shortened(elems, 8),
+                        if elems.len() == 1 {
+                            "connects"
+                        } else {
+                            "connect"
+                        },
+                        if nodes.len() == 1 { "it" } else { "them" }
+                    )
+                })
+                .collect();
+            SimError::DcFailed {
+                message: format!(
+                    "the DC Jacobian is singular: {}; use `.tran ... uic`, or give the node a DC path (a large resistor to ground)",
+                    text.join("; ")
+                ),
+            }
+        }
+        _ => e,
+    }
+}
+
+/// DC operating point by damped Newton on f(t0, y) = 0 in DC mode, with the
+/// states that `.ic` fixes held: the sparse LU of the coloured Jacobian above
+/// `DENSE_STATES` states, else a dense solve. Junction charges take limited
+/// steps (as ngspice limits junction voltages); when Newton still fails,
+/// the sources are ramped up from zero (source stepping).
+pub(super) fn dc_point<M: Matrix<T = f64>>(
+    ode: &CircuitOde<M>,
+    t0: f64,
+    y: Vec<f64>,
+    atol: &[f64],
+) -> Result<Vec<f64>, SimError>
+where
+    M::V: HostVec,
+{
+    use diffsol::{OdeEquations, Op, Vector};
+    let n = y.len();
+    let tape = &ode.tape;
+    let resid = |y: &[f64], f: &mut Vec<f64>| -> Result<f64, SimError> {
+        ode.eval(t0, y, f)
+            .map_err(|error| SimError::Eval { error })?;
+        Ok(f.iter().map(|x| x.abs()).fold(0.0, f64::max))
+    };
+    // The junction of each charge state (one pass over the tape: a search
+    // per state was quadratic), and its voltage at the last iterate.
+    let junction: Vec<Option<&crate::ir::DiodeParams>> = tape
+        .charge_states()
+        .into_iter()
+        .map(|ci| ci.map(|ci| &tape.diodes[ci.diode as usize]))
+        .collect();
+    let mut volts: Vec<f64> = vec![0.0; n];
+    let mut limit = |y: &[f64], step: &mut [f64]| -> bool {
+        let mut limited = false;
+        for k in 0..n {
+            let Some(p) = junction[k] else { continue };
+            let Some(old) = p.voltage_at_charge(y[k], volts[k]) else {
+                continue;
+            };
+            volts[k] = old;
+            let Some(new) = p.voltage_at_charge(y[k] - step[k], old) else {
+                continue;
+            };
+            let v = p.limit(new, old);
+            if v != new {
+                step[k] = y[k] - p.charge(v)[0];
+                limited = true;
+            }
+        }
+        limited
+    };
+    let singular = || SimError::DcSingular;
+    let mut jacobian: Box<JacobianAt<'_>> = if n > DENSE_STATES {
+        // The coloured sparse Jacobian.
+        use diffsol::NonLinearOpJacobian;
+        let op = ode.rhs();
+        let ctx = ode.context().clone();
+        let mut jm = M::new_from_sparsity(n, n, op.jacobian_sparsity(), ctx.clone());
+        Box::new(move |y: &[f64]| {
+            let yv = M::V::from_vec(y.to_vec(), ctx.clone());
+            op.jacobian_inplace(&yv, t0, &mut jm);
+            if let Some(error) = ode.error.borrow_mut().take() {
+                return Err(SimError::Eval { error });
+            }
+            let (at, vals) = jm.triplet_iter();
+            let entries: Vec<(usize, usize, f64)> =
+                at.zip(vals).map(|((i, j), v)| (i, j, v)).collect();
+            TripletLu::new(n, entries)
+                .map(Factored::Sparse)
+                .ok_or_else(singular)
+        })
+    } else {
+        let (mut cols, mut fy) = (vec![0.0; n * n], vec![0.0; n]);
+        let all: Vec<usize> = (0..n).collect();
+        Box::new(move |y: &[f64]| {
+            ode.jacobian_columns(Regs::Solver, t0, y, &all, &mut cols, &mut fy)
+                .map_err(|error| SimError::Eval { error })?;
+            match cols.iter().all(|v| v.is_finite()) {
+                true => DenseLu::new(n, cols.clone())
+                    .map(Factored::Dense)
+                    .ok_or_else(singular),
+                false => Err(singular()),
+            }
+        })
+    };
+    let solve = &mut *jacobian;
+    let first = if direct_dc() {
+        dc_newton(y.clone(), &resid, solve, &mut limit, atol)
+    } else {
+        Err(SimError::DcFailed {
+            message: "not tried (test)".into(),
+        })
+    };
+    let Err(error) = first else {
+        return first;
+    };
+    // Source stepping: from all sources off (where y = 0 solves a circuit
+    // without sources) up to their full values, each solution the start of
+    // the next; a failed stage is retried with a quarter of the increment.
+    let mut at = 0.0f64;
+    let mut y = y;
+    let mut inc = 0.1f64;
+    ode.scale_sources(0.0);
+    let result = (|| {
+        y = dc_newton(y.clone(), &resid, solve, &mut limit, atol)?;
+        while at < 1.0 {
+            let next = (at + inc).min(1.0);
+            ode.scale_sources(next);
+            match dc_newton(y.clone(), &resid, solve, &mut limit, atol) {
+                Ok(found) => {
+                    y = found;
+                    at = next;
+                    inc = (inc * 2.0).min(0.25);
+                }
+                Err(_) if inc > 1e-4 => inc *= 0.25,
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(y.clone())
+    })();
+    ode.scale_sources(1.0);
+    // Report the direct attempt's failure, which names what went wrong at
+    // the full sources.
+    result.map_err(|_| error)
+}
+
+/// `f` into its argument, returning its max-norm.
+pub(super) type Residual<'a> = dyn Fn(&[f64], &mut Vec<f64>) -> Result<f64, SimError> + 'a;
+
+/// Whether the DC solve tries Newton at the full sources first (tests can
+/// send it straight to source stepping).
+#[cfg(not(test))]
+pub(super) fn direct_dc() -> bool {
+    true
+}
+
+#[cfg(test)]
+pub(super) fn direct_dc() -> bool {
+    !tests::SOURCES_ONLY.with(|c| c.get())
+}
+
+/// The factored DC Jacobian at a point.
+/// Rows of held states are identity rows.
+pub(super) type JacobianAt<'a> = dyn FnMut(&[f64]) -> Result<Factored, SimError> + 'a;
+
+/// Damped Newton from `y` (Deuflhard's natural monotonicity test, which
+/// compares corrections in the states' own units rather than residuals of
+/// mixed units): `jacobian(y)` is factored once per iteration, `limit`
+/// shortens junction steps (a limited step is taken whole, as SPICE takes
+/// it). Converged when a correction is below 1e-10 relative and 1e-3 of
+/// the integration's absolute tolerances, or `f` vanishes; or when no damped
+/// step improves a correction already below 1e-7 of that scale with `f`
+/// below 1e-12 (rounding).
+pub(super) fn dc_newton(
+    mut y: Vec<f64>,
+    resid: &Residual<'_>,
+    jacobian: &mut JacobianAt<'_>,
+    limit: &mut dyn FnMut(&[f64], &mut [f64]) -> bool,
+    atol: &[f64],
+) -> Result<Vec<f64>, SimError> {
+    let n = y.len();
+    let mut f = vec![0.0; n];
+    let mut norm = resid(&y, &mut f)?;
+    if norm == 0.0 {
+        return Ok(y);
+    }
+    let singular = || SimError::DcSingular;
+    // Corrections measured against |y| + 1e7 atol: 1e-10 of it converges.
+    let scaled = |d: &[f64], y: &[f64]| newton::scaled_norm(d, |k| y[k].abs() + 1e7 * atol[k]);
+    let mut trial = vec![0.0; n];
+    let mut ft = vec![0.0; n];
+    for _ in 0..200 {
+        let jac = jacobian(&y)?;
+        let mut step = jac.solve(&f).ok_or_else(singular)?;
+        let full = scaled(&step, &y);
+        if full <= 1e-10 || norm <= 1e-15 {
+            for k in 0..n {
+                y[k] -= step[k];
+            }
+            return Ok(y);
+        }
+        if limit(&y, &mut step) {
+            for k in 0..n {
+                y[k] -= step[k];
+            }
+            norm = resid(&y, &mut f)?;
+            continue;
+        }
+        let damping = newton::damp(full, |lambda| {
+            for k in 0..n {
+                trial[k] = y[k] - lambda * step[k];
+            }
+            // A trial point where the circuit cannot be evaluated (a loop
+            // without solution that far out) is too far: halve the step.
+            Ok::<_, SimError>(match resid(&trial, &mut ft) {
+                Ok(nn) if nn.is_finite() => {
+                    jac.solve(&ft).map_or(f64::INFINITY, |b| scaled(&b, &y))
+                }
+                _ => f64::INFINITY,
+            })
+        })?;
+        if damping == Damping::Stalled {
+            // No step along the correction is better: rounding, not the
+            // circuit, sets the corrections now. When they are already within
+            // 1e-7 of the integration's scale and f is at the level of
+            // ngspice's ABSTOL (1 pA), this is the operating point; with a
+            // larger f it is not, as a charge's correction reaches its
+            // current amplified by 1/(C·RS) (source stepping goes on).
+            if full <= 1e-7 && norm <= 1e-12 {
+                return Ok(y);
+            }
+            return Err(SimError::DcFailed {
+                message: format!("Newton stalled (residual {norm:.3e})"),
+            });
+        }
+        std::mem::swap(&mut y, &mut trial);
+        std::mem::swap(&mut f, &mut ft);
+        norm = f.iter().map(|x| x.abs()).fold(0.0, f64::max);
+    }
+    Err(SimError::DcFailed {
+        message: format!("Newton did not converge (residual {norm:.3e})"),
+    })
+}

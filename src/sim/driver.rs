@@ -1,0 +1,579 @@
+//! The diffsol driver: tolerances, the problem, the solver of each method
+//! stepped from breakpoint to breakpoint with restarts, and circuits without
+//! states.
+
+use super::*;
+
+/// The absolute tolerances of voltages and currents.
+pub(super) fn atol_pair(opts: &Options, c: &Circuit) -> (f64, f64) {
+    match opts.atol {
+        Some(a) => (a, a * 1e-3),
+        None => (
+            c.options
+                .vntol
+                .map_or(DEFAULT_ATOL_V, |v| v.min(DEFAULT_ATOL_V * 1e3)),
+            c.options
+                .abstol
+                .map_or(DEFAULT_ATOL_I, |v| v.min(DEFAULT_ATOL_I * 1e3)),
+        ),
+    }
+}
+
+/// Per-state absolute tolerances: voltages and currents differ by orders of
+/// magnitude, so each state gets the tolerance of its kind.
+pub(super) fn atols(
+    sys: &EquationSystem,
+    states: &[VarId],
+    opts: &Options,
+    c: &Circuit,
+) -> Vec<f64> {
+    let (atol_v, atol_i) = atol_pair(opts, c);
+    states
+        .iter()
+        .map(|&s| match sys.vars[s].kind {
+            crate::ir::VarKind::BranchCurrent => atol_i,
+            // A junction's charge error δq moves its voltage by δq/C, and the
+            // current through its series resistance by δq/(C·RS): charges get
+            // the voltage tolerance times 1 pF (a small junction). At 1e-17 C
+            // (1e-5 V on 1 pF) a 1 Ω diode's reverse current carried 1e-5 A
+            // of noise, 0.2 % of a rectifier's range, at any rtol.
+            crate::ir::VarKind::Charge => atol_v * 1e-12,
+            _ => atol_v,
+        })
+        .collect()
+}
+
+/// What one run integrates: the circuit, its compiled tape, the `.tran`
+/// card, the outputs, the options and the method chosen for it.
+pub(super) struct Job<'a> {
+    pub(super) sorted: &'a Sorted,
+    pub(super) tape: Rc<Tape>,
+    pub(super) tran: &'a crate::elab::Tran,
+    pub(super) outputs: &'a [Output],
+    pub(super) opts: &'a Options,
+    pub(super) method: Method,
+}
+
+impl Method {
+    /// The order diffsol assumes when it sizes a first step after a
+    /// restart: the order each method starts at.
+    fn start_order(self) -> usize {
+        match self {
+            Method::Bdf | Method::Circuit => 1,
+            Method::TrBdf2 => 2,
+            Method::Esdirk34 => 3,
+            Method::Tsit5 => 4,
+        }
+    }
+}
+
+/// Run `job` with matrices `M` and linear solver `LS`: dense (nalgebra) up
+/// to [`DENSE_STATES`] states, sparse (faer and the circuit LU) above.
+pub(super) fn run<M, LS>(job: &Job<'_>, sink: Option<RowSink<'_>>) -> Result<Waveforms, SimError>
+where
+    M: Matrix<T = f64> + diffsol::DefaultSolver,
+    M::V: HostVec + diffsol::DefaultDenseMatrix<T = f64, C = M::C>,
+    LS: LinearSolver<M>,
+    for<'b> &'b M::V: diffsol::VectorRef<M::V>,
+    for<'b> &'b M: diffsol::matrix::MatrixRef<M>,
+{
+    let Job {
+        sorted,
+        ref tape,
+        tran,
+        outputs,
+        opts,
+        method,
+    } = *job;
+    let sys = sorted.system();
+    let sparse = tape.states.len() > DENSE_STATES;
+    let t0 = 0.0;
+    let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; tape.states.len()], sparse);
+    let c = &sorted.elaborated.circuit;
+    let atol = atols(sys, &tape.states, opts, c);
+    let start = initial_state::<M>(sorted, &ode, t0, &atol, outputs, opts)?;
+    // f must be defined where the run starts: diffsol sizes its first step
+    // from f(t0, y0), and a NaN there (a loop that is singular at t0 while
+    // the `.ic` operating point was not) made every step size NaN, which no
+    // step-size test rejects: the run never ended.
+    let mut dy0 = vec![0.0; start.y.len()];
+    ode.eval(t0, &start.y, &mut dy0)
+        .map_err(|error| SimError::Eval { error })?;
+    *ode.y0.borrow_mut() = start.y;
+    let rtol = opts.rtol.unwrap_or_else(|| {
+        c.options
+            .reltol
+            .map_or(DEFAULT_RTOL, |r| r.min(DEFAULT_RTOL * 1e3))
+    });
+    let mut warnings = start.warnings;
+    if method == Method::Bdf
+        && let Some(d) = oscillation_at_loose_rtol(sys, &ode, tran, rtol, t0, &ode.y0.borrow())
+    {
+        warnings.push(d);
+    }
+    let atol_own = atol.clone();
+    let problem = OdeBuilder::<M>::new()
+        .rtol(rtol)
+        .atol(atol)
+        .t0(t0)
+        .h0((tran.tstep / 100.0).min(tran.tstop * 1e-6).max(1e-15))
+        .build_from_eqn(ode)
+        .map_err(|e| SimError::Solver {
+            t: t0,
+            message: e.to_string(),
+        })?;
+    // diffsol's default minimum step (1e-13 s) is longer than a nanosecond
+    // circuit's steps: scale it to the run.
+    let mut problem = problem;
+    problem.ode_options.min_timestep = tran.tstop * 1e-16;
+    // diffsol counts Newton failures over the whole run, not per step: a
+    // long run of a switching circuit would hit any fixed limit. A step that
+    // cannot converge ends in step-size underflow instead.
+    problem.ode_options.max_nonlinear_solver_failures = usize::MAX / 2;
+    // Newton stops when its estimated remaining error is 0.1 of the error
+    // test's tolerance (CVODE's coefficient), not diffsol's 0.2: at rtol 1e-2
+    // a corrector iterate that stopped early across a diode's turn-on (a
+    // Jacobian from before it conducted) let the bridge rectifier's junction
+    // charges ring and charged its capacitor to 43 V from a 10 V source.
+    problem.ode_options.nonlinear_solver_tolerance = 0.1;
+    let times = match &opts.times {
+        Some(t) => Grid::Times(
+            t.iter()
+                .copied()
+                .filter(|&x| x >= 0.0 && x <= tran.tstop)
+                .collect(),
+        ),
+        None => Grid::of(tran),
+    };
+    // Junction charges, the states that interpolation must not leave off
+    // their slow manifold (see `Recorder::settle_charges`); small circuits only.
+    let charges: Vec<usize> = if sparse {
+        Vec::new()
+    } else {
+        tape.states
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| sys.vars[**s].kind == crate::ir::VarKind::Charge)
+            .map(|(k, _)| k)
+            .collect()
+    };
+    let rec = Recorder {
+        ode: &problem.eqn,
+        grid: times,
+        next: 0,
+        rows: Rows::new(tape.out_regs.len(), sink),
+        out: vec![0.0; tape.out_regs.len()],
+        dc_start: !tran.uic,
+        first: start.row,
+        charges,
+        settle: None,
+        last: Vec::new(),
+    };
+    let hard = breakpoints(sys, t0, tran.tstop);
+    let stops = Stops {
+        sys,
+        problem: &problem,
+        hard: &hard,
+        opts,
+        method,
+    };
+    let mut stats = Stats::default();
+    let rec = match method {
+        Method::Circuit => {
+            let setup = circuit::Setup {
+                rtol,
+                atol: atol_own,
+                atol_current: atol_pair(opts, c).1,
+                y0: problem.eqn.y0.borrow().clone(),
+                h0: problem.h0,
+            };
+            circuit::drive(&problem.eqn, setup, rec, &stops, &mut stats)?
+        }
+        Method::Bdf => {
+            let s = problem.bdf::<LS>().map_err(|e| solver_err(t0, e))?;
+            drive(&stops, s, |p, st| p.bdf_solver::<LS>(st), rec, &mut stats)?
+        }
+        Method::TrBdf2 => {
+            let s = problem.tr_bdf2::<LS>().map_err(|e| solver_err(t0, e))?;
+            drive(
+                &stops,
+                s,
+                |p, st| p.tr_bdf2_solver::<LS>(st),
+                rec,
+                &mut stats,
+            )?
+        }
+        Method::Esdirk34 => {
+            let s = problem.esdirk34::<LS>().map_err(|e| solver_err(t0, e))?;
+            drive(
+                &stops,
+                s,
+                |p, st| p.esdirk34_solver::<LS>(st),
+                rec,
+                &mut stats,
+            )?
+        }
+        Method::Tsit5 => {
+            let s = problem.tsit45().map_err(|e| solver_err(t0, e))?;
+            drive(&stops, s, |p, st| p.tsit45_solver(st), rec, &mut stats)?
+        }
+    };
+    if method != Method::Circuit {
+        let counts: EvalCounts = problem.eqn.counts();
+        stats.rhs_evals = counts.rhs;
+        stats.jac_mul_evals = counts.jac_mul;
+        stats.jacobians = counts.jacobians;
+    }
+    let points = rec.grid.len();
+    if let Some(d) = ringing(sys, &problem.eqn, tran, stats.steps, points, &rec.last) {
+        warnings.push(d);
+    }
+    let mut w = rec.rows.into_waveforms(stats);
+    w.warnings = warnings;
+    Ok(w)
+}
+
+pub(super) fn solver_err(t: f64, e: diffsol::DiffsolError) -> SimError {
+    SimError::Solver {
+        t,
+        message: e.to_string(),
+    }
+}
+
+/// Where a diffsol run stops: its problem, the hard breakpoints (source
+/// corners) at which it restarts, and the options and method it runs with.
+pub(super) struct Stops<'p, M: Matrix<T = f64>>
+where
+    M::V: HostVec,
+{
+    pub(super) sys: &'p EquationSystem,
+    pub(super) problem: &'p OdeSolverProblem<CircuitOde<M>>,
+    pub(super) hard: &'p [f64],
+    pub(super) opts: &'p Options,
+    pub(super) method: Method,
+}
+
+/// Step `solver` to the end, stopping on every breakpoint (restarting after
+/// the hard ones, with `make` building the new solver) and recording the
+/// grid points (and every step with `--all-steps`).
+pub(super) fn drive<'p, 's, M, S>(
+    stops_at: &Stops<'p, M>,
+    mut solver: S,
+    make: impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, S::State) -> Result<S, diffsol::DiffsolError>,
+    mut rec: Recorder<'p, 's, M>,
+    stats: &mut Stats,
+) -> Result<Recorder<'p, 's, M>, SimError>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    let Stops {
+        sys,
+        problem,
+        hard,
+        opts,
+        method,
+    } = *stops_at;
+    let order = method.start_order();
+    let t_end = rec.grid.last().unwrap_or(0.0);
+    let tstart = rec.grid.first().unwrap_or(0.0);
+    // Stop points in order: the breakpoints, then the end.
+    let mut stops: Vec<f64> = hard.to_vec();
+    stops.push(t_end);
+    let mut k = 0;
+    // The initial point.
+    {
+        let st = solver.state();
+        let (t, y) = (st.t, st.y.slice().to_vec());
+        if rec.grid.first() == Some(t) {
+            if let Some(row) = rec.first.take() {
+                rec.rows.push(t, &row)?;
+            } else {
+                let tape = &problem.eqn.tape;
+                tape.dc.set(rec.dc_start);
+                let r = rec.record(t, &y);
+                tape.dc.set(false);
+                r?;
+            }
+            rec.next = 1;
+        }
+    }
+    let mut last_report = Instant::now();
+    // Restarts after too many error-test failures: (time, how many there).
+    let mut rescues: Option<(f64, usize)> = None;
+    loop {
+        let stop = stops[k];
+        solver
+            .set_stop_time(stop)
+            .map_err(|e| solver_err(stop, e))?;
+        let reason = loop {
+            let r = solver.step();
+            // An evaluation that failed inside a step made diffsol retry
+            // with a smaller step; it is reported only if the solver gives up.
+            if r.is_ok() {
+                problem.eqn.error.borrow_mut().take();
+            }
+            match r {
+                Ok(OdeSolverStopReason::InternalTimestep) => {
+                    let t = solver.state().t;
+                    // A remainder far below the step would be a sub-ulp
+                    // step: take the stop as reached (restarted from here).
+                    let h = solver.state().h.abs();
+                    if stop - t <= 1e-6 * h && stop > t {
+                        emit_grid(&solver, &mut rec, t, false)?;
+                        break stop;
+                    }
+                    emit_grid(&solver, &mut rec, t, false)?;
+                    if opts.all_steps && t >= tstart {
+                        let y = solver.state().y.slice().to_vec();
+                        insert_step(&mut rec, t, &y)?;
+                    }
+                    if let Some(p) = opts.progress
+                        && last_report.elapsed() > Duration::from_millis(100)
+                    {
+                        p(t / t_end.max(1e-300));
+                        last_report = Instant::now();
+                    }
+                }
+                Ok(OdeSolverStopReason::TstopReached) => break stop,
+                Ok(OdeSolverStopReason::RootFound(t, _)) => break t,
+                Err(e) => {
+                    if let Some(error) = problem.eqn.error.borrow_mut().take() {
+                        return Err(SimError::Eval { error });
+                    }
+                    // diffsol's BDF keeps its order through repeated error-test
+                    // failures; when the history holds a kink (a diode that just
+                    // switched), the estimate then stops shrinking with the step.
+                    // Restart from the last accepted point at order 1, as CVODE
+                    // does after repeated failures, a few times at most.
+                    let t = solver.state().t;
+                    let too_many = matches!(
+                        e,
+                        diffsol::DiffsolError::OdeSolverError(
+                            diffsol::error::OdeSolverError::TooManyErrorTestFailures { .. }
+                        )
+                    );
+                    let here = match rescues {
+                        Some((at, n)) if at == t => n,
+                        _ => 0,
+                    };
+                    if !too_many || here >= 3 {
+                        return Err(diagnose(sys, problem, &solver, e));
+                    }
+                    rescues = Some((t, here + 1));
+                    stats.rescues += 1;
+                    solver = restart(problem, solver, &make, t, stats, order)?;
+                    solver
+                        .set_stop_time(stop)
+                        .map_err(|e| solver_err(stop, e))?;
+                }
+            }
+        };
+        // BDF stops within a few ulps of the stop time: the grid point there
+        // takes the state (interpolation would be asked to extrapolate).
+        emit_grid(&solver, &mut rec, reason, true)?;
+        if opts.all_steps && reason >= tstart && rec.rows.last != Some(reason) {
+            let y = solver.state().y.slice().to_vec();
+            insert_step(&mut rec, reason, &y)?;
+        }
+        if reason >= t_end || k + 1 >= stops.len() {
+            rec.last = solver.state().y.slice().to_vec();
+            add_solver_stats(stats, &solver);
+            break;
+        }
+        // Restart after a corner: fresh history, recomputed slope and step.
+        stats.restarts += 1;
+        solver = restart(problem, solver, &make, reason, stats, order)?;
+        k += 1;
+    }
+    Ok(rec)
+}
+
+/// Add the counters of one solver's life (up to a restart or the end).
+pub(super) fn add_solver_stats<'p, M, S>(stats: &mut Stats, solver: &S)
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    let s = solver.get_statistics();
+    stats.steps += s.number_of_steps;
+    stats.rejected += s.number_of_error_test_failures;
+    stats.lu_factorizations += s.number_of_linear_solver_setups;
+}
+
+/// A new solver from `solver`'s state at `t`: fresh history (order 1),
+/// recomputed slope and initial step. Its statistics go into `stats`.
+pub(super) fn restart<'p, M, S>(
+    problem: &'p OdeSolverProblem<CircuitOde<M>>,
+    solver: S,
+    make: &impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, S::State) -> Result<S, diffsol::DiffsolError>,
+    t: f64,
+    stats: &mut Stats,
+    order: usize,
+) -> Result<S, SimError>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    add_solver_stats(stats, &solver);
+    let mut common = solver.into_state().into_common();
+    common.t = t;
+    let y = common.y.slice().to_vec();
+    let mut dy = vec![0.0; y.len()];
+    problem
+        .eqn
+        .eval(t, &y, &mut dy)
+        .map_err(|error| SimError::Eval { error })?;
+    common.dy.slice_mut().copy_from_slice(&dy);
+    let mut state = S::State::new_from_common(common);
+    state
+        .as_mut()
+        .set_step_size(problem.h0, &problem.atol, problem.rtol, &problem.eqn, order);
+    make(problem, state).map_err(|e| solver_err(t, e))
+}
+
+/// Record the grid points up to `t` (inclusive when `at_stop`).
+pub(super) fn emit_grid<'p, M, S>(
+    solver: &S,
+    rec: &mut Recorder<'p, '_, M>,
+    t: f64,
+    at_stop: bool,
+) -> Result<(), SimError>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    let scale = 1e-9
+        * if rec.grid.len() > 1 {
+            (rec.grid.at(1) - rec.grid.at(0)).abs()
+        } else {
+            1.0
+        };
+    let inside = |tg: f64| if at_stop { tg <= t + scale } else { tg < t };
+    // At or past the solver's time (a stop reached to within a sub-ulp
+    // remainder): the state itself, never an extrapolation.
+    let at_state = |tg: f64| (tg - t).abs() <= scale || tg >= solver.state().t;
+    // Many points inside one step with outputs that read few states: the
+    // interpolant there is one polynomial, so a few full interpolations at
+    // nodes give the read states everywhere in the step.
+    let n = solver.state().y.slice().len();
+    let few_read = rec.charges.is_empty() && rec.ode.tape.out_inputs.len() * 4 < n;
+    let batch = if few_read {
+        (rec.next..rec.grid.len())
+            .map(|k| rec.grid.at(k))
+            .take_while(|&tg| inside(tg) && !at_state(tg))
+            .count()
+    } else {
+        0
+    };
+    if batch > 2 * NODES {
+        let (a, b) = (rec.grid.at(rec.next), rec.grid.at(rec.next + batch - 1));
+        let nodes = StepPolynomial::nodes(a, b);
+        let read: Vec<usize> = rec.ode.tape.out_inputs.iter().map(|&(k, _)| k).collect();
+        let mut values = Vec::with_capacity(NODES * read.len());
+        for &tn in &nodes {
+            let y = solver.interpolate(tn).map_err(|e| solver_err(tn, e))?;
+            values.extend(read.iter().map(|&k| y.slice()[k]));
+        }
+        let poly = StepPolynomial::new(nodes, values);
+        let mut y = vec![0.0; n];
+        let mut sub = vec![0.0; read.len()];
+        for _ in 0..batch {
+            let tg = rec.grid.at(rec.next);
+            poly.eval(tg, &mut sub);
+            for (&k, &v) in read.iter().zip(&sub) {
+                y[k] = v;
+            }
+            rec.record(tg, &y)?;
+            rec.next += 1;
+        }
+    }
+    while rec.next < rec.grid.len() {
+        let tg = rec.grid.at(rec.next);
+        if !inside(tg) {
+            break;
+        }
+        let (mut y, ty) = if at_state(tg) {
+            (solver.state().y.slice().to_vec(), solver.state().t)
+        } else {
+            let y = solver.interpolate(tg).map_err(|e| solver_err(tg, e))?;
+            (y.slice().to_vec(), tg)
+        };
+        // The derivative of the solver's polynomial there (at a state just
+        // after a restart there may be none: the state is then used as is).
+        if !rec.charges.is_empty()
+            && let Ok(dy) = solver.interpolate_dy(ty)
+        {
+            let st = solver.state();
+            rec.settle_charges(tg, &mut y, dy.slice(), (st.t, st.h.abs()));
+        }
+        rec.record(tg, &y)?;
+        rec.next += 1;
+    }
+    Ok(())
+}
+
+/// A circuit without states: every output is a function of time alone, so
+/// it is evaluated on the grid (and at the source corners with `--all-steps`).
+pub(super) fn algebraic(
+    sorted: &Sorted,
+    tape: Rc<Tape>,
+    tran: &crate::elab::Tran,
+    outputs: &[Output],
+    opts: &Options,
+    sink: Option<RowSink<'_>>,
+) -> Result<Waveforms, SimError> {
+    let sys = sorted.system();
+    let c = &sorted.elaborated.circuit;
+    // The operating point with the `.ic` nodes held, output at t = 0.
+    let mut warnings = Vec::new();
+    let mut held = None;
+    if !tran.uic && !c.ics.is_empty() {
+        match ic::held_operating_point(sorted, &[], outputs, opts, &c.ics, ".ic") {
+            Ok(h) => {
+                held = Some(h.row);
+                warnings = h.warnings;
+            }
+            Err(ic::Unheld::Sim(e)) => return Err(e),
+            Err(ic::Unheld::Structure(why)) => warnings.push(ic::unheld_warning(c, &why)),
+        }
+    }
+    let mut times = opts
+        .times
+        .clone()
+        .map_or_else(|| Grid::of(tran), Grid::Times);
+    if opts.all_steps {
+        let hard = breakpoints(sys, 0.0, tran.tstop);
+        let mut all: Vec<f64> = (0..times.len()).map(|k| times.at(k)).collect();
+        all.extend(hard.into_iter().filter(|&t| t >= tran.tstart));
+        all.sort_by(f64::total_cmp);
+        all.dedup();
+        times = Grid::Times(all);
+    }
+    let mut regs = tape.registers();
+    let mut out = vec![0.0; tape.out_regs.len()];
+    let mut rows = Rows::new(out.len(), sink);
+    let mut stats = Stats::default();
+    for k in 0..times.len() {
+        let t = times.at(k);
+        let first = k == 0 && t == 0.0;
+        if first && let Some(row) = held.take() {
+            rows.push(t, &row)?;
+            continue;
+        }
+        // The first point is the DC operating point unless `uic`.
+        tape.dc.set(first && !tran.uic);
+        let r = tape.outputs(&mut regs, t, &[], &mut out);
+        tape.dc.set(false);
+        r.map_err(|error| SimError::Eval { error })?;
+        stats.rhs_evals += 1;
+        rows.push(t, &out)?;
+    }
+    let mut w = rows.into_waveforms(stats);
+    w.warnings = warnings;
+    Ok(w)
+}
