@@ -600,3 +600,190 @@ pub(super) fn solve_factored(
         None => lu_solve(perm.len(), jac, perm, b, tmp),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tape of `n_regs` registers (initialized from `init`) holding
+    /// `blocks` and nothing else.
+    fn tape_of(init: Vec<f64>, blocks: Vec<TapeBlock>) -> Tape {
+        Tape {
+            n_regs: init.len(),
+            state_regs: Vec::new(),
+            states: Vec::new(),
+            deriv_regs: Vec::new(),
+            init,
+            code: Vec::new(),
+            blocks,
+            out_code: Vec::new(),
+            out_inputs: Vec::new(),
+            out_regs: Vec::new(),
+            memo_links: Vec::new(),
+            sources: Vec::new(),
+            diodes: Vec::new(),
+            n_in_f: 0,
+            n_at_outputs: 0,
+            n_unused: 0,
+            reg_var: Vec::new(),
+            dc: std::cell::Cell::new(false),
+            source_scale: std::cell::Cell::new(1.0),
+            source_params: Vec::new(),
+            source_memo: Vec::new(),
+        }
+    }
+
+    /// A block with `tears`, `residuals` and `body`; what it touches is
+    /// everything its body reads or writes.
+    fn block(tears: Vec<u32>, residuals: Vec<u32>, body: Vec<Instr>) -> TapeBlock {
+        let mut touched: Vec<u32> = body
+            .iter()
+            .flat_map(|i| i.operands().into_iter().chain([i.dest()]))
+            .collect();
+        touched.sort_unstable();
+        touched.dedup();
+        TapeBlock {
+            index: 1,
+            tears,
+            residuals,
+            body,
+            linear: false,
+            elements: vec!["R1".into(), "D1".into()],
+            junctions: Vec::new(),
+            touched,
+            private: false,
+            constant_jacobian: false,
+            lu: std::cell::OnceCell::new(),
+            pattern: std::cell::OnceCell::new(),
+            charge_inverse: None,
+        }
+    }
+
+    /// `x³ + x - 10 = 0` on tear register 0 (root 2); registers 1-3 hold
+    /// x², x³ + x and the residual, register 4 the constant 10.
+    fn cubic() -> Tape {
+        use Instr::*;
+        let body = vec![
+            Mul { d: 1, a: 0, b: 0 },
+            Mul { d: 2, a: 1, b: 0 },
+            Add { d: 2, a: 2, b: 0 },
+            Sub { d: 3, a: 2, b: 4 },
+        ];
+        tape_of(
+            vec![0.5, 0.0, 0.0, 0.0, 10.0],
+            vec![block(vec![0], vec![3], body)],
+        )
+    }
+
+    #[test]
+    fn newton_on_one_tear_finds_the_root() {
+        let tape = cubic();
+        let mut r = tape.registers();
+        tape.solve_block(0, &mut r, 0.0).expect("converges");
+        assert!((r[0] - 2.0).abs() < 1e-14, "x = {}", r[0]);
+        // The body is left consistent with the tear.
+        assert!(r[3].abs() < 1e-12, "residual {}", r[3]);
+    }
+
+    /// `x² + y² - 4 = 0`, `x - y = 0` on tears 0 and 1 (root x = y = √2).
+    fn circle_and_line(x0: f64, y0: f64) -> Tape {
+        use Instr::*;
+        let body = vec![
+            Mul { d: 2, a: 0, b: 0 },
+            Mul { d: 3, a: 1, b: 1 },
+            Add { d: 4, a: 2, b: 3 },
+            Sub { d: 5, a: 4, b: 7 },
+            Sub { d: 6, a: 0, b: 1 },
+        ];
+        tape_of(
+            vec![x0, y0, 0.0, 0.0, 0.0, 0.0, 0.0, 4.0],
+            vec![block(vec![0, 1], vec![5, 6], body)],
+        )
+    }
+
+    #[test]
+    fn damped_newton_on_many_tears_converges_from_far_away() {
+        for (x0, y0) in [(1.0, 0.5), (30.0, -20.0), (1e-3, 1e3)] {
+            let tape = circle_and_line(x0, y0);
+            let mut r = tape.registers();
+            tape.solve_block(0, &mut r, 0.0).expect("converges");
+            let s = std::f64::consts::SQRT_2;
+            assert!(
+                (r[0] - s).abs() < 1e-14 && (r[1] - s).abs() < 1e-14,
+                "from ({x0}, {y0}): ({}, {})",
+                r[0],
+                r[1]
+            );
+        }
+    }
+
+    #[test]
+    fn an_affine_block_is_solved_by_one_correction_of_its_kept_factors() {
+        use Instr::*;
+        // 2x + y - 3 = 0, x - y = 0: x = y = 1.
+        let body = vec![
+            Mul { d: 2, a: 0, b: 5 },
+            Add { d: 3, a: 2, b: 1 },
+            Sub { d: 3, a: 3, b: 6 },
+            Sub { d: 4, a: 0, b: 1 },
+        ];
+        let mut b = block(vec![0, 1], vec![3, 4], body);
+        b.constant_jacobian = true;
+        let tape = tape_of(vec![7.0, -2.0, 0.0, 0.0, 0.0, 2.0, 3.0], vec![b]);
+        let mut r = tape.registers();
+        tape.solve_block(0, &mut r, 0.0).expect("solves");
+        assert!((r[0] - 1.0).abs() < 1e-15 && (r[1] - 1.0).abs() < 1e-15);
+        assert!(tape.blocks[0].lu.get().is_some(), "the factors are kept");
+        // Another right-hand side reuses them.
+        r[6] = 6.0;
+        tape.solve_block(0, &mut r, 0.0).expect("solves");
+        assert!((r[0] - 2.0).abs() < 1e-15 && (r[1] - 2.0).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_singular_block_names_its_elements_and_keeps_its_start() {
+        use Instr::*;
+        // x - y - 1 = 0 twice: no unique solution.
+        let body = vec![
+            Sub { d: 2, a: 0, b: 1 },
+            Sub { d: 2, a: 2, b: 4 },
+            Sub { d: 3, a: 0, b: 1 },
+            Sub { d: 3, a: 3, b: 4 },
+        ];
+        let tape = tape_of(
+            vec![0.25, 0.5, 0.0, 0.0, 1.0],
+            vec![block(vec![0, 1], vec![2, 3], body)],
+        );
+        let mut r = tape.registers();
+        let e = tape.solve_block(0, &mut r, 1e-3).expect_err("singular");
+        assert_eq!(
+            e,
+            EvalError::Singular {
+                block: 1,
+                elements: vec!["R1".into(), "D1".into()],
+                t: 1e-3
+            }
+        );
+        assert_eq!(
+            (r[0], r[1]),
+            (0.25, 0.5),
+            "the warm start is left for a retry"
+        );
+    }
+
+    #[test]
+    fn a_block_without_a_root_fails_to_converge() {
+        use Instr::*;
+        // x² + 1 = 0 has no real root: Newton wanders, damping stalls.
+        let body = vec![Mul { d: 1, a: 0, b: 0 }, Add { d: 2, a: 1, b: 3 }];
+        let tape = tape_of(
+            vec![0.3, 0.0, 0.0, 1.0],
+            vec![block(vec![0], vec![2], body)],
+        );
+        let mut r = tape.registers();
+        match tape.solve_block(0, &mut r, 0.0) {
+            Err(EvalError::NoConvergence { block: 1, .. } | EvalError::Singular { .. }) => {}
+            other => panic!("{other:?}"),
+        }
+    }
+}

@@ -883,30 +883,24 @@ where
                 f64::INFINITY
             };
         }
-        let mut err: f64 = 0.0;
-        for i in 0..n {
-            let scale = self.peak[i]
+        let (err, worst) = weighted_error(&self.d, &self.atol, self.rtol, |i| {
+            self.peak[i]
                 .max(self.y[i].abs())
                 .max(self.y1[i].abs())
-                .min(self.jscale[i]);
-            let e = (self.d[i] / (self.atol[i] + self.rtol * scale)).abs();
-            // A NaN error is the worst of all.
-            if e > err || e.is_nan() && !err.is_nan() {
-                err = e;
-                self.worst = i;
+                .min(self.jscale[i])
+        });
+        self.worst = worst.unwrap_or(self.worst);
+        let grow = if self.no_growth { 1.0 } else { 4.0 };
+        match next_step(h, err, grow) {
+            Control::Reject(h_next) => {
+                self.h = h_next;
+                return Attempt::Rejected;
+            }
+            Control::Accept(h_next) => {
+                self.no_growth = false;
+                self.h = h_next;
             }
         }
-        if !err.is_finite() {
-            self.h = 0.25 * h;
-            return Attempt::Rejected;
-        }
-        if err > 1.0 {
-            self.h = h * (0.9 * err.powf(-1.0 / 3.0)).clamp(0.1, 0.9);
-            return Attempt::Rejected;
-        }
-        let grow = if self.no_growth { 1.0 } else { 4.0 };
-        self.no_growth = false;
-        self.h = h * (0.9 * err.max(1e-12).powf(-1.0 / 3.0)).clamp(0.2, grow);
         std::mem::swap(&mut self.y_prev, &mut self.y);
         std::mem::swap(&mut self.f_prev, &mut self.f);
         self.prev = Some(self.t);
@@ -959,6 +953,48 @@ where
 
 /// Integrate from the recorder's start to its last output point, landing
 /// on every output point and every breakpoint in `hard` (restarting there).
+/// The largest of `|d_i| / (atol_i + rtol · scale(i))`, the local error
+/// estimate `d` weighted by each state's tolerance, and the state where it
+/// is (none while every error is zero). A NaN error is the worst of all.
+fn weighted_error(
+    d: &[f64],
+    atol: &[f64],
+    rtol: f64,
+    scale: impl Fn(usize) -> f64,
+) -> (f64, Option<usize>) {
+    let (mut err, mut worst) = (0.0_f64, None);
+    for (i, (d, a)) in d.iter().zip(atol).enumerate() {
+        let e = (d / (a + rtol * scale(i))).abs();
+        if e > err || e.is_nan() && !err.is_nan() {
+            err = e;
+            worst = Some(i);
+        }
+    }
+    (err, worst)
+}
+
+/// The step size control's verdict on a step, with the next step size.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Control {
+    Accept(f64),
+    Reject(f64),
+}
+
+/// Step size control after a step of size `h` with weighted error `err`
+/// (1: at the tolerance). TR-BDF2's local error is O(h³), so the next step
+/// is `h · 0.9 · err^(-1/3)`: shrunk to within 0.1..0.9 of `h` after a
+/// rejection (a quarter when the error is not finite), within 0.2..`grow`
+/// after an acceptance.
+fn next_step(h: f64, err: f64, grow: f64) -> Control {
+    if !err.is_finite() {
+        Control::Reject(0.25 * h)
+    } else if err > 1.0 {
+        Control::Reject(h * (0.9 * err.powf(-1.0 / 3.0)).clamp(0.1, 0.9))
+    } else {
+        Control::Accept(h * (0.9 * err.max(1e-12).powf(-1.0 / 3.0)).clamp(0.2, grow))
+    }
+}
+
 /// How a run of the circuit integrator starts: its tolerances (per state,
 /// and the absolute tolerance of junction currents), initial state and
 /// first step.
@@ -1067,4 +1103,52 @@ where
     stats.restarts += s.stats.restarts;
     rec.last = s.y.clone();
     Ok(rec)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn steps_shrink_on_rejection_and_grow_within_bounds() {
+        // At the tolerance the step passes and shrinks by the safety factor.
+        assert_eq!(next_step(1.0, 1.0, 4.0), Control::Accept(0.9));
+        // Eight times the tolerance: h·0.9/2.
+        assert_eq!(next_step(1.0, 8.0, 4.0), Control::Reject(0.45));
+        // Far too large an error shrinks by a tenth at most per try.
+        assert_eq!(next_step(1.0, 1e9, 4.0), Control::Reject(0.1));
+        assert_eq!(next_step(2.0, f64::NAN, 4.0), Control::Reject(0.5));
+        assert_eq!(next_step(2.0, f64::INFINITY, 4.0), Control::Reject(0.5));
+        // A tiny error grows the step by `grow` at most, and not at all
+        // where growth is held back.
+        assert_eq!(next_step(1.0, 1e-9, 4.0), Control::Accept(4.0));
+        assert_eq!(next_step(1.0, 0.0, 1.0), Control::Accept(1.0));
+        // In between, the third root: a thousandth of the tolerance gives
+        // 0.9 · 10.
+        let Control::Accept(h) = next_step(1.0, 1e-3, 20.0) else {
+            panic!("accepted")
+        };
+        assert!((h - 9.0).abs() < 1e-12, "{h}");
+    }
+
+    #[test]
+    fn errors_are_weighted_by_each_states_own_tolerance() {
+        let d = [1e-6, 1e-9, 0.0];
+        let atol = [1e-9, 1e-12, 1e-9];
+        // State 0: a 1 V signal at rtol 1e-6 is at the tolerance; state 1: a
+        // 1 mA current at rtol 1e-6 is one unit too.
+        let scale = [1.0, 1e-3, 5.0];
+        let (err, worst) = weighted_error(&d, &atol, 1e-6, |i| scale[i]);
+        assert!((err - 1e-6 / (1e-9 + 1e-6)).abs() < 1e-12, "{err}");
+        assert_eq!(worst, Some(0));
+        // A smaller scale (a junction voltage's) makes the same error worse.
+        let (err, worst) = weighted_error(&d, &atol, 1e-6, |i| [1.0, 1e-6, 5.0][i]);
+        assert!(err > 400.0, "{err}");
+        assert_eq!(worst, Some(1));
+        // NaN wins; no error at all names no state.
+        let (err, worst) = weighted_error(&[1.0, f64::NAN], &[1.0, 1.0], 0.0, |_| 1.0);
+        assert!(err.is_nan());
+        assert_eq!(worst, Some(1));
+        assert_eq!(weighted_error(&[0.0], &[1.0], 1e-3, |_| 1.0), (0.0, None));
+    }
 }
