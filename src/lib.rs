@@ -11,12 +11,25 @@
 //! 4. [`analysis`] colours the bipartite structure graph into causal
 //!    assignments, tears algebraic loops ([`analysis::causalize`]) and orders
 //!    them into a [`analysis::Schedule`] ([`analysis::schedule`]).
-//! 5. [`back`] prints schedules ([`back::listing`]) and interprets them
-//!    ([`back::interp`]).
+//! 5. [`back`] prints schedules ([`back::listing`]), interprets them
+//!    ([`back::interp`], the reference) and writes them as Rust or C
+//!    ([`back::codegen`]).
+//! 6. [`tape`] compiles a schedule into a register program
+//!    ([`tape::compile`]) that evaluates `f`, its Jacobian by forward-mode
+//!    tangents, and the outputs; algebraic loops become blocks solved by
+//!    Newton on their tears.
+//! 7. [`sim`] integrates the tape from its operating point with diffsol or
+//!    kausal's own TR-BDF2 ([`sim::simulate`]), on top of the numerical
+//!    kernels of [`numeric`] (dense and sparse LU, damped Newton).
+//! 8. [`validate`] runs ngspice on the same netlist and compares the
+//!    waveforms ([`validate::validate`]); [`bench`] measures speed against
+//!    error, beside ngspice.
 //!
 //! Every stage reports problems as [`diag::Diagnostic`]s pointing at the
 //! netlist; [`diag::render`] draws them with file, line, column and a caret.
-//! [`pipeline`] strings the stages together for the CLI and tests.
+//! [`pipeline`] strings the stages up to the schedule together for the CLI,
+//! the simulator and tests. The layers and their order are stated in
+//! `ARCHITECTURE.md` and checked by a test.
 
 pub mod analysis;
 pub mod back;

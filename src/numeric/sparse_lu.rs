@@ -18,6 +18,11 @@
 //!   falls back to a full factorization if a pivot has become too small.
 //!
 //! The solve is two sparse triangular sweeps over compressed columns.
+//!
+//! The sparse LU keeps its column order and pivots between refactorizations
+//! and factors afresh when a kept pivot falls below 1e-6 of its column; a
+//! singular matrix makes the solve fail (diffsol cuts the step), never a
+//! panic.
 
 use std::cell::RefCell;
 

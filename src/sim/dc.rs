@@ -1,6 +1,12 @@
 //! The start of a run: the DC operating point (damped Newton on `f = 0` in
 //! DC mode, then source stepping), `.ic`/`uic` starts, and the diagnostics
 //! that name what has no DC solution.
+//!
+//! The DC operating point is Newton on `f = 0` in DC mode: junction-charge
+//! states take limited steps (ngspice's junction limiting, through `Q⁻¹`),
+//! other steps are damped by the natural monotonicity test; if it fails, the
+//! sources are ramped up from zero (`Tape::scale_sources`: a DC source's
+//! value has a register of its own).
 
 use super::*;
 
@@ -233,8 +239,8 @@ where
             .map_err(|error| SimError::Eval { error })?;
         Ok(f.iter().map(|x| x.abs()).fold(0.0, f64::max))
     };
-    // The junction of each charge state (one pass over the tape: a search
-    // per state was quadratic), and its voltage at the last iterate.
+    // The junction of each charge state (one pass over the tape, not a
+    // search per state), and its voltage at the last iterate.
     let junction: Vec<Option<&crate::ir::DiodeParams>> = tape
         .charge_states()
         .into_iter()

@@ -1,6 +1,12 @@
 //! The diffsol driver: tolerances, the problem, the solver of each method
 //! stepped from breakpoint to breakpoint with restarts, and circuits without
 //! states.
+//!
+//! A simulation restarts its integrator (fresh history, order 1) at every
+//! hard breakpoint and after repeated error-test failures, never elsewhere.
+//! Before it starts and at every restart, f is evaluated once where it
+//! starts: an evaluation error there is the run's error (diffsol would size a
+//! NaN first step from it, and a NaN step never fails a step-size test).
 
 use super::*;
 
@@ -94,8 +100,8 @@ where
     let start = initial_state::<M>(sorted, &ode, t0, &atol, outputs, opts)?;
     // f must be defined where the run starts: diffsol sizes its first step
     // from f(t0, y0), and a NaN there (a loop that is singular at t0 while
-    // the `.ic` operating point was not) made every step size NaN, which no
-    // step-size test rejects: the run never ended.
+    // the `.ic` operating point is not) would make every step size NaN,
+    // which no step-size test rejects: the run would never end.
     let mut dy0 = vec![0.0; start.y.len()];
     ode.eval(t0, &start.y, &mut dy0)
         .map_err(|error| SimError::Eval { error })?;

@@ -1,6 +1,21 @@
 //! Output points between solver steps: outputs from the interpolant (through
 //! few Chebyshev nodes per step when few states are read), junction charges
 //! settled on their slow manifold first.
+//!
+//! Output points of an interpolated state have their junction charges put on
+//! their slow manifold (`Recorder::settle_charges`: three Newton steps on
+//! `f_q = q̇` of the interpolant with one factored matrix, shifted by `100/h`
+//! so that only directions far faster than the step move), because a charge's
+//! error reaches the current through RS amplified by 1/(C·RS). These side
+//! evaluations use their own registers: they never move the solver's warm
+//! starts, so the solver's path is the same with or without them.
+//!
+//! Outputs that read few states (a probe on a large circuit without junction
+//! charges, which are settled instead) take them from the solver's
+//! interpolant at six Chebyshev nodes per step (`StepPolynomial`): within one
+//! step every solver's interpolant is a polynomial of degree ≤ 5, so this is
+//! exact to rounding, and the whole state is interpolated six times per step
+//! instead of at every output point.
 
 use super::*;
 

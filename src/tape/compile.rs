@@ -441,7 +441,8 @@ pub fn compile(
     }
     // Which of the rest the outputs need: one pass over the outputs'
     // expression DAG, through aliases (the loop formulation's node
-    // potentials share their tree paths: a pass per output was quadratic).
+    // potentials share their tree paths, so a pass per output would be
+    // quadratic).
     let mut out_needed = vec![false; sys.vars.len()];
     let mut seen: std::collections::HashSet<ExprId> = std::collections::HashSet::new();
     let mut stack: Vec<ExprId> = Vec::new();

@@ -74,8 +74,8 @@ pub struct ChargeInverse {
     pub target: u32,
     /// Four registers: the last voltage the inversion evaluated the junction
     /// at, and its charge, `Q′` and `Q″` there (NaN: none yet). The next
-    /// inversion starts from it and takes its first step without evaluating:
-    /// one junction evaluation per inversion where there were two.
+    /// inversion starts from it and takes its first step without evaluating
+    /// the junction.
     pub memo: u32,
 }
 
@@ -166,8 +166,7 @@ pub struct Tape {
     pub source_params: Vec<(u32, f64)>,
     /// Each source's last `(t, value)` (unscaled, order 0): the Newton
     /// iterations of an implicit stage evaluate `f` at one time again and
-    /// again, and a SIN source's `sin` was a twentieth of a rectifier's
-    /// evaluation.
+    /// again, and a transcendental source (SIN) is then computed once.
     source_memo: Vec<std::cell::Cell<(f64, f64)>>,
 }
 

@@ -1,5 +1,12 @@
 //! Forward-mode tangents through the tape: `J v` and Jacobian columns,
 //! with blocks differentiated by the implicit function theorem.
+//!
+//! The columns of one Jacobian share their blocks' solutions and factored
+//! Jacobians (`TangentCache`); any other use of the registers (`f`, outputs,
+//! another point) invalidates them. A dense Jacobian is one multi-direction
+//! tangent pass (`Tape::jacobian_columns`: each instruction's value and slope
+//! once for all columns); a charge inversion's tangent is `dx = dq/Q′(x)`,
+//! without running its body.
 
 use super::*;
 

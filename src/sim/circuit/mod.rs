@@ -10,7 +10,7 @@
 //! point without losing anything.
 //!
 //! What differs from diffsol's BDF, and why (measured on the bridge
-//! rectifiers of `netlists/`, where BDF took 60–110 steps per diode
+//! rectifiers of `netlists/`, where BDF needs 60–110 steps per diode
 //! switching event):
 //! - **The error is measured against each state's largest magnitude so
 //!   far** (a circuit simulator's "sigglobal" reference), not against its
@@ -43,6 +43,32 @@
 //!   manifold, where an interpolated one needs its charges settled by Newton
 //!   steps (`Recorder::settle_charges`) that cost as much as a step. Without,
 //!   output points are the step's cubic Hermite interpolant.
+//!
+//! `--method circuit` (`sim::trbdf2`) measures Newton's corrections against
+//! each state's own magnitude but its local error against the state's largest
+//! magnitude so far: a junction charge's error reaches its current amplified
+//! by 1/(C·RS), so the corrector must converge it locally, while the error
+//! test need not follow it through zero. With junction charges every output
+//! point is a step (as `settle_charges` would cost a step per point);
+//! without, outputs are the step's cubic Hermite interpolant. A junction
+//! charge is predicted through its voltage (read from the inversion's memo
+//! registers, `CircuitOde::register`), and the kept Jacobian's junction
+//! columns are rescaled by `Q′` and its diagonal moved by `g_d`: this is
+//! exact when `f` reads a charge only through its junction voltage and `q' =
+//! i - i_d(v)` (`build`'s diode law), approximate where index reduction
+//! rewrote a junction's equations, and either way only the iteration matrix:
+//! Newton's convergence test decides. Where
+//! `Tape::jacobian_follows_junctions` proves that exactness (an abstract
+//! interpretation of the tape: every register is constant, a function of
+//! time, affine in the states, a junction voltage, or affine plus one
+//! junction current, which must end in its own charge's derivative), the
+//! Jacobian is followed to every iterate and an iterate is accepted on `θ`
+//! (how far its correction moves `g_d` and `Q′`) and on each junction's
+//! current through RS against its largest current so far; the error test
+//! measures a junction charge also as a voltage, `δq/Q′` against its largest
+//! junction voltage. Where the proof fails (a resistive diode, a product of
+//! signals) Newton falls back to the kept-Jacobian rate test and a Jacobian
+//! per iterate.
 
 use super::ode::{CircuitOde, HostVec, Regs};
 use super::*;
@@ -64,14 +90,13 @@ const MAX_ITERATIONS: usize = 4;
 const NEWTON_TOLERANCE: f64 = 0.1;
 /// The corrector converges to at least this relative accuracy, whatever
 /// the error test's rtol (as a circuit simulator's Newton converges to its
-/// RELTOL while TRTOL loosens its truncation test): at rtol 1e-2 a junction
-/// charge left 1e-3 off put 5e-3 A into a rectifier's 11 A inrush.
+/// RELTOL while TRTOL loosens its truncation test): a junction charge left
+/// 1e-3 off reaches its current amplified by 1/(C·RS).
 const NEWTON_RTOL: f64 = 1e-3;
 /// A first correction this small (relative to the tolerance) ends the
-/// iteration at once: the predictor was already right. Trusting the rate of
-/// earlier iterations instead (CVODE's test) let a rectifier's first diode
-/// turn-on through with a current 3 A off: the rate was that of the
-/// reverse-biased circuit before it.
+/// iteration at once: the predictor is already right. The rate of earlier
+/// iterations (CVODE's test) is not trusted for this: at a diode's turn-on
+/// it is the rate of the reverse-biased circuit before it.
 const FIRST_CORRECTION: f64 = 0.01;
 /// The least `θ` of [`TrBdf2::followed_newton`]'s convergence test on the
 /// weighted correction: what the junctions' `θ` does not see (rounding in
@@ -376,7 +401,7 @@ where
     /// (`q' = i - i_d(v)`), the rest of it the circuit's. Both follow the
     /// device from where the Jacobian was computed: a decaying junction's
     /// `Q′` falls by orders of magnitude over a few steps, and without this
-    /// each stage of a rectifier's turn-off took a Jacobian per iteration.
+    /// each stage of a rectifier's turn-off needs a Jacobian per iteration.
     /// A junction whose `Q′` and `g_d` moved by at most `skip` (relative)
     /// keeps its entries (and the factored matrix its factors).
     fn follow_junctions(&mut self, skip: f64) {
@@ -701,7 +726,7 @@ where
         }
         // A small matrix is refactored for every move: the Jacobian is then
         // the iterate's own, and a junction current converges in one
-        // iterate where a Jacobian 1e-3 off took two.
+        // iterate where a Jacobian 1e-3 off needs two.
         let skip = if self.n <= EXACT_FOLLOW_STATES {
             0.0
         } else {
@@ -872,8 +897,9 @@ where
         // the scale of the largest junction voltage so far: a reverse-biased
         // junction's depletion charge is orders of magnitude below the
         // diffusion charge of its conduction (its peak), and a floating
-        // bridge's nodes, set by those charges at the zero crossing, were
-        // 1.5e-3 V off at every rtol.
+        // bridge's nodes are set by those charges at the zero crossing: on
+        // the charge's own scale alone their error would not shrink with
+        // rtol.
         for jn in &self.junctions {
             let cap = self.ode.register(jn.ci.memo + 2);
             let v = jn.v_peak * cap;
