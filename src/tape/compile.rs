@@ -252,6 +252,30 @@ impl Compiler<'_> {
         }
     }
 
+    /// Add a block of `body` solving `residuals` for `tears`, with its
+    /// junction tears and touched registers, and its solve to `out`.
+    fn push_block(
+        &mut self,
+        index: usize,
+        (tears, residuals): (Vec<u32>, Vec<u32>),
+        body: Vec<Instr>,
+        linear: bool,
+        elements: Vec<String>,
+        out: &mut Vec<Instr>,
+    ) {
+        let k = self.blocks.len();
+        self.blocks.push(TapeBlock::new(
+            index,
+            (tears, residuals),
+            body,
+            linear,
+            elements,
+        ));
+        self.set_junctions(k);
+        self.set_touched(k);
+        out.push(Instr::Block { k: k as u32 });
+    }
+
     fn assign(&mut self, a: &Assignment, out: &mut Vec<Instr>) {
         match a.solved {
             Solved::Explicit(e) => {
@@ -268,31 +292,13 @@ impl Compiler<'_> {
                 self.reg_var[t as usize] = Some(a.var);
                 let mut body = Vec::new();
                 let r = self.emit(f, &mut body);
-                let k = self.blocks.len() as u32;
-                self.blocks.push(TapeBlock {
-                    index: 0,
-                    tears: vec![t],
-                    residuals: vec![r],
-                    body,
-                    linear: false,
-                    elements: self.sys.eqs[a.eq]
-                        .origin
-                        .elements()
-                        .into_iter()
-                        .map(String::from)
-                        .collect(),
-                    junctions: Vec::new(),
-                    touched: Vec::new(),
-                    private: false,
-                    constant_jacobian: false,
-                    lu: std::cell::OnceCell::new(),
-                    pattern: std::cell::OnceCell::new(),
-                    charge_inverse: None,
-                });
-                let kk = k as usize;
-                self.set_junctions(kk);
-                self.set_touched(kk);
-                out.push(Instr::Block { k });
+                let elements = self.sys.eqs[a.eq]
+                    .origin
+                    .elements()
+                    .into_iter()
+                    .map(String::from)
+                    .collect();
+                self.push_block(0, (vec![t], vec![r]), body, false, elements, out);
             }
         }
     }
@@ -336,26 +342,14 @@ impl Compiler<'_> {
                     body.push(Instr::Sub { d, a: l, b: r });
                     residuals.push(d);
                 }
-                let k = self.blocks.len() as u32;
-                self.blocks.push(TapeBlock {
-                    index: b.index,
-                    tears,
-                    residuals,
+                self.push_block(
+                    b.index,
+                    (tears, residuals),
                     body,
-                    linear: b.linear,
-                    elements: b.elements.clone(),
-                    junctions: Vec::new(),
-                    touched: Vec::new(),
-                    private: false,
-                    constant_jacobian: false,
-                    lu: std::cell::OnceCell::new(),
-                    pattern: std::cell::OnceCell::new(),
-                    charge_inverse: None,
-                });
-                let kk = k as usize;
-                self.set_junctions(kk);
-                self.set_touched(kk);
-                out.push(Instr::Block { k });
+                    b.linear,
+                    b.elements.clone(),
+                    out,
+                );
             }
         }
     }

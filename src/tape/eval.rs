@@ -80,7 +80,6 @@ impl Tape {
         Ok(())
     }
 
-    /// The outputs, after `rhs` has run at the same point.
     /// The outputs at `(t, y)` (independent of [`Tape::rhs`]).
     pub fn outputs(
         &self,

@@ -80,6 +80,33 @@ pub struct ChargeInverse {
 }
 
 impl TapeBlock {
+    /// A block of `body` solving `residuals` for `tears`, before the
+    /// compiler's analyses fill in its junctions, touched registers and
+    /// solution method.
+    pub fn new(
+        index: usize,
+        (tears, residuals): (Vec<u32>, Vec<u32>),
+        body: Vec<Instr>,
+        linear: bool,
+        elements: Vec<String>,
+    ) -> TapeBlock {
+        TapeBlock {
+            index,
+            tears,
+            residuals,
+            body,
+            linear,
+            elements,
+            junctions: Vec::new(),
+            touched: Vec::new(),
+            private: false,
+            constant_jacobian: false,
+            lu: std::cell::OnceCell::new(),
+            pattern: std::cell::OnceCell::new(),
+            charge_inverse: None,
+        }
+    }
+
     fn singular(&self, t: f64) -> EvalError {
         EvalError::Singular {
             block: self.index,
