@@ -110,9 +110,7 @@ where
         y = held.y;
         warnings.extend(held.warnings);
     }
-    tape.dc.set(true);
-    let r = dc_point::<M>(ode, t0, y, atol);
-    tape.dc.set(false);
+    let r = tape.in_mode(Mode::Dc, || dc_point::<M>(ode, t0, y, atol));
     Ok(Start {
         y: r.map_err(|e| name_dc_failure(c, e))?,
         warnings,

@@ -288,23 +288,8 @@ where
     let mut stops: Vec<f64> = hard.to_vec();
     stops.push(t_end);
     let mut k = 0;
-    // The initial point.
-    {
-        let st = solver.state();
-        let (t, y) = (st.t, st.y.slice().to_vec());
-        if rec.grid.first() == Some(t) {
-            if let Some(row) = rec.first.take() {
-                rec.rows.push(t, &row)?;
-            } else {
-                let tape = &problem.eqn.tape;
-                tape.dc.set(rec.dc_start);
-                let r = rec.record(t, &y);
-                tape.dc.set(false);
-                r?;
-            }
-            rec.next = 1;
-        }
-    }
+    let st = solver.state();
+    rec.record_start(st.t, st.y.slice())?;
     let mut last_report = Instant::now();
     // Restarts after too many error-test failures: (time, how many there).
     let mut rescues: Option<(f64, usize)> = None;
@@ -572,10 +557,13 @@ pub(super) fn algebraic(
             continue;
         }
         // The first point is the DC operating point unless `uic`.
-        tape.dc.set(first && !tran.uic);
-        let r = tape.outputs(&mut regs, t, &[], &mut out);
-        tape.dc.set(false);
-        r.map_err(|error| SimError::Eval { error })?;
+        let mode = if first && !tran.uic {
+            Mode::Dc
+        } else {
+            Mode::Transient
+        };
+        tape.in_mode(mode, || tape.outputs(&mut regs, t, &[], &mut out))
+            .map_err(|error| SimError::Eval { error })?;
         stats.rhs_evals += 1;
         rows.push(t, &out)?;
     }

@@ -258,16 +258,13 @@ where
 {
     let n = tape.states.len();
     let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; n], sparse);
-    tape.dc.set(true);
-    let result = (|| {
+    tape.in_mode(tape::Mode::Dc, || {
         let y = dc_point::<M>(&ode, 0.0, vec![0.0; n], atol)?;
         let mut out = vec![0.0; tape.out_regs.len()];
         ode.outputs(0.0, &y, &mut out)
             .map_err(|error| SimError::Eval { error })?;
         Ok((y, out))
-    })();
-    tape.dc.set(false);
-    result
+    })
 }
 
 /// K0408: the `.ic` nodes could not be held, and why.

@@ -34,7 +34,7 @@ use crate::numeric::newton::{self, Damping};
 use crate::numeric::sparse_lu::CircuitLu;
 use crate::numeric::{DenseLu, Factored, TripletLu, UnionFind};
 use crate::pipeline::Sorted;
-use crate::tape::{self, EvalError, OutputRef, Tape};
+use crate::tape::{self, EvalError, Mode, OutputRef, Tape};
 use ode::{CircuitOde, EvalCounts, HostVec, Regs};
 
 use dc::*;
@@ -275,9 +275,9 @@ fn simulate_rows(
     w.names = list.iter().map(|o| c.output_name(o)).collect();
     w.stats.method = Some(method);
     w.stats.states = n;
-    w.stats.in_f = tape.n_in_f;
-    w.stats.at_outputs = tape.n_at_outputs;
-    w.stats.unused = tape.n_unused;
+    w.stats.in_f = tape.coverage.in_f;
+    w.stats.at_outputs = tape.coverage.at_outputs;
+    w.stats.unused = tape.coverage.unused;
     w.stats.wall = start.elapsed();
     Ok(w)
 }

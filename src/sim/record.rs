@@ -133,6 +133,28 @@ where
         }
     }
 
+    /// The first output row at `t`, the run's start, when the grid
+    /// begins there: the row the operating point computed, or the outputs
+    /// at `y` in DC mode (transient with `uic`).
+    pub(super) fn record_start(&mut self, t: f64, y: &[f64]) -> Result<(), SimError> {
+        if self.grid.first() != Some(t) {
+            return Ok(());
+        }
+        if let Some(row) = self.first.take() {
+            self.rows.push(t, &row)?;
+        } else {
+            let mode = if self.dc_start {
+                Mode::Dc
+            } else {
+                Mode::Transient
+            };
+            let tape = &self.ode.tape;
+            tape.in_mode(mode, || self.record(t, y))?;
+        }
+        self.next = 1;
+        Ok(())
+    }
+
     pub(super) fn record(&mut self, t: f64, y: &[f64]) -> Result<(), SimError> {
         self.ode
             .outputs(t, y, &mut self.out)

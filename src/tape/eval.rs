@@ -6,7 +6,7 @@ use super::*;
 impl Tape {
     #[inline]
     pub(super) fn source(&self, s: u32, t: f64, order: u8) -> f64 {
-        if order > 0 && self.dc.get() {
+        if order > 0 && self.mode.get() == Mode::Dc {
             0.0
         } else {
             let value = if order == 0 {

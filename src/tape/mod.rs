@@ -175,16 +175,13 @@ pub struct Tape {
     memo_links: Vec<(u32, u32)>,
     pub sources: Vec<Waveform>,
     pub diodes: Vec<DiodeParams>,
-    /// Assignments evaluated by `code` / only by `out_code` / never.
-    pub n_in_f: usize,
-    pub n_at_outputs: usize,
-    pub n_unused: usize,
+    /// Where the schedule's assignments are evaluated.
+    pub coverage: Coverage,
     /// For each register, the assignment (variable) whose value it holds,
     /// when it holds one: to name the source of a NaN.
     pub reg_var: Vec<Option<VarId>>,
-    /// DC mode: sources' time derivatives read as zero (the operating point,
-    /// where capacitors are open and inductors shorted whatever the sources do).
-    pub dc: std::cell::Cell<bool>,
+    /// The mode evaluations run in (see [`Tape::in_mode`]).
+    mode: std::cell::Cell<Mode>,
     /// Every independent source's value is multiplied by this (1 but while
     /// the DC solve ramps the sources up): waveforms as they are evaluated,
     /// DC values in their registers (see [`Tape::scale_sources`]).
@@ -195,6 +192,38 @@ pub struct Tape {
     /// iterations of an implicit stage evaluate `f` at one time again and
     /// again, and a transcendental source (SIN) is then computed once.
     source_memo: Vec<std::cell::Cell<(f64, f64)>>,
+}
+
+/// How many of the schedule's assignments the tape evaluates where.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Coverage {
+    /// In `f`, at every evaluation.
+    pub in_f: usize,
+    /// Only at output points.
+    pub at_outputs: usize,
+    /// Never (nothing asked for them).
+    pub unused: usize,
+}
+
+/// What the sources mean to an evaluation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Mode {
+    /// Sources as functions of time.
+    #[default]
+    Transient,
+    /// The operating point: sources' time derivatives read as zero, so
+    /// capacitors are open and inductors shorted whatever the sources do.
+    Dc,
+}
+
+impl Tape {
+    /// Run `f` with evaluations in `mode`, then return to the mode before.
+    pub fn in_mode<R>(&self, mode: Mode, f: impl FnOnce() -> R) -> R {
+        let before = self.mode.replace(mode);
+        let result = f();
+        self.mode.set(before);
+        result
+    }
 }
 
 /// What an output computes.

@@ -1055,18 +1055,7 @@ where
     } = *stops_at;
     let (all_steps, progress) = (opts.all_steps, opts.progress);
     let mut s = TrBdf2::new(ode, setup, t0, h_min)?;
-    if rec.grid.first() == Some(t0) {
-        if let Some(row) = rec.first.take() {
-            rec.rows.push(t0, &row)?;
-        } else {
-            let tape = &ode.tape;
-            tape.dc.set(rec.dc_start);
-            let r = rec.record(t0, &s.y);
-            tape.dc.set(false);
-            r?;
-        }
-        rec.next = 1;
-    }
+    rec.record_start(t0, &s.y)?;
     // Junction charges are the solver's own only at its steps (an
     // interpolated one is off its slow manifold, and its error reaches the
     // current through RS amplified by 1/(C·RS)): with them, every output
