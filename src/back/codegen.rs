@@ -109,7 +109,7 @@ fn reroll(run: &[Shaped], lang: Lang, out: &mut Vec<String>) {
     }
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Lang {
     Rust,
     C,

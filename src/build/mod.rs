@@ -24,7 +24,7 @@ use crate::ir::{
 pub const VT_27C: f64 = 1.380_648_52e-23 * 300.15 / 1.602_176_620_8e-19;
 
 /// How Kirchhoff's voltage law is written.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub enum Kvl {
     /// Node potentials and one branch equation per element.
     #[default]

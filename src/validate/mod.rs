@@ -4,8 +4,8 @@
 //!
 //! kausal is evaluated at ngspice's own time points (with its solver's
 //! interpolant), so no linear interpolation error enters the comparison.
-//! This module and `main.rs` are the only ones that touch the file system
-//! and run programs.
+//! This module, `bench/`, `io.rs` and the CLI are the only ones that touch
+//! the file system and run programs.
 
 pub mod plot;
 pub mod raw;
