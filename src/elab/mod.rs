@@ -16,7 +16,7 @@ pub use circuit::*;
 pub use error::ElabError;
 
 use crate::diag::Span;
-use crate::front::ast::{self, ElementBody, Stmt, TranFnKind, Value};
+use crate::front::ast::{self, ElementBody, ElementLetter, Stmt, TranFnKind, Value};
 use crate::ir::Waveform;
 
 /// Output points of a `.tran` above which it warns (K0295): a 10^8-row CSV
@@ -447,7 +447,7 @@ impl Elab {
             });
             return;
         }
-        let letter = el.letter();
+        let letter = el.letter;
         let Some(kind) = self.kind(el, &name, letter, scope) else {
             return;
         };
@@ -482,7 +482,7 @@ impl Elab {
         &mut self,
         el: &ast::Element<'_>,
         name: &str,
-        letter: char,
+        letter: ElementLetter,
         scope: &Scope<'_, '_>,
     ) -> Option<ElementKind> {
         let nonzero = |this: &mut Elab, v: f64, span: Span, what: &'static str| {
@@ -524,7 +524,7 @@ impl Elab {
                 // `m`: that many elements in parallel.
                 let mut m = inherited;
                 for p in params {
-                    if p.name.is("ic") && letter != 'R' {
+                    if p.name.is("ic") && letter != ElementLetter::R {
                         ic = Some(self.value(&p.value, scope)?);
                     } else if p.name.is("m") {
                         m *= self.multiplier(p, name, scope)?;
@@ -537,10 +537,10 @@ impl Elab {
                     }
                 }
                 match letter {
-                    'R' => ElementKind::Resistor {
+                    ElementLetter::R => ElementKind::Resistor {
                         r: nonzero(self, v, value.span(), "resistance")? / m,
                     },
-                    'C' => ElementKind::Capacitor {
+                    ElementLetter::C => ElementKind::Capacitor {
                         c: nonzero(self, v, value.span(), "capacitance")? * m,
                         ic,
                     },
@@ -577,7 +577,7 @@ impl Elab {
                         },
                     },
                 };
-                if letter == 'V' {
+                if letter == ElementLetter::V {
                     ElementKind::VSource {
                         wave: Box::new(wave),
                     }
@@ -601,7 +601,7 @@ impl Elab {
             }
             ElementBody::VoltageControlled { gain } => {
                 let g = self.value(gain, scope)?;
-                if letter == 'E' {
+                if letter == ElementLetter::E {
                     ElementKind::Vcvs { gain: g }
                 } else {
                     ElementKind::Vccs { gm: g }
@@ -610,7 +610,7 @@ impl Elab {
             ElementBody::CurrentControlled { gain, .. } => {
                 let g = self.value(gain, scope)?;
                 let ctrl = ElemId(u32::MAX);
-                if letter == 'F' {
+                if letter == ElementLetter::F {
                     ElementKind::Cccs { gain: g, ctrl }
                 } else {
                     ElementKind::Ccvs { r: g, ctrl }
