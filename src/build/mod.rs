@@ -416,10 +416,10 @@ impl Builder<'_> {
     /// of capacitors and voltage sources fixes: its equation is the loop's
     /// KVL, `u_C = ±u_…` over the rest of the loop (which implies its
     /// branch equation through theirs). Written on node potentials, a loop
-    /// that touches neither ground nor a source-fixed node hid its
-    /// constraint: the two potentials matched the two branch equations,
-    /// index reduction never started, and the loop's block was singular at
-    /// run time (two parallel capacitors between internal nodes).
+    /// that touches neither ground nor a source-fixed node would hide its
+    /// constraint: the two potentials would match the two branch equations,
+    /// index reduction would never start, and the loop's block would be
+    /// singular at run time (two parallel capacitors between internal nodes).
     fn branch_equations(&mut self, vars: &[Option<ElemVars>], pots: &[ExprId]) {
         let mut loops: HashMap<ElemId, Vec<(ElemId, f64)>> = HashMap::new();
         for f in crate::elab::topology::faults(self.c, &[]) {

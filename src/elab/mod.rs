@@ -148,7 +148,7 @@ struct Elab {
 /// no CJO (warning K0297), so that the junction's charge fixes its voltage.
 /// Smaller floors leave the charge too weak a coordinate: with 1 fF a clamp
 /// whose two junctions and source form a loop (index reduction keeps one
-/// junction's charge) was off ngspice by volts, and a bridge took minutes.
+/// junction's charge) is off ngspice by volts, and a bridge takes minutes.
 /// 1 pF is physical, and visible where nothing else sets a voltage: the
 /// floating common mode of a bridge (its four junctions' capacitance against
 /// a 10 MΩ path), or a clamp's nA current.
@@ -1218,7 +1218,7 @@ fn call_func(
 }
 
 /// Subcircuit instances nested deeper than this are refused (flattening
-/// recurses; 2·10^4 levels overflowed the stack).
+/// recurses: unbounded, 2·10^4 levels overflow the stack).
 const MAX_HIERARCHY: usize = 100;
 
 /// `.func` calls nested deeper than this are refused (evaluation recurses).

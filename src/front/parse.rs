@@ -1,4 +1,5 @@
-//! Statements from logical lines: elements by their letter, and directives.
+//! Statements from logical lines: blocks, subcircuits, includes, library
+//! sections and directives; element lines are read in `element.rs`.
 
 use super::ast::*;
 use super::error::ParseError;
@@ -21,8 +22,8 @@ pub(super) struct Parser<'a> {
 }
 
 /// Subcircuit definitions, includes and library sections nested deeper than
-/// this are refused (reading them recurses; 10^4 nested `.subckt`s
-/// overflowed the stack).
+/// this are refused (reading them recurses: unbounded, 10^4 nested
+/// `.subckt`s overflow the stack).
 pub const MAX_NESTING: usize = 64;
 
 /// Why a block of lines ended.
