@@ -24,7 +24,7 @@ use crate::ir::{
 pub const VT_27C: f64 = 1.380_648_52e-23 * 300.15 / 1.602_176_620_8e-19;
 
 /// How Kirchhoff's voltage law is written.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub enum Kvl {
     /// Node potentials and one branch equation per element.
     #[default]
@@ -416,10 +416,10 @@ impl Builder<'_> {
     /// of capacitors and voltage sources fixes: its equation is the loop's
     /// KVL, `u_C = ±u_…` over the rest of the loop (which implies its
     /// branch equation through theirs). Written on node potentials, a loop
-    /// that touches neither ground nor a source-fixed node hid its
-    /// constraint: the two potentials matched the two branch equations,
-    /// index reduction never started, and the loop's block was singular at
-    /// run time (two parallel capacitors between internal nodes).
+    /// that touches neither ground nor a source-fixed node would hide its
+    /// constraint: the two potentials would match the two branch equations,
+    /// index reduction would never start, and the loop's block would be
+    /// singular at run time (two parallel capacitors between internal nodes).
     fn branch_equations(&mut self, vars: &[Option<ElemVars>], pots: &[ExprId]) {
         let mut loops: HashMap<ElemId, Vec<(ElemId, f64)>> = HashMap::new();
         for f in crate::elab::topology::faults(self.c, &[]) {

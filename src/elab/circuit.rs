@@ -2,6 +2,7 @@
 //! settings. Subcircuits are expanded, parameters evaluated, models resolved.
 
 use crate::diag::Span;
+use crate::front::ast::ElementLetter;
 use crate::ir::{IdVec, Waveform};
 
 crate::entity_id!(
@@ -111,19 +112,20 @@ pub enum ElementKind {
 }
 
 impl ElementKind {
-    pub fn letter(&self) -> char {
+    /// The letter a netlist names this element with.
+    pub fn letter(&self) -> ElementLetter {
         match self {
-            ElementKind::Resistor { .. } => 'R',
-            ElementKind::Capacitor { .. } => 'C',
-            ElementKind::Inductor { .. } => 'L',
-            ElementKind::Coupling { .. } => 'K',
-            ElementKind::VSource { .. } => 'V',
-            ElementKind::ISource { .. } => 'I',
-            ElementKind::Vcvs { .. } => 'E',
-            ElementKind::Vccs { .. } => 'G',
-            ElementKind::Cccs { .. } => 'F',
-            ElementKind::Ccvs { .. } => 'H',
-            ElementKind::Diode { .. } => 'D',
+            ElementKind::Resistor { .. } => ElementLetter::R,
+            ElementKind::Capacitor { .. } => ElementLetter::C,
+            ElementKind::Inductor { .. } => ElementLetter::L,
+            ElementKind::Coupling { .. } => ElementLetter::K,
+            ElementKind::VSource { .. } => ElementLetter::V,
+            ElementKind::ISource { .. } => ElementLetter::I,
+            ElementKind::Vcvs { .. } => ElementLetter::E,
+            ElementKind::Vccs { .. } => ElementLetter::G,
+            ElementKind::Cccs { .. } => ElementLetter::F,
+            ElementKind::Ccvs { .. } => ElementLetter::H,
+            ElementKind::Diode { .. } => ElementLetter::D,
         }
     }
 }

@@ -16,7 +16,7 @@ pub use circuit::*;
 pub use error::ElabError;
 
 use crate::diag::Span;
-use crate::front::ast::{self, ElementBody, Stmt, TranFnKind, Value};
+use crate::front::ast::{self, ElementBody, ElementLetter, Stmt, TranFnKind, Value};
 use crate::ir::Waveform;
 
 /// Output points of a `.tran` above which it warns (K0295): a 10^8-row CSV
@@ -148,7 +148,7 @@ struct Elab {
 /// no CJO (warning K0297), so that the junction's charge fixes its voltage.
 /// Smaller floors leave the charge too weak a coordinate: with 1 fF a clamp
 /// whose two junctions and source form a loop (index reduction keeps one
-/// junction's charge) was off ngspice by volts, and a bridge took minutes.
+/// junction's charge) is off ngspice by volts, and a bridge takes minutes.
 /// 1 pF is physical, and visible where nothing else sets a voltage: the
 /// floating common mode of a bridge (its four junctions' capacitance against
 /// a 10 MΩ path), or a clamp's nA current.
@@ -447,7 +447,7 @@ impl Elab {
             });
             return;
         }
-        let letter = el.letter();
+        let letter = el.letter;
         let Some(kind) = self.kind(el, &name, letter, scope) else {
             return;
         };
@@ -482,7 +482,7 @@ impl Elab {
         &mut self,
         el: &ast::Element<'_>,
         name: &str,
-        letter: char,
+        letter: ElementLetter,
         scope: &Scope<'_, '_>,
     ) -> Option<ElementKind> {
         let nonzero = |this: &mut Elab, v: f64, span: Span, what: &'static str| {
@@ -524,7 +524,7 @@ impl Elab {
                 // `m`: that many elements in parallel.
                 let mut m = inherited;
                 for p in params {
-                    if p.name.is("ic") && letter != 'R' {
+                    if p.name.is("ic") && letter != ElementLetter::R {
                         ic = Some(self.value(&p.value, scope)?);
                     } else if p.name.is("m") {
                         m *= self.multiplier(p, name, scope)?;
@@ -537,10 +537,10 @@ impl Elab {
                     }
                 }
                 match letter {
-                    'R' => ElementKind::Resistor {
+                    ElementLetter::R => ElementKind::Resistor {
                         r: nonzero(self, v, value.span(), "resistance")? / m,
                     },
-                    'C' => ElementKind::Capacitor {
+                    ElementLetter::C => ElementKind::Capacitor {
                         c: nonzero(self, v, value.span(), "capacitance")? * m,
                         ic,
                     },
@@ -577,7 +577,7 @@ impl Elab {
                         },
                     },
                 };
-                if letter == 'V' {
+                if letter == ElementLetter::V {
                     ElementKind::VSource {
                         wave: Box::new(wave),
                     }
@@ -601,7 +601,7 @@ impl Elab {
             }
             ElementBody::VoltageControlled { gain } => {
                 let g = self.value(gain, scope)?;
-                if letter == 'E' {
+                if letter == ElementLetter::E {
                     ElementKind::Vcvs { gain: g }
                 } else {
                     ElementKind::Vccs { gm: g }
@@ -610,7 +610,7 @@ impl Elab {
             ElementBody::CurrentControlled { gain, .. } => {
                 let g = self.value(gain, scope)?;
                 let ctrl = ElemId(u32::MAX);
-                if letter == 'F' {
+                if letter == ElementLetter::F {
                     ElementKind::Cccs { gain: g, ctrl }
                 } else {
                     ElementKind::Ccvs { r: g, ctrl }
@@ -1218,7 +1218,7 @@ fn call_func(
 }
 
 /// Subcircuit instances nested deeper than this are refused (flattening
-/// recurses; 2·10^4 levels overflowed the stack).
+/// recurses: unbounded, 2·10^4 levels overflow the stack).
 const MAX_HIERARCHY: usize = 100;
 
 /// `.func` calls nested deeper than this are refused (evaluation recurses).

@@ -126,21 +126,116 @@ pub enum ElementBody<'a> {
 #[derive(Clone, Debug)]
 pub struct Element<'a> {
     pub name: Name<'a>,
+    /// The first letter of the name, which says what the element is.
+    pub letter: ElementLetter,
     pub nodes: Vec<Name<'a>>,
     pub body: ElementBody<'a>,
     pub span: Span,
 }
 
-impl Element<'_> {
-    /// The element letter, upper-case (`R`, `V`, `X`, ...).
-    pub fn letter(&self) -> char {
-        self.name
-            .text
-            .chars()
-            .next()
-            .unwrap_or('?')
-            .to_ascii_uppercase()
+/// The elements kausal reads, by the first letter of their name (in either
+/// case). Every place that tells elements apart by letter uses this.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ElementLetter {
+    /// Resistor.
+    R,
+    /// Capacitor.
+    C,
+    /// Inductor.
+    L,
+    /// Coupling of two inductors.
+    K,
+    /// Independent voltage source.
+    V,
+    /// Independent current source.
+    I,
+    /// Voltage-controlled voltage source.
+    E,
+    /// Voltage-controlled current source.
+    G,
+    /// Current-controlled current source.
+    F,
+    /// Current-controlled voltage source.
+    H,
+    /// Diode.
+    D,
+    /// Subcircuit instance.
+    X,
+}
+
+impl ElementLetter {
+    /// The element kind of a name's first character, in either case; `None`
+    /// for a letter kausal does not read (see [`unsupported_kind`]).
+    pub fn from_char(c: char) -> Option<ElementLetter> {
+        use ElementLetter::*;
+        Some(match c.to_ascii_uppercase() {
+            'R' => R,
+            'C' => C,
+            'L' => L,
+            'K' => K,
+            'V' => V,
+            'I' => I,
+            'E' => E,
+            'G' => G,
+            'F' => F,
+            'H' => H,
+            'D' => D,
+            'X' => X,
+            _ => return None,
+        })
     }
+
+    /// The letter, upper-case.
+    pub fn as_char(self) -> char {
+        use ElementLetter::*;
+        match self {
+            R => 'R',
+            C => 'C',
+            L => 'L',
+            K => 'K',
+            V => 'V',
+            I => 'I',
+            E => 'E',
+            G => 'G',
+            F => 'F',
+            H => 'H',
+            D => 'D',
+            X => 'X',
+        }
+    }
+
+    /// How many nodes follow the name: four for the voltage-controlled
+    /// sources, none for K, two for the others; `None` for X, whose nodes
+    /// end where its subcircuit's name stands.
+    pub fn n_nodes(self) -> Option<usize> {
+        use ElementLetter::*;
+        match self {
+            R | C | L | V | I | F | H | D => Some(2),
+            E | G => Some(4),
+            K => Some(0),
+            X => None,
+        }
+    }
+}
+
+/// What an element letter that kausal does not read stands for in SPICE
+/// (`Q`: a bipolar transistor), for the error; `None` for a letter SPICE
+/// does not know either. `letter` is upper-case.
+pub fn unsupported_kind(letter: char) -> Option<&'static str> {
+    Some(match letter {
+        'Q' => "bipolar transistor",
+        'M' => "MOSFET",
+        'J' => "JFET",
+        'B' => "behavioural source",
+        'S' => "voltage-controlled switch",
+        'W' => "current-controlled switch",
+        'T' | 'O' | 'U' | 'Y' => "transmission line",
+        'Z' => "MESFET",
+        'N' => "OSDI device",
+        'P' => "coupled transmission line",
+        'A' => "XSPICE code model",
+        _ => return None,
+    })
 }
 
 #[derive(Clone, Debug)]

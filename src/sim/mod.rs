@@ -48,7 +48,7 @@ use probe::output_ref;
 pub use probe::{output_list, outputs};
 
 /// The integration method.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
     /// Variable-order BDF (stiff; the default). Its orders above 2 are not

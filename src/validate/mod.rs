@@ -4,8 +4,8 @@
 //!
 //! kausal is evaluated at ngspice's own time points (with its solver's
 //! interpolant), so no linear interpolation error enters the comparison.
-//! This module and `main.rs` are the only ones that touch the file system
-//! and run programs.
+//! This module, `bench/`, `io.rs` and the CLI are the only ones that touch
+//! the file system and run programs.
 
 pub mod plot;
 pub mod raw;
@@ -283,8 +283,8 @@ pub fn compare(
     let range = hi - lo;
     // A constant signal is compared relative to its level, and no scale is
     // below an absolute floor (1 nV / 1 nA): a signal that is zero but for
-    // rounding (a range of 2e-16) was its own scale, so kausal's rounding
-    // failed it at a normalized error of 1.
+    // rounding (a range of 2e-16) would otherwise be its own scale, and
+    // kausal's rounding would fail it at a normalized error of 1.
     let scale = if range > 1e-9 * peak && range > 0.0 {
         range
     } else {

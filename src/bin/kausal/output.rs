@@ -1,0 +1,168 @@
+//! Everything the subcommands write: diagnostics on standard error, command
+//! output to a file (atomically) or standard output, and the CSV streamed
+//! while a simulation runs. A closed standard output (`| head`) is never an
+//! error.
+
+use std::collections::HashMap;
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+
+use kausal::diag::{self, Diagnostic, RenderOptions, SourceMap};
+use kausal::io::AtomicFile;
+use kausal::pipeline::Sorted;
+use kausal::sim;
+
+use crate::error::Error;
+
+/// Diagnostics of one code shown in full before the rest are counted (a
+/// chain of 3000 inductors in a cutset gives 3000 K0310 warnings).
+const SAME_CODE_SHOWN: usize = 10;
+
+/// Colour on a terminal, none in pipes and tests.
+fn render_opts() -> RenderOptions {
+    RenderOptions {
+        color: std::io::stderr().is_terminal(),
+    }
+}
+
+/// Print diagnostics on standard error: at most [`SAME_CODE_SHOWN`] of each
+/// code, then how many more of each code were left out.
+pub fn print_diags(sources: &SourceMap, diags: &[Diagnostic]) {
+    let opts = render_opts();
+    let mut err = std::io::stderr().lock();
+    let mut seen: HashMap<&str, usize> = HashMap::new();
+    for d in diags {
+        let n = seen.entry(d.code).or_default();
+        *n += 1;
+        if *n <= SAME_CODE_SHOWN {
+            let _ = writeln!(err, "{}", diag::render(sources, d, opts));
+        }
+    }
+    let mut more: Vec<(&str, usize)> = seen
+        .into_iter()
+        .filter(|&(_, n)| n > SAME_CODE_SHOWN)
+        .map(|(code, n)| (code, n - SAME_CODE_SHOWN))
+        .collect();
+    more.sort();
+    for (code, n) in more {
+        let _ = writeln!(
+            err,
+            "{code}: {n} more like the {SAME_CODE_SHOWN} above, not shown\n"
+        );
+    }
+}
+
+/// Write command output to a file (atomically) or standard output.
+pub fn emit(out: Option<&PathBuf>, text: &str) -> Result<(), Error> {
+    match out {
+        Some(path) => kausal::io::write_atomic(path, text.as_bytes()).map_err(Error::write(path)),
+        None => {
+            let mut stdout = std::io::stdout().lock();
+            stdout
+                .write_all(text.as_bytes())
+                .and_then(|_| stdout.flush())
+                .or_else(|e| {
+                    // A closed pipe (`| head`) is not an error.
+                    if e.kind() == std::io::ErrorKind::BrokenPipe {
+                        Ok(())
+                    } else {
+                        Err(Error::Stdout(e))
+                    }
+                })
+        }
+    }
+}
+
+/// Pretty JSON with a final newline.
+pub fn json(value: &impl serde::Serialize) -> Result<String, Error> {
+    let mut s = serde_json::to_string_pretty(value)?;
+    s.push('\n');
+    Ok(s)
+}
+
+/// Simulate, writing CSV rows as they come: into a file committed by the
+/// caller (renamed over `out` only once the run succeeded) or to standard
+/// output (a closed pipe, `| head`, ends the writing, not the run).
+pub fn stream_csv(
+    sorted: &Sorted,
+    opts: &sim::Options,
+    out: Option<&PathBuf>,
+) -> Result<(sim::Waveforms, Option<AtomicFile>), sim::SimError> {
+    let names: Vec<String> = sim::outputs(sorted, &opts.probes)?
+        .into_iter()
+        .map(|o| o.0)
+        .collect();
+    let shown = out.map_or(Path::new("-"), |p| p.as_path());
+    let write_err = |e: std::io::Error| sim::SimError::Write {
+        message: format!("`{}`: {e}", shown.display()),
+    };
+    // One row writer for both destinations.
+    let run = |w: &mut dyn Write| -> Result<sim::Waveforms, sim::SimError> {
+        let mut line = String::new();
+        sim::output::csv_header(&mut line, &names);
+        w.write_all(line.as_bytes()).map_err(write_err)?;
+        let mut sink = |t: f64, v: &[f64]| {
+            line.clear();
+            sim::output::csv_row(&mut line, t, v);
+            w.write_all(line.as_bytes())
+        };
+        let mut wf = sim::simulate_to(sorted, opts, &mut sink)?;
+        w.flush().map_err(write_err)?;
+        wf.names = names.clone();
+        Ok(wf)
+    };
+    match out {
+        Some(path) => {
+            let mut file = AtomicFile::create(path).map_err(write_err)?;
+            let w = run(&mut file)?;
+            Ok((w, Some(file)))
+        }
+        None => {
+            let stdout = std::io::BufWriter::with_capacity(1 << 16, std::io::stdout().lock());
+            let mut pipe = PipeOk {
+                inner: stdout,
+                open: true,
+            };
+            Ok((run(&mut pipe)?, None))
+        }
+    }
+}
+
+/// Standard output for streamed rows: once the reader has gone (`| head`),
+/// further writes are dropped, not errors; the run finishes.
+struct PipeOk<W: Write> {
+    inner: W,
+    open: bool,
+}
+
+impl<W: Write> PipeOk<W> {
+    fn guard(&mut self, r: std::io::Result<()>) -> std::io::Result<()> {
+        match r {
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {
+                self.open = false;
+                Ok(())
+            }
+            r => r,
+        }
+    }
+}
+
+impl<W: Write> Write for PipeOk<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.write_all(buf).map(|_| buf.len())
+    }
+    fn write_all(&mut self, buf: &[u8]) -> std::io::Result<()> {
+        if !self.open {
+            return Ok(());
+        }
+        let r = self.inner.write_all(buf);
+        self.guard(r)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        if !self.open {
+            return Ok(());
+        }
+        let r = self.inner.flush();
+        self.guard(r)
+    }
+}

@@ -1,0 +1,494 @@
+//! Element lines: the name's letter ([`ElementLetter`]) decides how many
+//! nodes follow and what comes after them; one function per element kind.
+//! Elements kausal does not read are refused here, by letter.
+
+use super::{Cursor, Parser, is_value_token, name_of};
+use crate::diag::Span;
+use crate::front::ast::*;
+use crate::front::error::ParseError;
+use crate::front::lex::{LogicalLine, TokKind, Token};
+
+impl<'a> Parser<'a> {
+    pub(super) fn element(&mut self, line: &LogicalLine<'_, 'a>) -> Option<Element<'a>> {
+        let toks = &line.tokens;
+        let name = name_of(&toks[0]);
+        let span = line.span();
+        let letter = self.letter(name)?;
+        let mut c = Cursor::new(toks);
+        c.next();
+        let Some(n_nodes) = letter.n_nodes() else {
+            return self.instance(&mut c, name, span);
+        };
+        let nodes = self.nodes(&mut c, name, letter, n_nodes)?;
+        use ElementLetter::*;
+        let body = match letter {
+            R | C | L => self.passive(&mut c, name, letter, span)?,
+            K => self.coupling(&mut c, name, span)?,
+            V | I => self.source(&mut c, name, span)?,
+            E | G => self.voltage_controlled(&mut c, name, span)?,
+            F | H => self.current_controlled(&mut c, name, span)?,
+            D => self.diode(&mut c, name, span)?,
+            X => unreachable!("instances are read by Parser::instance"),
+        };
+        Some(Element {
+            name,
+            letter,
+            nodes,
+            body,
+            span,
+        })
+    }
+
+    /// The element's letter; an error for a letter kausal does not read.
+    fn letter(&mut self, name: Name<'a>) -> Option<ElementLetter> {
+        let first = name.text.chars().next().unwrap_or('?');
+        if let Some(letter) = ElementLetter::from_char(first) {
+            return Some(letter);
+        }
+        let upper = first.to_ascii_uppercase();
+        self.errors.push(match unsupported_kind(upper) {
+            Some(kind) => ParseError::UnsupportedElement {
+                span: name.span,
+                letter: upper,
+                kind,
+            },
+            None => ParseError::UnknownElement {
+                span: name.span,
+                letter: first,
+            },
+        });
+        None
+    }
+
+    /// `X1 n1 n2 sub a=1`: words up to the first `name=` or `params:`; the
+    /// last is the subcircuit.
+    fn instance(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        span: Span,
+    ) -> Option<Element<'a>> {
+        let mut nodes = Vec::new();
+        while let Some(t) = c.peek() {
+            if t.kind != TokKind::Word
+                || t.is_word("params:")
+                || c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq)
+            {
+                break;
+            }
+            nodes.push(name_of(t));
+            c.next();
+        }
+        if c.peek().is_some_and(|t| t.is_word("params:")) {
+            c.next();
+        }
+        let Some(subckt) = nodes.pop() else {
+            self.errors.push(ParseError::Expected {
+                span,
+                expected: "nodes and a subcircuit name after the instance name".into(),
+            });
+            return None;
+        };
+        let params = self.assigns(c);
+        self.rest_unexpected(c);
+        Some(Element {
+            name,
+            letter: ElementLetter::X,
+            nodes,
+            body: ElementBody::Instance { subckt, params },
+            span,
+        })
+    }
+
+    /// The `n_nodes` nodes after the name. A behavioural form where a node
+    /// or what follows the nodes should stand is refused.
+    fn nodes(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        letter: ElementLetter,
+        n_nodes: usize,
+    ) -> Option<Vec<Name<'a>>> {
+        let mut nodes = Vec::with_capacity(n_nodes);
+        for k in 0..=n_nodes {
+            if let Some(e) = behavioural(c, name, letter) {
+                self.errors.push(e);
+                return None;
+            }
+            if k == n_nodes {
+                break;
+            }
+            match c.peek() {
+                Some(t)
+                    if t.kind == TokKind::Word
+                        && !c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq) =>
+                {
+                    nodes.push(name_of(t));
+                    c.next();
+                }
+                _ => {
+                    let at = c.peek().map_or_else(
+                        || {
+                            let last = c.toks[c.toks.len() - 1].span;
+                            Span {
+                                start: last.end,
+                                end: last.end + 1,
+                                ..last
+                            }
+                        },
+                        |t| t.span,
+                    );
+                    self.errors.push(ParseError::MissingNode {
+                        span: at,
+                        name: name.text.to_string(),
+                        expected: n_nodes,
+                        found: nodes.len(),
+                    });
+                    return None;
+                }
+            }
+        }
+        Some(nodes)
+    }
+
+    /// R, C, L: a value, positional or as `r=`/`c=`/`l=`, and `name=value`
+    /// extras.
+    fn passive(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        letter: ElementLetter,
+        span: Span,
+    ) -> Option<ElementBody<'a>> {
+        let key = match letter {
+            ElementLetter::R => "r",
+            ElementLetter::C => "c",
+            _ => "l",
+        };
+        let mut value = None;
+        if c.peek().is_some_and(|t| t.kind != TokKind::Eq)
+            && !c.peek_at(1).is_some_and(|t| t.kind == TokKind::Eq)
+        {
+            value = Some(self.value_tok(c, name.text, "value")?);
+        }
+        let mut params = self.assigns(c);
+        self.rest_unexpected(c);
+        if value.is_none()
+            && let Some(i) = params.iter().position(|a| a.name.is(key))
+        {
+            value = Some(params.remove(i).value);
+        }
+        let Some(value) = value else {
+            self.errors.push(ParseError::MissingValue {
+                span: c.here(span),
+                name: name.text.to_string(),
+                what: "value",
+            });
+            return None;
+        };
+        Some(ElementBody::Passive { value, params })
+    }
+
+    /// K: two inductor names and the coupling, positional or as `k=`.
+    fn coupling(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        span: Span,
+    ) -> Option<ElementBody<'a>> {
+        let (Some(l1), Some(l2)) = (c.word(), c.word()) else {
+            self.errors.push(ParseError::Expected {
+                span: c.here(span),
+                expected: "two inductor names, e.g. `K1 L1 L2 0.99`".into(),
+            });
+            return None;
+        };
+        let k = if c.peek().is_some_and(|t| t.is_word("k"))
+            && c.peek_at(1).is_some_and(|t| t.kind == TokKind::Eq)
+        {
+            c.next();
+            c.next();
+            self.value_tok(c, name.text, "coupling")?
+        } else {
+            self.required_value(c, name, span, "coupling", "coupling coefficient")?
+        };
+        self.rest_unexpected(c);
+        Some(ElementBody::Coupling { l1, l2, k })
+    }
+
+    /// E, G: a gain (the behavioural forms are refused).
+    fn voltage_controlled(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        span: Span,
+    ) -> Option<ElementBody<'a>> {
+        if let Some(t) = c.peek()
+            && (t.is_word("poly") || t.is_word("value") || t.is_word("table"))
+        {
+            self.errors.push(ParseError::UnsupportedSource {
+                span: t.span,
+                name: t.text.to_string(),
+            });
+            return None;
+        }
+        let gain = self.required_value(c, name, span, "gain", "gain")?;
+        self.rest_unexpected(c);
+        Some(ElementBody::VoltageControlled { gain })
+    }
+
+    /// F, H: the controlling V source and a gain.
+    fn current_controlled(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        span: Span,
+    ) -> Option<ElementBody<'a>> {
+        let Some(vsrc) = c.word() else {
+            self.errors.push(ParseError::Expected {
+                span: c.here(span),
+                expected: "the name of the controlling V source".into(),
+            });
+            return None;
+        };
+        let gain = self.required_value(c, name, span, "gain", "gain")?;
+        self.rest_unexpected(c);
+        Some(ElementBody::CurrentControlled { vsrc, gain })
+    }
+
+    /// D: a model name, an optional area, an optional `off`, and
+    /// `name=value` extras.
+    fn diode(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        span: Span,
+    ) -> Option<ElementBody<'a>> {
+        let Some(model) = c.word() else {
+            self.errors.push(ParseError::MissingValue {
+                span: c.here(span),
+                name: name.text.to_string(),
+                what: "model name",
+            });
+            return None;
+        };
+        let mut area = None;
+        if let Some(t) = c.peek()
+            && !c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq)
+            && !t.is_word("off")
+        {
+            area = Some(self.value_tok(c, name.text, "area")?);
+        }
+        if c.peek().is_some_and(|t| t.is_word("off")) {
+            c.next();
+        }
+        let params = self.assigns(c);
+        self.rest_unexpected(c);
+        Some(ElementBody::Diode {
+            model,
+            area,
+            params,
+        })
+    }
+
+    /// The value at the cursor (`what` in a malformed value's error), or a
+    /// missing-value error naming `missing` at the end of the line.
+    fn required_value(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        span: Span,
+        what: &'static str,
+        missing: &'static str,
+    ) -> Option<Value<'a>> {
+        if c.peek().is_none() {
+            self.errors.push(ParseError::MissingValue {
+                span: c.here(span),
+                name: name.text.to_string(),
+                what: missing,
+            });
+            return None;
+        }
+        self.value_tok(c, name.text, what)
+    }
+}
+
+/// `E1 out 0 VALUE={...}`, `F1 out 0 POLY(2) ...`: ngspice's behavioural
+/// forms of E, F, G and H, where a linear source has its nodes or gain.
+fn behavioural<'a>(
+    c: &Cursor<'_, 'a>,
+    name: Name<'a>,
+    letter: ElementLetter,
+) -> Option<ParseError> {
+    use ElementLetter::*;
+    let t = c.peek().filter(|_| matches!(letter, E | F | G | H))?;
+    let form = ["value", "poly", "table", "laplace", "vol", "cur"]
+        .iter()
+        .any(|w| t.is_word(w))
+        && c.peek_at(1)
+            .is_some_and(|n| matches!(n.kind, TokKind::Eq | TokKind::LParen));
+    form.then(|| ParseError::BehavioralSource {
+        span: t.span,
+        name: name.text.to_string(),
+        form: t.text.to_ascii_uppercase(),
+    })
+}
+
+/// The transient function a word names (`PULSE`, `SIN`, `EXP`, `PWL`).
+fn tran_kind(t: &Token<'_>) -> Option<TranFnKind> {
+    if t.is_word("pulse") {
+        Some(TranFnKind::Pulse)
+    } else if t.is_word("sin") {
+        Some(TranFnKind::Sin)
+    } else if t.is_word("exp") {
+        Some(TranFnKind::Exp)
+    } else if t.is_word("pwl") {
+        Some(TranFnKind::Pwl)
+    } else {
+        None
+    }
+}
+
+impl<'a> Parser<'a> {
+    /// V, I: `DC value` or a bare value, `AC mag [phase]`, and at most one
+    /// transient function.
+    fn source(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        span: Span,
+    ) -> Option<ElementBody<'a>> {
+        let mut dc = None;
+        let mut tran: Option<TranFn<'a>> = None;
+        let mut ac = Vec::new();
+        while let Some(t) = c.peek() {
+            if t.is_word("dc") {
+                c.next();
+                if c.peek().is_some_and(|t| t.kind != TokKind::Eq) {
+                    dc = Some(self.value_tok(c, name.text, "DC value")?);
+                }
+                continue;
+            }
+            if t.is_word("ac") {
+                c.next();
+                for _ in 0..2 {
+                    match c.peek() {
+                        Some(v) if is_value_token(v) => {
+                            ac.push(self.value_tok(c, name.text, "AC value")?)
+                        }
+                        _ => break,
+                    }
+                }
+                continue;
+            }
+            if let Some(kind) = tran_kind(t) {
+                let start = t.span;
+                c.next();
+                let (args, end) = self.tran_args(c, name, span, kind, start)?;
+                if tran.is_some() {
+                    self.errors.push(ParseError::Unexpected {
+                        span: start,
+                        what: "second transient function".into(),
+                    });
+                }
+                let (repeat, delay, end) = self.pwl_options(c, name, kind, end)?;
+                tran = Some(TranFn {
+                    kind,
+                    args,
+                    repeat,
+                    delay,
+                    span: start.to(end),
+                });
+                continue;
+            }
+            if [
+                "sffm", "am", "trnoise", "trrandom", "pat", "distof1", "distof2",
+            ]
+            .iter()
+            .any(|w| t.is_word(w))
+            {
+                self.errors.push(ParseError::UnsupportedSource {
+                    span: t.span,
+                    name: t.text.to_string(),
+                });
+                return None;
+            }
+            if is_value_token(t) && dc.is_none() {
+                dc = Some(self.value_tok(c, name.text, "value")?);
+                continue;
+            }
+            self.errors.push(ParseError::Unexpected {
+                span: t.span,
+                what: format!("`{}` in a source", t.text),
+            });
+            return None;
+        }
+        Some(ElementBody::Source { dc, tran, ac })
+    }
+
+    /// The arguments of a transient function whose keyword (at `start`) was
+    /// read, in parentheses or bare; and where they end.
+    fn tran_args(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        span: Span,
+        kind: TranFnKind,
+        start: Span,
+    ) -> Option<(Vec<Value<'a>>, Span)> {
+        let paren = c.eat(TokKind::LParen);
+        let mut args = Vec::new();
+        while let Some(a) = c.peek() {
+            if a.kind == TokKind::RParen || (!paren && !is_value_token(a)) {
+                break;
+            }
+            args.push(self.value_tok(c, name.text, "source argument")?);
+        }
+        let mut end = args.last().map_or(start, |a| a.span());
+        if paren {
+            match c.peek() {
+                Some(t) if t.kind == TokKind::RParen => {
+                    end = t.span;
+                    c.next();
+                }
+                _ => {
+                    self.errors.push(ParseError::Expected {
+                        span: c.here(span),
+                        expected: format!("`)` closing `{}(`", kind.name()),
+                    });
+                    return None;
+                }
+            }
+        }
+        Some((args, end))
+    }
+
+    /// PWL's `r=value` and `td=value`, in either order, after its
+    /// arguments (ending at `end`): repeat, delay, and where they end.
+    fn pwl_options(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        kind: TranFnKind,
+        mut end: Span,
+    ) -> Option<(Option<Value<'a>>, Option<Value<'a>>, Span)> {
+        let (mut repeat, mut delay) = (None, None);
+        while kind == TranFnKind::Pwl
+            && let (Some(n), Some(eq)) = (c.peek(), c.peek_at(1))
+            && eq.kind == TokKind::Eq
+            && (n.is_word("r") || n.is_word("td"))
+        {
+            let n = *n;
+            c.next();
+            c.next();
+            let v = self.value_tok(c, name.text, "PWL option")?;
+            end = v.span();
+            if n.is_word("r") {
+                repeat = Some(v);
+            } else {
+                delay = Some(v);
+            }
+        }
+        Some((repeat, delay, end))
+    }
+}
