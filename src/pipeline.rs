@@ -1,6 +1,7 @@
 //! The stages strung together: netlist file → circuit → equations, with
 //! every stage's problems collected as diagnostics. Used by the CLI and tests.
 
+use crate::diag::codes;
 use std::path::Path;
 
 use crate::analysis::IndexReduction;
@@ -73,7 +74,7 @@ pub fn elaborate_file(path: &Path, loader: &dyn Loader) -> Result<Elaborated, Bo
         Err(e) => Err(Box::new(Failed {
             sources: SourceMap::default(),
             diagnostics: vec![
-                Diagnostic::error("K0001", format!("cannot read `{name}`: {e}"))
+                Diagnostic::error(codes::READ_FAILED, format!("cannot read `{name}`: {e}"))
                     .with_help("check the path"),
             ],
         })),
@@ -161,7 +162,7 @@ pub fn sort_built(el: Elaborated, built: Built, opts: &SortOptions) -> Result<So
                 ) =>
             {
                 let d = Diagnostic::error(
-                    "K0321",
+                    codes::PREFER_STATE_NOT_STORAGE,
                     format!(
                         "--prefer-state names `{name}`, which is not a capacitor or inductor: it has no state"
                     ),
@@ -173,7 +174,7 @@ pub fn sort_built(el: Elaborated, built: Built, opts: &SortOptions) -> Result<So
             Some(e) => keep.push(e),
             None => {
                 let d = Diagnostic::error(
-                    "K0320",
+                    codes::PREFER_STATE_UNKNOWN,
                     format!(
                         "--prefer-state names `{name}`, which is not an element of the circuit"
                     ),

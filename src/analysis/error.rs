@@ -1,6 +1,7 @@
 //! Structural errors: what stops the causalizer, named by equations,
 //! unknowns and the circuit elements they come from.
 
+use crate::diag::codes;
 use crate::diag::{Diagnostic, Span, ToDiagnostic};
 use crate::ir::{EqId, EquationSystem, VarId, print};
 
@@ -134,7 +135,7 @@ impl ToDiagnostic for StructuralError {
                 constraints,
                 orphans,
             } => {
-                let mut d = Diagnostic::error("K0300", self.to_string());
+                let mut d = Diagnostic::error(codes::STRUCTURALLY_SINGULAR, self.to_string());
                 for c in constraints {
                     if let Some(span) = c.span {
                         d = d.with_label(span, format!("{}: {}", c.id, c.text));
@@ -150,7 +151,7 @@ impl ToDiagnostic for StructuralError {
                 )
             }
             StructuralError::Loops { blocks } => {
-                let mut d = Diagnostic::error("K0301", self.to_string());
+                let mut d = Diagnostic::error(codes::ALGEBRAIC_LOOPS, self.to_string());
                 for c in blocks.iter().flatten() {
                     if let Some(span) = c.span {
                         d = d.with_label(span, format!("{}: {}", c.id, c.text));
@@ -158,12 +159,17 @@ impl ToDiagnostic for StructuralError {
                 }
                 d.with_help("enable tearing to solve the loop numerically")
             }
-            StructuralError::Unbalanced { .. } => Diagnostic::error("K0302", self.to_string())
-                .with_help("this is a kausal bug: the equation builder must balance the system"),
-            StructuralError::IndexLimit { .. } => Diagnostic::error("K0303", self.to_string())
-                .with_help("the circuit's structure keeps producing constraints; please report it"),
+            StructuralError::Unbalanced { .. } => {
+                Diagnostic::error(codes::UNBALANCED, self.to_string())
+                    .with_help("this is a kausal bug: the equation builder must balance the system")
+            }
+            StructuralError::IndexLimit { .. } => {
+                Diagnostic::error(codes::INDEX_LIMIT, self.to_string()).with_help(
+                    "the circuit's structure keeps producing constraints; please report it",
+                )
+            }
             StructuralError::NoStateInConstraint { constraint } => {
-                let mut d = Diagnostic::error("K0304", self.to_string());
+                let mut d = Diagnostic::error(codes::NO_STATE_IN_CONSTRAINT, self.to_string());
                 if let Some(span) = constraint.span {
                     d = d.with_label(span, format!("{}: {}", constraint.id, constraint.text));
                 }

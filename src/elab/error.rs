@@ -1,5 +1,6 @@
 //! Errors and warnings of elaboration (parameters, subcircuits, models, names).
 
+use crate::diag::codes;
 use crate::diag::{Diagnostic, Severity, Span, ToDiagnostic};
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -203,35 +204,35 @@ impl ElabError {
 impl ToDiagnostic for ElabError {
     fn to_diagnostic(&self) -> Diagnostic {
         use ElabError::*;
-        let (code, label, help): (&str, &str, String) = match self {
-            UndefinedParam { .. } => ("K0200", "undefined", "define it with `.param NAME=VALUE` before use".into()),
-            BadValue { .. } => ("K0201", "here", "check the expression's functions and operands".into()),
-            UndefinedModel { .. } => ("K0202", "no such model", "add `.model NAME D(...)` or fix the name".into()),
-            WrongModelType { .. } => ("K0203", "wrong model type", "diodes need a model of type `D`".into()),
-            UndefinedSubckt { .. } => ("K0204", "no such subcircuit", "define it with `.subckt NAME ports ... .ends`".into()),
-            RecursiveSubckt { .. } => ("K0205", "recursive instance", "a subcircuit may not contain itself, directly or indirectly".into()),
-            DeepHierarchy { .. } => ("K0219", "too deep", "flatten some levels of the hierarchy".into()),
-            PortMismatch { expected, .. } => ("K0206", "wrong node count", format!("connect exactly {expected} nodes")),
-            DuplicateElement { .. } => ("K0207", "second definition", "rename one of them".into()),
-            SingleNode { .. } => ("K0208", "both terminals here", "an element must connect two different nodes".into()),
-            UnknownControl { .. } => ("K0209", "not a V source", "F and H elements sense the current of a voltage source (add a 0 V source to measure it)".into()),
-            BadCoupling { .. } => ("K0210", "not an inductor", "K couples two inductors: `K1 L1 L2 0.99`".into()),
-            CouplingRange { .. } => ("K0211", "out of range", "use 0 < k <= 1".into()),
-            BadSourceArgs { .. } => ("K0212", "here", "see the ngspice manual for the source function's arguments".into()),
-            BadElementValue { .. } => ("K0213", "here", "use a nonzero, finite value".into()),
-            UnscalableElement { .. } => ("K0217", "cannot be multiplied", "give the instance no `m=`, or write the parallel copies out".into()),
-            UnknownNode { .. } => ("K0214", "no such node", "check the node name".into()),
-            UnknownCurrent { .. } => ("K0215", "no such source", "ngspice names currents of V sources, e.g. `i(v1)`".into()),
-            BadOption { .. } => ("K0218", "out of range", "tolerances are positive and reltol below 1 (ngspice's defaults: reltol=1e-3 abstol=1e-12 vntol=1e-6 chgtol=1e-14 trtol=7); maxord is 1 to 6".into()),
-            BadTran { .. } => ("K0216", "here", "write `.tran TSTEP TSTOP [TSTART [TMAX]] [uic]`".into()),
-            UnknownModelParam { .. } => ("K0290", "unknown", "it is not a level-1 diode parameter of ngspice".into()),
-            IgnoredModelParam { .. } => ("K0291", "ignored", "temperature and noise parameters do not affect kausal's transient run".into()),
-            IgnoredElementParam { .. } => ("K0292", "ignored", "kausal does not model this instance parameter".into()),
-            IgnoredOption { .. } => ("K0293", "ignored", "kausal honours reltol, abstol, vntol, chgtol, trtol, method and maxord".into()),
-            DanglingNode { .. } => ("K0294", "dangling node", "a node with one connection carries no current".into()),
-            PwlParamOnCurrent { .. } => ("K0296", "not in ngspice", "kausal runs it; for ngspice (and `kausal validate`) write the repeated points out".into()),
-            TransitTimeWithoutCapacitance { .. } => ("K0297", "TT without CJO", "a junction's charge is kausal's state for it, and diffusion charge alone (TT·id) nearly vanishes in reverse bias: it could not fix the junction's voltage. ngspice has no such capacitance (`kausal validate` shows what it changes); give CJO to choose the capacitance".into()),
-            ManyOutputPoints { .. } => ("K0295", "TSTEP", "TSTEP is the output spacing, not the solver's step (which follows the tolerance): a larger TSTEP, `--times`, or `.save` of fewer vectors makes the file smaller".into()),
+        let (code, label, help): (codes::Code, &str, String) = match self {
+            UndefinedParam { .. } => (codes::UNDEFINED_PARAM, "undefined", "define it with `.param NAME=VALUE` before use".into()),
+            BadValue { .. } => (codes::BAD_VALUE, "here", "check the expression's functions and operands".into()),
+            UndefinedModel { .. } => (codes::UNDEFINED_MODEL, "no such model", "add `.model NAME D(...)` or fix the name".into()),
+            WrongModelType { .. } => (codes::WRONG_MODEL_TYPE, "wrong model type", "diodes need a model of type `D`".into()),
+            UndefinedSubckt { .. } => (codes::UNDEFINED_SUBCKT, "no such subcircuit", "define it with `.subckt NAME ports ... .ends`".into()),
+            RecursiveSubckt { .. } => (codes::RECURSIVE_SUBCKT, "recursive instance", "a subcircuit may not contain itself, directly or indirectly".into()),
+            DeepHierarchy { .. } => (codes::DEEP_HIERARCHY, "too deep", "flatten some levels of the hierarchy".into()),
+            PortMismatch { expected, .. } => (codes::PORT_MISMATCH, "wrong node count", format!("connect exactly {expected} nodes")),
+            DuplicateElement { .. } => (codes::DUPLICATE_ELEMENT, "second definition", "rename one of them".into()),
+            SingleNode { .. } => (codes::SINGLE_NODE, "both terminals here", "an element must connect two different nodes".into()),
+            UnknownControl { .. } => (codes::UNKNOWN_CONTROL, "not a V source", "F and H elements sense the current of a voltage source (add a 0 V source to measure it)".into()),
+            BadCoupling { .. } => (codes::BAD_COUPLING, "not an inductor", "K couples two inductors: `K1 L1 L2 0.99`".into()),
+            CouplingRange { .. } => (codes::COUPLING_RANGE, "out of range", "use 0 < k <= 1".into()),
+            BadSourceArgs { .. } => (codes::BAD_SOURCE_ARGS, "here", "see the ngspice manual for the source function's arguments".into()),
+            BadElementValue { .. } => (codes::BAD_ELEMENT_VALUE, "here", "use a nonzero, finite value".into()),
+            UnscalableElement { .. } => (codes::UNSCALABLE_ELEMENT, "cannot be multiplied", "give the instance no `m=`, or write the parallel copies out".into()),
+            UnknownNode { .. } => (codes::UNKNOWN_NODE, "no such node", "check the node name".into()),
+            UnknownCurrent { .. } => (codes::UNKNOWN_CURRENT, "no such source", "ngspice names currents of V sources, e.g. `i(v1)`".into()),
+            BadOption { .. } => (codes::BAD_OPTION, "out of range", "tolerances are positive and reltol below 1 (ngspice's defaults: reltol=1e-3 abstol=1e-12 vntol=1e-6 chgtol=1e-14 trtol=7); maxord is 1 to 6".into()),
+            BadTran { .. } => (codes::BAD_TRAN, "here", "write `.tran TSTEP TSTOP [TSTART [TMAX]] [uic]`".into()),
+            UnknownModelParam { .. } => (codes::UNKNOWN_MODEL_PARAM, "unknown", "it is not a level-1 diode parameter of ngspice".into()),
+            IgnoredModelParam { .. } => (codes::IGNORED_MODEL_PARAM, "ignored", "temperature and noise parameters do not affect kausal's transient run".into()),
+            IgnoredElementParam { .. } => (codes::IGNORED_ELEMENT_PARAM, "ignored", "kausal does not model this instance parameter".into()),
+            IgnoredOption { .. } => (codes::IGNORED_OPTION, "ignored", "kausal honours reltol, abstol, vntol, chgtol, trtol, method and maxord".into()),
+            DanglingNode { .. } => (codes::DANGLING_NODE, "dangling node", "a node with one connection carries no current".into()),
+            PwlParamOnCurrent { .. } => (codes::PWL_PARAM_ON_CURRENT, "not in ngspice", "kausal runs it; for ngspice (and `kausal validate`) write the repeated points out".into()),
+            TransitTimeWithoutCapacitance { .. } => (codes::TRANSIT_TIME_WITHOUT_CAPACITANCE, "TT without CJO", "a junction's charge is kausal's state for it, and diffusion charge alone (TT·id) nearly vanishes in reverse bias: it could not fix the junction's voltage. ngspice has no such capacitance (`kausal validate` shows what it changes); give CJO to choose the capacitance".into()),
+            ManyOutputPoints { .. } => (codes::MANY_OUTPUT_POINTS, "TSTEP", "TSTEP is the output spacing, not the solver's step (which follows the tolerance): a larger TSTEP, `--times`, or `.save` of fewer vectors makes the file smaller".into()),
         };
         let mut d = Diagnostic::error(code, self.to_string())
             .with_label(self.span(), label)

@@ -9,6 +9,7 @@
 //! floating nodes leave the circuit over- or under-determined: errors.
 
 use super::{Circuit, ElemId, ElementKind, GROUND, NodeId};
+use crate::diag::codes;
 use crate::diag::{Diagnostic, Severity, Span, ToDiagnostic};
 use crate::numeric::UnionFind;
 
@@ -542,7 +543,11 @@ impl TopologyError {
 
 impl ToDiagnostic for TopologyError {
     fn to_diagnostic(&self) -> Diagnostic {
-        let code = if self.fixable { "K0310" } else { "K0311" };
+        let code = if self.fixable {
+            codes::COUPLED_STATES
+        } else {
+            codes::CONFLICTING_TOPOLOGY
+        };
         let mut d = Diagnostic::error(code, self.message.clone()).with_help(self.help.clone());
         if self.fixable {
             d.severity = Severity::Warning;

@@ -1,5 +1,6 @@
 //! Errors and warnings of the front end (loading, lexing, parsing).
 
+use crate::diag::codes;
 use crate::diag::{Diagnostic, Severity, Span, ToDiagnostic};
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -136,37 +137,37 @@ impl ParseError {
         }
     }
 
-    fn code_and_help(&self) -> (&'static str, &'static str, String) {
+    fn code_and_help(&self) -> (codes::Code, &'static str, String) {
         use ParseError::*;
         match self {
-            Empty { .. } => ("K0100", "", "a netlist is a title line followed by elements".into()),
-            StrayContinuation { .. } => ("K0101", "continuation", "a `+` line continues the line above it; put it after an element or directive".into()),
-            Unterminated { close, .. } => ("K0102", "opened here", format!("close the expression with `{close}`")),
-            Unexpected { .. } => ("K0103", "unexpected", "remove it or check the element's syntax in the ngspice manual".into()),
-            UnknownElement { .. } => ("K0104", "unknown element", "element names start with R, C, L, K, V, I, E, F, G, H, D or X".into()),
-            UnsupportedElement { .. } => ("K0105", "not supported", "kausal supports R, C, L, K, V, I, E, F, G, H, D and X elements".into()),
-            MissingNode { expected, .. } => ("K0106", "missing node", format!("write {expected} node names after the element name")),
-            MissingValue { .. } => ("K0107", "value missing", "add the value after the nodes, e.g. `R1 a b 1k`".into()),
-            BadNumber { .. } => ("K0108", "bad number", "numbers look like `10`, `1.5e-3`, `4.7k`, `10uF` or `3meg`".into()),
-            TooDeep { .. } => ("K0123", "too deep", "flatten the nesting: subcircuits can instantiate each other without being defined inside each other".into()),
-            FuncArgsWithoutComma { .. } => ("K0124", "no comma", "kausal reads them; ngspice needs `f(x, y)`".into()),
-            ComplexExpression { .. } => ("K0122", "here", "split it with `.param`s or `.func`s".into()),
-            BadExpression { .. } => ("K0109", "bad expression", "expressions use numbers, parameters, + - * / ** and functions like sqrt()".into()),
-            UnclosedSubckt { .. } => ("K0110", "opened here", "end the subcircuit with `.ends`".into()),
-            StrayEnds { .. } => ("K0111", "no open subcircuit", "remove it, or add the `.subckt` line it closes".into()),
-            UnclosedControl { .. } => ("K0112", "opened here", "end the block with `.endc`".into()),
-            UnknownDirective { .. } => ("K0113", "unknown directive", "check the spelling against the ngspice manual".into()),
-            UnsupportedDirective { .. } => ("K0114", "not supported", "remove it. kausal reads these directives: param, subckt, model, include, lib, global, func, ic, tran, options, print, save, probe".into()),
-            UnsupportedSource { .. } => ("K0115", "not supported", "use DC, PULSE, SIN, PWL or EXP".into()),
-            BehavioralSource { .. } => ("K0121", "not supported", "write it linear: `E1 out 0 in 0 GAIN` (VCVS), `G1 out 0 in 0 GM` (VCCS), or F/H sensing a V source's current".into()),
-            IncludeNotFound { .. } => ("K0116", "included here", "include paths are relative to the including file".into()),
-            IncludeCycle { .. } => ("K0117", "included again here", "remove the circular `.include` or `.lib`".into()),
-            LibSectionNotFound { .. } => ("K0119", "no such section", "sections are opened by `.lib NAME` and closed by `.endl` in the library file".into()),
-            UnclosedLib { .. } => ("K0120", "opened here", "close the section with `.endl`".into()),
-            Expected { .. } => ("K0118", "here", "see the ngspice manual for the statement's syntax".into()),
-            SkippedAnalysis { .. } => ("K0190", "skipped", "only `.tran` analyses are run".into()),
-            SkippedControl { .. } => ("K0191", "skipped", "use `.tran`, `.print` and `.options` instead of a control script".into()),
-            IgnoredDirective { name, .. } => ("K0192", "ignored", match name.as_str() {
+            Empty { .. } => (codes::EMPTY, "", "a netlist is a title line followed by elements".into()),
+            StrayContinuation { .. } => (codes::STRAY_CONTINUATION, "continuation", "a `+` line continues the line above it; put it after an element or directive".into()),
+            Unterminated { close, .. } => (codes::UNTERMINATED, "opened here", format!("close the expression with `{close}`")),
+            Unexpected { .. } => (codes::UNEXPECTED, "unexpected", "remove it or check the element's syntax in the ngspice manual".into()),
+            UnknownElement { .. } => (codes::UNKNOWN_ELEMENT, "unknown element", "element names start with R, C, L, K, V, I, E, F, G, H, D or X".into()),
+            UnsupportedElement { .. } => (codes::UNSUPPORTED_ELEMENT, "not supported", "kausal supports R, C, L, K, V, I, E, F, G, H, D and X elements".into()),
+            MissingNode { expected, .. } => (codes::MISSING_NODE, "missing node", format!("write {expected} node names after the element name")),
+            MissingValue { .. } => (codes::MISSING_VALUE, "value missing", "add the value after the nodes, e.g. `R1 a b 1k`".into()),
+            BadNumber { .. } => (codes::BAD_NUMBER, "bad number", "numbers look like `10`, `1.5e-3`, `4.7k`, `10uF` or `3meg`".into()),
+            TooDeep { .. } => (codes::TOO_DEEP, "too deep", "flatten the nesting: subcircuits can instantiate each other without being defined inside each other".into()),
+            FuncArgsWithoutComma { .. } => (codes::FUNC_ARGS_WITHOUT_COMMA, "no comma", "kausal reads them; ngspice needs `f(x, y)`".into()),
+            ComplexExpression { .. } => (codes::COMPLEX_EXPRESSION, "here", "split it with `.param`s or `.func`s".into()),
+            BadExpression { .. } => (codes::BAD_EXPRESSION, "bad expression", "expressions use numbers, parameters, + - * / ** and functions like sqrt()".into()),
+            UnclosedSubckt { .. } => (codes::UNCLOSED_SUBCKT, "opened here", "end the subcircuit with `.ends`".into()),
+            StrayEnds { .. } => (codes::STRAY_ENDS, "no open subcircuit", "remove it, or add the `.subckt` line it closes".into()),
+            UnclosedControl { .. } => (codes::UNCLOSED_CONTROL, "opened here", "end the block with `.endc`".into()),
+            UnknownDirective { .. } => (codes::UNKNOWN_DIRECTIVE, "unknown directive", "check the spelling against the ngspice manual".into()),
+            UnsupportedDirective { .. } => (codes::UNSUPPORTED_DIRECTIVE, "not supported", "remove it. kausal reads these directives: param, subckt, model, include, lib, global, func, ic, tran, options, print, save, probe".into()),
+            UnsupportedSource { .. } => (codes::UNSUPPORTED_SOURCE, "not supported", "use DC, PULSE, SIN, PWL or EXP".into()),
+            BehavioralSource { .. } => (codes::BEHAVIORAL_SOURCE, "not supported", "write it linear: `E1 out 0 in 0 GAIN` (VCVS), `G1 out 0 in 0 GM` (VCCS), or F/H sensing a V source's current".into()),
+            IncludeNotFound { .. } => (codes::INCLUDE_NOT_FOUND, "included here", "include paths are relative to the including file".into()),
+            IncludeCycle { .. } => (codes::INCLUDE_CYCLE, "included again here", "remove the circular `.include` or `.lib`".into()),
+            LibSectionNotFound { .. } => (codes::LIB_SECTION_NOT_FOUND, "no such section", "sections are opened by `.lib NAME` and closed by `.endl` in the library file".into()),
+            UnclosedLib { .. } => (codes::UNCLOSED_LIB, "opened here", "close the section with `.endl`".into()),
+            Expected { .. } => (codes::EXPECTED, "here", "see the ngspice manual for the statement's syntax".into()),
+            SkippedAnalysis { .. } => (codes::SKIPPED_ANALYSIS, "skipped", "only `.tran` analyses are run".into()),
+            SkippedControl { .. } => (codes::SKIPPED_CONTROL, "skipped", "use `.tran`, `.print` and `.options` instead of a control script".into()),
+            IgnoredDirective { name, .. } => (codes::IGNORED_DIRECTIVE, "ignored", match name.as_str() {
                 "temp" => "kausal's devices are at 27 °C (ngspice's default): at another .temp ngspice's diodes conduct differently".into(),
                 _ => "it does not affect the transient run as kausal performs it".into(),
             }),

@@ -8,6 +8,7 @@
 //! carry nothing at DC), and an ideal voltage source on each `.ic` node. A
 //! capacitor's `ic=` is not used, as ngspice does not use it without `uic`.
 
+use crate::diag::codes;
 use std::rc::Rc;
 
 use diffsol::{FaerSparseMat, Matrix, NalgebraMat};
@@ -143,7 +144,7 @@ pub(super) fn held_operating_point(
         .map(|(ic, _)| {
             let name = &c.nodes[ic.node].name;
             Diagnostic::warning(
-                "K0408",
+                codes::IC_NOT_HELD,
                 format!(
                     "`{directive} v({name})` cannot be held in the DC operating point: a voltage source or inductor ties `{name}` to ground or to another {directive} node"
                 ),
@@ -275,7 +276,7 @@ pub(super) fn unheld_warning(c: &Circuit, why: &str) -> Diagnostic {
         .map(|i| format!("`v({})`", c.nodes[i.node].name))
         .collect();
     let mut d = Diagnostic::warning(
-        "K0408",
+        codes::IC_NOT_HELD,
         format!(
             "{} cannot be held in the DC operating point ({why})",
             names.join(", ")

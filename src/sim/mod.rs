@@ -6,6 +6,7 @@
 //! It knows the circuit (for names, initial conditions and outputs), the
 //! schedule and diffsol; it does no IO.
 
+use crate::diag::codes;
 mod circuit;
 mod dc;
 mod driver;
@@ -168,29 +169,30 @@ pub enum SimError {
 impl crate::diag::ToDiagnostic for SimError {
     fn to_diagnostic(&self) -> crate::diag::Diagnostic {
         let (code, help) = match self {
-            SimError::NoTran => ("K0400", "add `.tran TSTEP TSTOP`"),
+            SimError::NoTran => (codes::NO_TRAN, "add `.tran TSTEP TSTOP`"),
             SimError::UnknownProbe(_) => (
-                "K0401",
+                codes::UNKNOWN_PROBE,
                 "see `kausal equations` for the circuit's nodes and elements",
             ),
             SimError::Eval { .. } => (
-                "K0402",
+                codes::EVAL_FAILED,
                 "check the elements of the loop for values that allow no solution",
             ),
             SimError::NonFinite { .. } => (
-                "K0403",
+                codes::NON_FINITE,
                 "an expression left its domain (division by zero, log of a negative number)",
             ),
             SimError::StepUnderflow { .. } => (
-                "K0404",
+                codes::STEP_UNDERFLOW,
                 "the circuit may be ill-posed there, or change faster than steps of TSTOP·1e-16 can follow (shorten TSTOP); try another --method or a looser --rtol",
             ),
-            SimError::Solver { .. } => ("K0405", "try another --method"),
-            SimError::DcFailed { .. } | SimError::DcSingular => {
-                ("K0406", "give initial conditions and use `.tran ... uic`")
-            }
-            SimError::Write { .. } => ("K0407", "check the output path and free space"),
-            SimError::BadTolerance { .. } => ("K0411", "e.g. rtol 1e-6, atol 1e-9"),
+            SimError::Solver { .. } => (codes::SOLVER_FAILED, "try another --method"),
+            SimError::DcFailed { .. } | SimError::DcSingular => (
+                codes::DC_FAILED,
+                "give initial conditions and use `.tran ... uic`",
+            ),
+            SimError::Write { .. } => (codes::WRITE_FAILED, "check the output path and free space"),
+            SimError::BadTolerance { .. } => (codes::BAD_TOLERANCE, "e.g. rtol 1e-6, atol 1e-9"),
         };
         crate::diag::Diagnostic::error(code, self.to_string()).with_help(help)
     }

@@ -3,6 +3,7 @@
 //! why a step size underflowed.
 
 use super::*;
+use crate::diag::codes;
 
 /// Steps this many times more numerous than the output points, in a run of at
 /// least [`RINGING_MIN_STEPS`], make kausal look for the mode that kept them
@@ -36,7 +37,7 @@ where
     let m = least_damped_mode(sys, ode, tran.tstop, y, fast, 5.0)?;
     Some(
         crate::diag::Diagnostic::warning(
-            "K0409",
+            codes::RINGING,
             format!(
                 "{steps} steps for {points} output points: a lightly damped mode rings at {:.3e} Hz (Q ≈ {}), and the solver follows each cycle; it lives in {}",
                 m.freq, m.quality(), m.states
@@ -73,7 +74,7 @@ where
     let m = least_damped_mode(sys, ode, t0, y0, ten_cycles, 20.0)?;
     Some(
         crate::diag::Diagnostic::warning(
-            "K0410",
+            codes::BDF_ON_LIGHT_DAMPING,
             format!(
                 "BDF at rtol {rtol:e} on a lightly damped mode at {:.3e} Hz (Q ≈ {}) in {}: BDF's orders above 2 are not A-stable, and over many cycles the amplitude can grow",
                 m.freq, m.quality(), m.states

@@ -7,6 +7,7 @@
 //! This module, `bench/`, `io.rs` and the CLI are the only ones that touch
 //! the file system and run programs.
 
+use crate::diag::codes;
 pub mod plot;
 pub mod raw;
 
@@ -71,7 +72,7 @@ impl ToDiagnostic for ValidateError {
                 "it was stopped (also at 10 and 100 times the reference reltol); set KAUSAL_NGSPICE_TIMEOUT (seconds) to wait longer"
             }
         };
-        Diagnostic::error("K0500", self.to_string()).with_help(help)
+        Diagnostic::error(codes::VALIDATE_FAILED, self.to_string()).with_help(help)
     }
 }
 

@@ -90,7 +90,7 @@ pub fn check_annotations(
             *f == e.file
                 && *l == e.line
                 && *c == e.col
-                && d.code == e.code
+                && d.code == e.code.as_str()
                 && d.message.contains(&e.text)
         });
         assert!(
@@ -113,7 +113,7 @@ pub fn check_annotations(
             assert!(
                 expects
                     .iter()
-                    .any(|e| e.file == *f && e.line == *l && e.col == *c && e.code == d.code),
+                    .any(|e| e.file == *f && e.line == *l && e.col == *c && d.code == e.code.as_str()),
                 "{}: unexpected error {f}:{l}:{c} {} {}",
                 path.display(),
                 d.code,

@@ -162,3 +162,45 @@ fn every_module_says_what_it_owns() {
         missing.join("\n")
     );
 }
+
+/// Diagnostic codes are written once, in `diag/codes.rs`; everywhere else
+/// names them by constant, and every code of the table is used.
+#[test]
+fn diagnostic_codes_live_in_one_table() {
+    let src = super::root().join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let is_code =
+        |w: &str| w.len() == 5 && w.starts_with('K') && w[1..].bytes().all(|b| b.is_ascii_digit());
+    let mut literals = Vec::new();
+    let mut uses = String::new();
+    for file in &files {
+        let text = std::fs::read_to_string(file).unwrap();
+        if file.ends_with("diag/codes.rs") {
+            continue;
+        }
+        uses.push_str(&text);
+        for (n, line) in text.lines().enumerate() {
+            let code = line.split("//").next().unwrap_or("");
+            for piece in code.split('"').skip(1).step_by(2) {
+                if is_code(piece) {
+                    literals.push(format!("{}:{}: \"{piece}\"", file.display(), n + 1));
+                }
+            }
+        }
+    }
+    assert!(
+        literals.is_empty(),
+        "diagnostic codes written as literals (name them from kausal::diag::codes):\n{}",
+        literals.join("\n")
+    );
+    let table = std::fs::read_to_string(src.join("diag/codes.rs")).unwrap();
+    let unused: Vec<&str> = table
+        .lines()
+        .filter_map(|l| l.trim().split_once(" = \""))
+        .map(|(name, _)| name)
+        .filter(|name| !uses.contains(&format!("codes::{name}")))
+        .collect();
+    assert!(unused.is_empty(), "codes nothing emits: {unused:?}");
+    assert!(kausal::diag::codes::ALL.len() > 70);
+}

@@ -30,7 +30,7 @@ fn render_opts() -> RenderOptions {
 pub fn print_diags(sources: &SourceMap, diags: &[Diagnostic]) {
     let opts = render_opts();
     let mut err = std::io::stderr().lock();
-    let mut seen: HashMap<&str, usize> = HashMap::new();
+    let mut seen: HashMap<diag::Code, usize> = HashMap::new();
     for d in diags {
         let n = seen.entry(d.code).or_default();
         *n += 1;
@@ -41,7 +41,7 @@ pub fn print_diags(sources: &SourceMap, diags: &[Diagnostic]) {
     let mut more: Vec<(&str, usize)> = seen
         .into_iter()
         .filter(|&(_, n)| n > SAME_CODE_SHOWN)
-        .map(|(code, n)| (code, n - SAME_CODE_SHOWN))
+        .map(|(code, n)| (code.id, n - SAME_CODE_SHOWN))
         .collect();
     more.sort();
     for (code, n) in more {

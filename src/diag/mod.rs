@@ -5,6 +5,10 @@
 //! which happens here and nowhere else. This module knows nothing about
 //! circuits or equations.
 
+pub mod codes;
+
+pub use codes::Code;
+
 use std::fmt;
 use std::path::{Path, PathBuf};
 
@@ -145,7 +149,7 @@ pub struct Label {
 pub struct Diagnostic {
     pub severity: Severity,
     /// Stable code such as `K0102`.
-    pub code: &'static str,
+    pub code: Code,
     pub message: String,
     /// The first label is the primary one.
     pub labels: Vec<Label>,
@@ -155,7 +159,7 @@ pub struct Diagnostic {
 }
 
 impl Diagnostic {
-    pub fn error(code: &'static str, message: impl Into<String>) -> Diagnostic {
+    pub fn error(code: Code, message: impl Into<String>) -> Diagnostic {
         Diagnostic {
             severity: Severity::Error,
             code,
@@ -166,7 +170,7 @@ impl Diagnostic {
         }
     }
 
-    pub fn warning(code: &'static str, message: impl Into<String>) -> Diagnostic {
+    pub fn warning(code: Code, message: impl Into<String>) -> Diagnostic {
         Diagnostic {
             severity: Severity::Warning,
             ..Diagnostic::error(code, message)
@@ -256,7 +260,7 @@ pub fn render_short(sources: &SourceMap, diag: &Diagnostic) -> String {
 /// primary label are drawn on it; labels in other files become related reports.
 struct MietteDiag {
     severity: Severity,
-    code: &'static str,
+    code: Code,
     message: String,
     help: Option<String>,
     source: Option<miette::NamedSource<String>>,
