@@ -111,9 +111,10 @@ pub fn check_annotations(
     for (f, l, c, d) in &located {
         if d.is_error() {
             assert!(
-                expects
-                    .iter()
-                    .any(|e| e.file == *f && e.line == *l && e.col == *c && d.code == e.code.as_str()),
+                expects.iter().any(|e| e.file == *f
+                    && e.line == *l
+                    && e.col == *c
+                    && d.code == e.code.as_str()),
                 "{}: unexpected error {f}:{l}:{c} {} {}",
                 path.display(),
                 d.code,
