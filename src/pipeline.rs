@@ -187,7 +187,7 @@ pub fn sort_built(el: Elaborated, built: Built, opts: &SortOptions) -> Result<So
     let faults = topology::faults(c, &keep);
     let errors: Vec<TopologyError> = faults.iter().map(|f| TopologyError::new(c, f)).collect();
     let (fixable, fatal): (Vec<TopologyError>, Vec<TopologyError>) =
-        errors.into_iter().partition(|e| e.fixable);
+        errors.into_iter().partition(|e| e.is_fixable());
     if !fatal.is_empty() {
         let diags = fatal
             .iter()

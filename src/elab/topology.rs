@@ -14,7 +14,7 @@ use crate::diag::{Diagnostic, Severity, Span, ToDiagnostic};
 use crate::numeric::UnionFind;
 
 /// What fixes an element's branch: its voltage, its current, or neither.
-#[derive(Clone, Copy, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Defines {
     Voltage,
     Current,
@@ -376,68 +376,111 @@ fn list(names: &[String]) -> String {
     }
 }
 
-/// A fault with the names and spans needed to report it.
-#[derive(Clone, Debug, PartialEq, thiserror::Error)]
-#[error("{message}")]
+/// A fault with what its report needs of the circuit: the name, span and
+/// kind of each element it involves and the name and span of each node. It
+/// stays data until [`ToDiagnostic`] writes it.
+#[derive(Clone, Debug, PartialEq)]
 pub struct TopologyError {
-    pub fixable: bool,
-    pub message: String,
-    pub labels: Vec<(Span, String)>,
-    pub help: String,
+    pub fault: Fault,
+    elements: rustc_hash::FxHashMap<ElemId, Part>,
+    nodes: rustc_hash::FxHashMap<NodeId, (String, Span)>,
+}
+
+/// An element as a fault's report names it.
+#[derive(Clone, Debug, PartialEq)]
+struct Part {
+    name: String,
+    span: Span,
+    defines: Defines,
 }
 
 impl TopologyError {
     pub fn new(c: &Circuit, f: &Fault) -> TopologyError {
-        let name = |e: &ElemId| c.elements[*e].name.clone();
-        let names = |v: &[ElemId]| v.iter().map(name).collect::<Vec<_>>();
-        let labels_of = |v: &[ElemId], what: &str| -> Vec<(Span, String)> {
-            v.iter()
-                .take(SHOWN)
-                .map(|e| (c.elements[*e].span, what.to_string()))
-                .collect()
+        let (elements, nodes): (&[ElemId], &[NodeId]) = match f {
+            Fault::CapacitorLoop { elements, .. }
+            | Fault::InductorCutset { elements, .. }
+            | Fault::VoltageLoop { elements } => (elements, &[]),
+            Fault::CurrentCutset { elements, nodes } => (elements, nodes),
+            Fault::Floating { nodes, via } => (via, nodes),
         };
-        match f {
+        let part = |&e: &ElemId| {
+            let x = &c.elements[e];
+            let part = Part {
+                name: x.name.clone(),
+                span: x.span,
+                defines: defines(&x.kind),
+            };
+            (e, part)
+        };
+        let node = |&n: &NodeId| (n, (c.nodes[n].name.clone(), c.nodes[n].span));
+        let mut parts: rustc_hash::FxHashMap<ElemId, Part> = elements.iter().map(part).collect();
+        if let Fault::CapacitorLoop { fixed, .. } | Fault::InductorCutset { fixed, .. } = f {
+            parts.extend([part(fixed)]);
+        }
+        TopologyError {
+            fault: f.clone(),
+            elements: parts,
+            nodes: nodes.iter().map(node).collect(),
+        }
+    }
+
+    /// Index reduction can remove the fault (a warning, not an error).
+    pub fn is_fixable(&self) -> bool {
+        self.fault.is_fixable()
+    }
+
+    fn name(&self, e: &ElemId) -> String {
+        self.elements[e].name.clone()
+    }
+
+    fn names(&self, v: &[ElemId]) -> Vec<String> {
+        v.iter().map(|e| self.name(e)).collect()
+    }
+
+    fn node_names(&self, v: &[NodeId]) -> Vec<String> {
+        v.iter().map(|n| self.nodes[n].0.clone()).collect()
+    }
+
+    /// Labels `what` on the first [`SHOWN`] of `v`.
+    fn labels_of(&self, v: &[ElemId], what: &str) -> Vec<(Span, String)> {
+        v.iter()
+            .take(SHOWN)
+            .map(|e| (self.elements[e].span, what.to_string()))
+            .collect()
+    }
+
+    /// The elements of `elements` other than `fixed`.
+    fn others(elements: &[ElemId], fixed: &ElemId) -> Vec<ElemId> {
+        elements.iter().copied().filter(|e| e != fixed).collect()
+    }
+
+    /// The sentence that states the fault.
+    pub fn message(&self) -> String {
+        match &self.fault {
             Fault::CapacitorLoop { elements, fixed } => {
-                let others: Vec<ElemId> = elements.iter().copied().filter(|e| e != fixed).collect();
-                let all = names(elements);
+                let others = Self::others(elements, fixed);
                 let kind = if others
                     .iter()
-                    .any(|&e| defines(&c.elements[e].kind) == Defines::Voltage)
+                    .any(|e| self.elements[e].defines == Defines::Voltage)
                 {
                     "a loop of capacitors and voltage sources"
                 } else {
                     "a loop of capacitors"
                 };
-                let mut labels = labels_of(
-                    std::slice::from_ref(fixed),
-                    "cannot hold an independent state",
-                );
-                labels.extend(labels_of(&others, "in the loop"));
-                TopologyError {
-                    fixable: true,
-                    message: format!(
-                        "{} form {kind}: {}'s voltage is fixed by {}, so {} cannot hold an independent state (derivative causality)",
-                        list(&all),
-                        name(fixed),
-                        list(&names(&others)),
-                        name(fixed)
-                    ),
-                    labels,
-                    help: "kausal removes the integrator by index reduction (Pantelides); --prefer-state chooses which capacitor keeps its state".into(),
-                }
+                format!(
+                    "{} form {kind}: {}'s voltage is fixed by {}, so {} cannot hold an independent state (derivative causality)",
+                    list(&self.names(elements)),
+                    self.name(fixed),
+                    list(&self.names(&others)),
+                    self.name(fixed)
+                )
             }
             Fault::InductorCutset { elements, fixed } => {
-                let others: Vec<ElemId> = elements.iter().copied().filter(|e| e != fixed).collect();
-                let sources: Vec<String> = others
+                let others = Self::others(elements, fixed);
+                let (sources, inductors): (Vec<ElemId>, Vec<ElemId>) = others
                     .iter()
-                    .filter(|&&e| defines(&c.elements[e].kind) == Defines::Current)
-                    .map(name)
-                    .collect();
-                let inductors: Vec<String> = others
-                    .iter()
-                    .filter(|&&e| defines(&c.elements[e].kind) != Defines::Current)
-                    .map(name)
-                    .collect();
+                    .partition(|e| self.elements[e].defines == Defines::Current);
+                let (sources, inductors) = (self.names(&sources), self.names(&inductors));
                 let src = |v: &[String]| {
                     format!(
                         "current source{} {}",
@@ -452,49 +495,24 @@ impl TopologyError {
                     (false, false) => format!("with {} and {}", list(&inductors), src(&sources)),
                 };
                 let by = if others.len() == 1 { "it" } else { "them" };
-                let mut labels = labels_of(
-                    std::slice::from_ref(fixed),
-                    "cannot hold an independent state",
-                );
-                labels.extend(labels_of(&others, "in the cutset"));
-                TopologyError {
-                    fixable: true,
-                    message: format!(
-                        "{} is in a cutset {with}: its current is fixed by {by}, so {} cannot hold an independent state (derivative causality)",
-                        name(fixed),
-                        name(fixed)
-                    ),
-                    labels,
-                    help: "kausal removes the integrator by index reduction (Pantelides); --prefer-state chooses which inductor keeps its state".into(),
-                }
+                format!(
+                    "{} is in a cutset {with}: its current is fixed by {by}, so {} cannot hold an independent state (derivative causality)",
+                    self.name(fixed),
+                    self.name(fixed)
+                )
             }
-            Fault::VoltageLoop { elements } => TopologyError {
-                fixable: false,
-                message: format!(
-                    "{} form a loop of voltage sources (conflicting)",
-                    list(&names(elements))
-                ),
-                labels: labels_of(elements, "in the loop"),
-                help: "put a resistor in the loop, or remove one of the sources".into(),
-            },
-            Fault::CurrentCutset { elements, nodes } => {
-                let node_names: Vec<String> =
-                    nodes.iter().map(|n| c.nodes[*n].name.clone()).collect();
-                TopologyError {
-                    fixable: false,
-                    message: format!(
-                        "current sources {} form a cutset around node{} {} (conflicting currents)",
-                        list(&names(elements)),
-                        if nodes.len() == 1 { "" } else { "s" },
-                        list(&node_names)
-                    ),
-                    labels: labels_of(elements, "in the cutset"),
-                    help: "give the node a path for current, e.g. a resistor to ground".into(),
-                }
-            }
+            Fault::VoltageLoop { elements } => format!(
+                "{} form a loop of voltage sources (conflicting)",
+                list(&self.names(elements))
+            ),
+            Fault::CurrentCutset { elements, nodes } => format!(
+                "current sources {} form a cutset around node{} {} (conflicting currents)",
+                list(&self.names(elements)),
+                if nodes.len() == 1 { "" } else { "s" },
+                list(&self.node_names(nodes))
+            ),
             Fault::Floating { nodes, via } => {
-                let node_names: Vec<String> =
-                    nodes.iter().map(|n| c.nodes[*n].name.clone()).collect();
+                let node_names = self.node_names(nodes);
                 let around = if nodes.len() == 1 {
                     format!("node {}", node_names[0])
                 } else {
@@ -514,46 +532,92 @@ impl TopologyError {
                     (
                         format!(
                             "current sources {} form a cutset around {around}",
-                            list(&names(via))
+                            list(&self.names(via))
                         ),
                         "their currents must balance and nothing sets the voltage".to_string(),
                     )
                 };
+                format!("{what}: {how}, so the circuit is under-determined")
+            }
+        }
+    }
+
+    /// The labelled spans: the element that loses its state first, then
+    /// the others (the first [`SHOWN`] of each list), then nodes.
+    fn labels(&self) -> Vec<(Span, String)> {
+        match &self.fault {
+            Fault::CapacitorLoop { elements, fixed }
+            | Fault::InductorCutset { elements, fixed } => {
+                let within = match self.fault {
+                    Fault::CapacitorLoop { .. } => "in the loop",
+                    _ => "in the cutset",
+                };
+                let mut labels = self.labels_of(
+                    std::slice::from_ref(fixed),
+                    "cannot hold an independent state",
+                );
+                labels.extend(self.labels_of(&Self::others(elements, fixed), within));
+                labels
+            }
+            Fault::VoltageLoop { elements } => self.labels_of(elements, "in the loop"),
+            Fault::CurrentCutset { elements, .. } => self.labels_of(elements, "in the cutset"),
+            Fault::Floating { nodes, via } => {
                 let node_label = if via.is_empty() {
                     "floating"
                 } else {
                     "inside the cutset"
                 };
-                let mut labels = labels_of(via, "in the cutset");
+                let mut labels = self.labels_of(via, "in the cutset");
                 labels.extend(
                     nodes
                         .iter()
-                        .map(|n| (c.nodes[*n].span, node_label.to_string())),
+                        .map(|n| (self.nodes[n].1, node_label.to_string())),
                 );
-                TopologyError {
-                    fixable: false,
-                    message: format!("{what}: {how}, so the circuit is under-determined"),
-                    labels,
-                    help: "give every node a path to ground, e.g. a resistor (ngspice needs a DC path too)".into(),
-                }
+                labels
+            }
+        }
+    }
+
+    fn help(&self) -> &'static str {
+        match &self.fault {
+            Fault::CapacitorLoop { .. } => {
+                "kausal removes the integrator by index reduction (Pantelides); --prefer-state chooses which capacitor keeps its state"
+            }
+            Fault::InductorCutset { .. } => {
+                "kausal removes the integrator by index reduction (Pantelides); --prefer-state chooses which inductor keeps its state"
+            }
+            Fault::VoltageLoop { .. } => "put a resistor in the loop, or remove one of the sources",
+            Fault::CurrentCutset { .. } => {
+                "give the node a path for current, e.g. a resistor to ground"
+            }
+            Fault::Floating { .. } => {
+                "give every node a path to ground, e.g. a resistor (ngspice needs a DC path too)"
             }
         }
     }
 }
 
+impl std::fmt::Display for TopologyError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message())
+    }
+}
+
+impl std::error::Error for TopologyError {}
+
 impl ToDiagnostic for TopologyError {
     fn to_diagnostic(&self) -> Diagnostic {
-        let code = if self.fixable {
+        let code = if self.is_fixable() {
             codes::COUPLED_STATES
         } else {
             codes::CONFLICTING_TOPOLOGY
         };
-        let mut d = Diagnostic::error(code, self.message.clone()).with_help(self.help.clone());
-        if self.fixable {
+        let mut d = Diagnostic::error(code, self.message()).with_help(self.help());
+        if self.is_fixable() {
             d.severity = Severity::Warning;
         }
-        for (span, label) in &self.labels {
-            d = d.with_label(*span, label.clone());
+        for (span, label) in self.labels() {
+            d = d.with_label(span, label);
         }
         d
     }

@@ -88,7 +88,7 @@ fn fixable_faults_are_reported_and_reduced() {
                 f.errors().map(|d| &d.message).collect::<Vec<_>>()
             )
         });
-        let msgs: Vec<String> = s.faults.iter().map(|f| f.message.clone()).collect();
+        let msgs: Vec<String> = s.faults.iter().map(|f| f.message()).collect();
         assert!(msgs.iter().any(|m| m.contains(message)), "{file}: {msgs:?}");
         let all = msgs.join(" ");
         for n in names {
@@ -174,9 +174,11 @@ fn prefer_state_chooses_which_capacitor_keeps_its_state() {
         .collect();
     assert_eq!(states, ["u_C2"]);
     assert!(
-        s.faults[0].message.contains("C1's voltage is fixed by C2"),
+        s.faults[0]
+            .message()
+            .contains("C1's voltage is fixed by C2"),
         "{}",
-        s.faults[0].message
+        s.faults[0].message()
     );
     let f = sort("netlists/parallel_caps.cir", &["C9"]).err().unwrap();
     assert!(f.errors().any(|d| d.message.contains("C9")));
