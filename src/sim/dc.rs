@@ -182,33 +182,16 @@ pub(super) fn name_dc_failure(c: &Circuit, e: SimError) -> SimError {
             if islands.is_empty() {
                 return e;
             }
-            let text: Vec<String> = islands
-                .iter()
+            let islands = islands
+                .into_iter()
                 .take(3)
                 .map(|(nodes, elems)| {
-                    let names: Vec<String> = nodes
-                        .iter()
-                        .map(|&n| format!("`{}`", c.nodes[n].name))
-                        .collect();
-                    format!(
-                        "{} {} no DC path to ground (only {} {} {})",
-                        crate::back::listing::shortened(&names, 8),
-                        if nodes.len() == 1 { "has" } else { "have" },
-                        crate::back::listing::shortened(elems, 8),
-                        if elems.len() == 1 {
-                            "connects"
-                        } else {
-                            "connect"
-                        },
-                        if nodes.len() == 1 { "it" } else { "them" }
-                    )
+                    let names = nodes.iter().map(|&n| c.nodes[n].name.clone()).collect();
+                    (names, elems)
                 })
                 .collect();
             SimError::DcFailed {
-                message: format!(
-                    "the DC Jacobian is singular: {}; use `.tran ... uic`, or give the node a DC path (a large resistor to ground)",
-                    text.join("; ")
-                ),
+                reason: DcFailure::NoDcPath { islands },
             }
         }
         _ => e,
@@ -303,7 +286,7 @@ where
         dc_newton(y.clone(), &resid, solve, &mut limit, atol)
     } else {
         Err(SimError::DcFailed {
-            message: "not tried (test)".into(),
+            reason: DcFailure::NotTried,
         })
     };
     let Err(error) = first else {
@@ -425,7 +408,7 @@ pub(super) fn dc_newton(
                 return Ok(y);
             }
             return Err(SimError::DcFailed {
-                message: format!("Newton stalled (residual {norm:.3e})"),
+                reason: DcFailure::Stalled { residual: norm },
             });
         }
         std::mem::swap(&mut y, &mut trial);
@@ -433,6 +416,6 @@ pub(super) fn dc_newton(
         norm = f.iter().map(|x| x.abs()).fold(0.0, f64::max);
     }
     Err(SimError::DcFailed {
-        message: format!("Newton did not converge (residual {norm:.3e})"),
+        reason: DcFailure::NoConvergence { residual: norm },
     })
 }

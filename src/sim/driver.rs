@@ -124,10 +124,7 @@ where
         .t0(t0)
         .h0((tran.tstep / 100.0).min(tran.tstop * 1e-6).max(1e-15))
         .build_from_eqn(ode)
-        .map_err(|e| SimError::Solver {
-            t: t0,
-            message: e.to_string(),
-        })?;
+        .map_err(|e| solver_err(t0, e))?;
     // diffsol's default minimum step (1e-13 s) is longer than a nanosecond
     // circuit's steps: scale it to the run.
     let mut problem = problem;
@@ -242,7 +239,7 @@ where
 pub(super) fn solver_err(t: f64, e: diffsol::DiffsolError) -> SimError {
     SimError::Solver {
         t,
-        message: e.to_string(),
+        source: std::rc::Rc::new(e),
     }
 }
 

@@ -107,7 +107,8 @@ impl<'s> Rows<'s> {
         self.last = Some(t);
         match &mut self.sink {
             Some(sink) => sink(t, out).map_err(|e| SimError::Write {
-                message: e.to_string(),
+                path: None,
+                source: std::rc::Rc::new(e),
             }),
             None => {
                 self.time.push(t);

@@ -129,7 +129,9 @@ pub struct Waveforms {
     pub warnings: Vec<crate::diag::Diagnostic>,
 }
 
-#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+/// Why a simulation stopped. Errors of diffsol and of writing are kept as
+/// they came (shared, so that the error stays `Clone`).
+#[derive(Clone, Debug, thiserror::Error)]
 pub enum SimError {
     #[error("the netlist has no `.tran` line")]
     NoTran,
@@ -148,22 +150,84 @@ pub enum SimError {
         "step size underflow at t = {t:e}; the fastest-changing state is `{state}` (= {value:e})"
     )]
     StepUnderflow { t: f64, state: String, value: f64 },
-    #[error("the solver failed at t = {t:e}: {message}")]
-    Solver { t: f64, message: String },
-    #[error("no DC operating point: {message}")]
-    DcFailed { message: String },
+    #[error("the solver failed at t = {t:e}: {source}")]
+    Solver {
+        t: f64,
+        source: std::rc::Rc<diffsol::DiffsolError>,
+    },
+    #[error(
+        "--method circuit integrates circuits of at most {max} states (this one has {n}): use --method bdf"
+    )]
+    TooManyStates { n: usize, max: usize },
+    #[error("no DC operating point: {reason}")]
+    DcFailed { reason: DcFailure },
     #[error(
         "no DC operating point: the DC Jacobian is singular: a node or loop has no DC path (a capacitor-only node, an inductor loop); use `.tran ... uic`"
     )]
     DcSingular,
-    #[error("cannot write the waveforms: {message}")]
-    Write { message: String },
+    #[error("cannot write the waveforms: {}{source}", path_prefix(path.as_deref()))]
+    Write {
+        /// The file, when the error is the writer's own (not the sink's).
+        path: Option<std::path::PathBuf>,
+        source: std::rc::Rc<std::io::Error>,
+    },
     #[error("{what} is {value}; it must be {range}")]
     BadTolerance {
         what: &'static str,
         value: f64,
         range: &'static str,
     },
+}
+
+/// Why no DC operating point was found.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum DcFailure {
+    /// No damped Newton step improves the point.
+    #[error("Newton stalled (residual {residual:.3e})")]
+    Stalled { residual: f64 },
+    #[error("Newton did not converge (residual {residual:.3e})")]
+    NoConvergence { residual: f64 },
+    /// The DC Jacobian is singular where these islands of nodes (named,
+    /// with the elements that touch them) have no DC path to ground.
+    #[error(
+        "the DC Jacobian is singular: {}; use `.tran ... uic`, or give the node a DC path (a large resistor to ground)",
+        islands_text(islands)
+    )]
+    NoDcPath {
+        islands: Vec<(Vec<String>, Vec<String>)>,
+    },
+    /// Newton at the full sources was skipped (a test's switch).
+    #[error("not tried (test)")]
+    NotTried,
+}
+
+/// "`path`: " before a write error that names its file.
+fn path_prefix(path: Option<&std::path::Path>) -> String {
+    path.map_or_else(String::new, |p| format!("`{}`: ", p.display()))
+}
+
+/// The first three islands of [`DcFailure::NoDcPath`] as a sentence.
+fn islands_text(islands: &[(Vec<String>, Vec<String>)]) -> String {
+    let text: Vec<String> = islands
+        .iter()
+        .take(3)
+        .map(|(nodes, elems)| {
+            let names: Vec<String> = nodes.iter().map(|n| format!("`{n}`")).collect();
+            format!(
+                "{} {} no DC path to ground (only {} {} {})",
+                crate::back::listing::shortened(&names, 8),
+                if nodes.len() == 1 { "has" } else { "have" },
+                crate::back::listing::shortened(elems, 8),
+                if elems.len() == 1 {
+                    "connects"
+                } else {
+                    "connect"
+                },
+                if nodes.len() == 1 { "it" } else { "them" }
+            )
+        })
+        .collect();
+    text.join("; ")
 }
 
 impl crate::diag::ToDiagnostic for SimError {
@@ -186,7 +250,9 @@ impl crate::diag::ToDiagnostic for SimError {
                 codes::STEP_UNDERFLOW,
                 "the circuit may be ill-posed there, or change faster than steps of TSTOP·1e-16 can follow (shorten TSTOP); try another --method or a looser --rtol",
             ),
-            SimError::Solver { .. } => (codes::SOLVER_FAILED, "try another --method"),
+            SimError::Solver { .. } | SimError::TooManyStates { .. } => {
+                (codes::SOLVER_FAILED, "try another --method")
+            }
             SimError::DcFailed { .. } | SimError::DcSingular => (
                 codes::DC_FAILED,
                 "give initial conditions and use `.tran ... uic`",
@@ -263,11 +329,9 @@ fn simulate_rows(
     let mut w = if n == 0 {
         algebraic(sorted, tape.clone(), &tran, &list, opts, sink)?
     } else if method == Method::Circuit && n > DENSE_STATES {
-        return Err(SimError::Solver {
-            t: 0.0,
-            message: format!(
-                "--method circuit integrates circuits of at most {DENSE_STATES} states (this one has {n}): use --method bdf"
-            ),
+        return Err(SimError::TooManyStates {
+            n,
+            max: DENSE_STATES,
         });
     } else if n <= DENSE_STATES {
         run::<NalgebraMat<f64>, NalgebraLU<f64>>(&job, sink)?

@@ -215,8 +215,16 @@ where
             };
         }
     }
-    let msg = e.to_string();
-    if msg.to_ascii_lowercase().contains("step size") || msg.contains("StepSizeTooSmall") {
+    // diffsol says so by a variant, and in the text of errors from its
+    // Newton line search and its interpolation when a step can shrink no
+    // further.
+    let underflow = matches!(
+        &e,
+        diffsol::DiffsolError::OdeSolverError(
+            diffsol::error::OdeSolverError::StepSizeTooSmall { .. }
+        )
+    ) || e.to_string().to_ascii_lowercase().contains("step size");
+    if underflow {
         let atol = problem.atol.slice();
         let k = (0..y.len())
             .max_by(|&a, &b| {
@@ -234,5 +242,8 @@ where
             value: y.get(k).copied().unwrap_or(f64::NAN),
         };
     }
-    SimError::Solver { t, message: msg }
+    SimError::Solver {
+        t,
+        source: std::rc::Rc::new(e),
+    }
 }

@@ -19,7 +19,7 @@ use crate::pipeline::Sorted;
 use crate::sim::{self, SimError, Waveforms};
 pub use raw::RawData;
 
-#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[derive(Clone, Debug, thiserror::Error)]
 pub enum ValidateError {
     #[error(
         "ngspice was not found (looked for `{program}`): install it with `apt-get install ngspice`"

@@ -94,7 +94,8 @@ pub fn stream_csv(
         .collect();
     let shown = out.map_or(Path::new("-"), |p| p.as_path());
     let write_err = |e: std::io::Error| sim::SimError::Write {
-        message: format!("`{}`: {e}", shown.display()),
+        path: Some(shown.to_path_buf()),
+        source: std::rc::Rc::new(e),
     };
     // One row writer for both destinations.
     let run = |w: &mut dyn Write| -> Result<sim::Waveforms, sim::SimError> {
