@@ -4,7 +4,7 @@
 
 use std::collections::HashMap;
 
-use super::expr::{Expr, ExprArena, ExprId, Func};
+use super::expr::{Expr, ExprArena, ExprId, Func, Slope};
 use super::system::VarId;
 
 /// d/dt of `e`, where `dvar(x)` gives the expression of dx/dt. Sources
@@ -126,46 +126,44 @@ fn derive(
             }
             Expr::Call(f, a) => {
                 let da = d(memo, a);
-                let inner = match f {
-                    Func::Exp => x.call(Func::Exp, a),
-                    Func::Ln => {
+                let inner = match f.slope() {
+                    Slope::Value => x.call(f, a),
+                    Slope::Reciprocal => {
                         let one = x.constant(1.0);
                         x.div(one, a)
                     }
-                    Func::Sqrt => {
+                    Slope::HalfReciprocalValue => {
                         let two = x.constant(2.0);
-                        let s = x.call(Func::Sqrt, a);
+                        let s = x.call(f, a);
                         let den = x.mul(two, s);
                         let one = x.constant(1.0);
                         x.div(one, den)
                     }
-                    Func::Sin => x.call(Func::Cos, a),
-                    Func::Cos => {
-                        let s = x.call(Func::Sin, a);
+                    Slope::Call(g) => x.call(g, a),
+                    Slope::NegCall(g) => {
+                        let s = x.call(g, a);
                         x.neg(s)
                     }
-                    Func::Tan => {
-                        let c = x.call(Func::Cos, a);
+                    Slope::ReciprocalSquareOf(g) => {
+                        let c = x.call(g, a);
                         let cc = x.mul(c, c);
                         let one = x.constant(1.0);
                         x.div(one, cc)
                     }
-                    Func::Atan => {
+                    Slope::ReciprocalOnePlusSquare => {
                         let aa = x.mul(a, a);
                         let one = x.constant(1.0);
                         let den = x.add(one, aa);
                         x.div(one, den)
                     }
-                    Func::Sinh => x.call(Func::Cosh, a),
-                    Func::Cosh => x.call(Func::Sinh, a),
-                    Func::Tanh => {
-                        let t = x.call(Func::Tanh, a);
+                    Slope::OneMinusValueSquared => {
+                        let t = x.call(f, a);
                         let tt = x.mul(t, t);
                         let one = x.constant(1.0);
                         x.sub(one, tt)
                     }
-                    Func::Abs => {
-                        let m = x.call(Func::Abs, a);
+                    Slope::Sign => {
+                        let m = x.call(f, a);
                         x.div(a, m)
                     }
                 };

@@ -66,6 +66,42 @@ impl Func {
         }
     }
 
+    /// The derivative rule of the function: the one table that symbolic
+    /// differentiation, the tape's tangents and generated code all read.
+    pub fn slope(self) -> Slope {
+        match self {
+            Func::Exp => Slope::Value,
+            Func::Ln => Slope::Reciprocal,
+            Func::Sqrt => Slope::HalfReciprocalValue,
+            Func::Sin => Slope::Call(Func::Cos),
+            Func::Cos => Slope::NegCall(Func::Sin),
+            Func::Tan => Slope::ReciprocalSquareOf(Func::Cos),
+            Func::Atan => Slope::ReciprocalOnePlusSquare,
+            Func::Sinh => Slope::Call(Func::Cosh),
+            Func::Cosh => Slope::Call(Func::Sinh),
+            Func::Tanh => Slope::OneMinusValueSquared,
+            Func::Abs => Slope::Sign,
+        }
+    }
+
+    /// `f′(x)`, given `x` and `fx = f(x)`.
+    pub fn derivative(self, x: f64, fx: f64) -> f64 {
+        match self.slope() {
+            Slope::Value => fx,
+            Slope::Reciprocal => 1.0 / x,
+            Slope::HalfReciprocalValue => 0.5 / fx,
+            Slope::Call(g) => g.apply(x),
+            Slope::NegCall(g) => -g.apply(x),
+            Slope::ReciprocalSquareOf(g) => {
+                let v = g.apply(x);
+                1.0 / (v * v)
+            }
+            Slope::ReciprocalOnePlusSquare => 1.0 / (1.0 + x * x),
+            Slope::OneMinusValueSquared => 1.0 - fx * fx,
+            Slope::Sign => x.signum(),
+        }
+    }
+
     pub fn apply(self, x: f64) -> f64 {
         match self {
             Func::Exp => x.exp(),
@@ -81,6 +117,30 @@ impl Func {
             Func::Abs => x.abs(),
         }
     }
+}
+
+/// A derivative rule `f′(x)`, written with the argument `x` and the
+/// function's own value `f(x)` (see [`Func::slope`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Slope {
+    /// `f′ = f` (exp).
+    Value,
+    /// `f′ = 1/x` (ln).
+    Reciprocal,
+    /// `f′ = 1/(2f)` (sqrt).
+    HalfReciprocalValue,
+    /// `f′ = g(x)` (sin, sinh, cosh).
+    Call(Func),
+    /// `f′ = −g(x)` (cos).
+    NegCall(Func),
+    /// `f′ = 1/g(x)²` (tan).
+    ReciprocalSquareOf(Func),
+    /// `f′ = 1/(1 + x²)` (atan).
+    ReciprocalOnePlusSquare,
+    /// `f′ = 1 − f²` (tanh).
+    OneMinusValueSquared,
+    /// `f′ = sign(x)` (abs).
+    Sign,
 }
 
 /// One node of an expression DAG.
@@ -614,6 +674,23 @@ impl ExprArena {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn derivative_rules_match_finite_differences() {
+        use Func::*;
+        for f in [Exp, Ln, Sqrt, Sin, Cos, Tan, Atan, Sinh, Cosh, Tanh, Abs] {
+            for x in [0.3, 0.7, 1.9] {
+                let h = 1e-6;
+                let fd = (f.apply(x + h) - f.apply(x - h)) / (2.0 * h);
+                let d = f.derivative(x, f.apply(x));
+                assert!(
+                    (d - fd).abs() <= 1e-7 * (1.0 + d.abs()),
+                    "{f:?} at {x}: {d} vs {fd}"
+                );
+            }
+        }
+        assert_eq!(Abs.derivative(-2.0, 2.0), -1.0);
+    }
     use crate::ir::EntityId;
 
     #[test]

@@ -49,7 +49,7 @@ impl Tape {
                 Instr::Mul { d, a, b } => r[d as usize] = r[a as usize] * r[b as usize],
                 Instr::Div { d, a, b } => r[d as usize] = r[a as usize] / r[b as usize],
                 Instr::Pow { d, a, b } => r[d as usize] = r[a as usize].powf(r[b as usize]),
-                Instr::Call { d, f, a } => r[d as usize] = call(f, r[a as usize]),
+                Instr::Call { d, f, a } => r[d as usize] = f.apply(r[a as usize]),
                 Instr::Device { d, f, a } => {
                     r[d as usize] =
                         self.diodes[f.diode as usize].eval(f.part, f.order, r[a as usize])

@@ -61,29 +61,6 @@ pub enum Instr {
     },
 }
 
-#[inline]
-pub(super) fn call(f: Func, x: f64) -> f64 {
-    f.apply(x)
-}
-
-/// d/dx f(x).
-#[inline]
-pub(super) fn call_deriv(f: Func, x: f64, fx: f64) -> f64 {
-    match f {
-        Func::Exp => fx,
-        Func::Ln => 1.0 / x,
-        Func::Sqrt => 0.5 / fx,
-        Func::Sin => x.cos(),
-        Func::Cos => -x.sin(),
-        Func::Tan => 1.0 / (x.cos() * x.cos()),
-        Func::Atan => 1.0 / (1.0 + x * x),
-        Func::Sinh => x.cosh(),
-        Func::Cosh => x.sinh(),
-        Func::Tanh => 1.0 - fx * fx,
-        Func::Abs => x.signum(),
-    }
-}
-
 /// No register: the destination of a [`Instr::Block`].
 pub(super) const NONE: u32 = u32::MAX;
 

@@ -92,9 +92,9 @@ impl Tape {
                 }
                 Instr::Call { d, f, a } => {
                     let x = r[a as usize];
-                    let fx = call(f, x);
+                    let fx = f.apply(x);
                     r[d as usize] = fx;
-                    dr[d as usize] = call_deriv(f, x, fx) * dr[a as usize];
+                    dr[d as usize] = f.derivative(x, fx) * dr[a as usize];
                 }
                 Instr::Device { d, f, a } => {
                     let x = r[a as usize];
@@ -275,9 +275,9 @@ impl Tape {
                 }
                 Instr::Call { d, f, a } => {
                     let x = r[a as usize];
-                    let fx = call(f, x);
+                    let fx = f.apply(x);
                     r[d as usize] = fx;
-                    lin(dr, m, d, (a, call_deriv(f, x, fx)), None);
+                    lin(dr, m, d, (a, f.derivative(x, fx)), None);
                 }
                 Instr::Device { d, f, a } => {
                     let p = &self.diodes[f.diode as usize];

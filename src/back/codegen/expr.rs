@@ -4,7 +4,7 @@
 //! take the indices out of a statement (see `Gen::shaped`).
 
 use super::{Gen, num};
-use crate::ir::{DeviceFn, DiodePart, Expr, ExprId, Func};
+use crate::ir::{DeviceFn, DiodePart, Expr, ExprId, Func, Slope};
 
 /// An indexed operand of a generated expression.
 #[derive(Clone, Copy)]
@@ -227,27 +227,25 @@ impl Gen<'_> {
     fn slope(&self, f: Func, a: ExprId, leaf: &mut LeafFn) -> String {
         let syn = self.syn;
         let mut x = || self.expr_with(a, leaf);
-        match f {
-            Func::Exp => syn.call(Func::Exp, x()),
-            Func::Ln => format!("(1.0 / {})", x()),
-            Func::Sqrt => format!("(0.5 / {})", syn.call(Func::Sqrt, x())),
-            Func::Sin => syn.call(Func::Cos, x()),
-            Func::Cos => format!("(-{})", syn.call(Func::Sin, x())),
-            Func::Tan => {
-                let c1 = syn.call(Func::Cos, x());
-                format!("(1.0 / ({c1} * {}))", syn.call(Func::Cos, x()))
+        match f.slope() {
+            Slope::Value => syn.call(f, x()),
+            Slope::Reciprocal => format!("(1.0 / {})", x()),
+            Slope::HalfReciprocalValue => format!("(0.5 / {})", syn.call(f, x())),
+            Slope::Call(g) => syn.call(g, x()),
+            Slope::NegCall(g) => format!("(-{})", syn.call(g, x())),
+            Slope::ReciprocalSquareOf(g) => {
+                let c1 = syn.call(g, x());
+                format!("(1.0 / ({c1} * {}))", syn.call(g, x()))
             }
-            Func::Atan => {
+            Slope::ReciprocalOnePlusSquare => {
                 let x1 = x();
                 format!("(1.0 / (1.0 + {x1} * {}))", x())
             }
-            Func::Sinh => syn.call(Func::Cosh, x()),
-            Func::Cosh => syn.call(Func::Sinh, x()),
-            Func::Tanh => {
-                let t1 = syn.call(Func::Tanh, x());
-                format!("(1.0 - {t1} * {})", syn.call(Func::Tanh, x()))
+            Slope::OneMinusValueSquared => {
+                let t1 = syn.call(f, x());
+                format!("(1.0 - {t1} * {})", syn.call(f, x()))
             }
-            Func::Abs => syn.sign(x()),
+            Slope::Sign => syn.sign(x()),
         }
     }
 
