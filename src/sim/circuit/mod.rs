@@ -166,6 +166,47 @@ struct Junction {
     i_peak: f64,
 }
 
+/// A stage's implicit equation `x = c + β f(t, x)` and what its Newton
+/// iteration works with, `n` each.
+struct Stage {
+    /// The iterate, and `f` at it.
+    x: Vec<f64>,
+    f: Vec<f64>,
+    /// The stage's constant part `c`.
+    c: Vec<f64>,
+    /// The predictor, kept to restart the iteration from.
+    pred: Vec<f64>,
+    /// A Newton correction, or the step's local error estimate.
+    delta: Vec<f64>,
+    /// Newton's weights: one over each state's convergence tolerance.
+    weight: Vec<f64>,
+    /// Scratch of the LU solves.
+    scratch: Vec<f64>,
+}
+
+impl Stage {
+    fn new(n: usize) -> Stage {
+        Stage {
+            x: vec![0.0; n],
+            f: vec![0.0; n],
+            c: vec![0.0; n],
+            pred: vec![0.0; n],
+            delta: vec![0.0; n],
+            weight: vec![0.0; n],
+            scratch: vec![0.0; n],
+        }
+    }
+}
+
+/// The end of a step's TR stage, `t + γh`: its state, `f` there and the
+/// junction voltages, which the BDF2 stage's predictor and the error
+/// estimate read.
+struct Gamma {
+    y: Vec<f64>,
+    f: Vec<f64>,
+    v: Vec<f64>,
+}
+
 /// How Newton with the kept Jacobian ended.
 enum Iteration {
     Converged,
@@ -216,21 +257,15 @@ where
     error: Option<EvalError>,
     /// The state whose error limited the last rejected step.
     worst: usize,
-    // Scratch, `n` each.
-    c: Vec<f64>,
-    z: Vec<f64>,
-    fz: Vec<f64>,
-    y1: Vec<f64>,
-    f1: Vec<f64>,
-    pred: Vec<f64>,
-    d: Vec<f64>,
-    tmp: Vec<f64>,
-    w: Vec<f64>,
-    all: Vec<usize>,
+    /// The stage being solved.
+    stage: Stage,
+    /// The end of the step's TR stage.
+    gamma: Gamma,
+    /// Every state index (the columns of a whole Jacobian).
+    columns: Vec<usize>,
     /// The junction charges among the states, predicted through their
     /// junction voltages (see [`Junction`]).
     junctions: Vec<Junction>,
-    vz: Vec<f64>,
     /// Each junction charge's error scale as a voltage error (`Q′` times
     /// its largest voltage); infinite for the other states.
     jscale: Vec<f64>,
@@ -318,18 +353,14 @@ where
             stats: Stats::default(),
             error: None,
             worst: 0,
-            c: vec![0.0; n],
-            z: vec![0.0; n],
-            fz: vec![0.0; n],
-            y1: vec![0.0; n],
-            f1: vec![0.0; n],
-            pred: vec![0.0; n],
-            d: vec![0.0; n],
-            tmp: vec![0.0; n],
-            w: vec![0.0; n],
-            all: (0..n).collect(),
+            stage: Stage::new(n),
+            gamma: Gamma {
+                y: vec![0.0; n],
+                f: vec![0.0; n],
+                v: vz,
+            },
+            columns: (0..n).collect(),
             junctions,
-            vz,
             jscale: vec![f64::INFINITY; n],
             no_growth: false,
             exact: ode.tape.jacobian_follows_junctions(),
@@ -446,7 +477,7 @@ where
             let gd = p.current(v)[1];
             if q.is_finite() {
                 let k = jn.k;
-                self.y1[k] = q;
+                self.stage.x[k] = q;
                 let jn = &mut self.junctions[j];
                 (jn.cap_p, jn.gd_p) = (cap, gd);
             }
@@ -511,9 +542,9 @@ where
             Regs::Solver,
             t,
             y,
-            &self.all,
+            &self.columns,
             &mut self.newton.jac,
-            &mut self.tmp,
+            &mut self.stage.scratch,
         );
         self.stats.jacobians += 1;
         let nw = &mut self.newton;
@@ -554,14 +585,20 @@ where
     fn correct(&mut self, beta: f64) -> f64 {
         let n = self.n;
         for i in 0..n {
-            self.d[i] = self.c[i] + beta * self.f1[i] - self.y1[i];
+            self.stage.delta[i] = self.stage.c[i] + beta * self.stage.f[i] - self.stage.x[i];
         }
         let nw = &self.newton;
-        lu_solve(n, &nw.lu, &nw.perm, &mut self.d, &mut self.tmp);
+        lu_solve(
+            n,
+            &nw.lu,
+            &nw.perm,
+            &mut self.stage.delta,
+            &mut self.stage.scratch,
+        );
         let mut norm: f64 = 0.0;
         for i in 0..n {
-            self.y1[i] += self.d[i];
-            let v = (self.d[i] * self.w[i]).abs();
+            self.stage.x[i] += self.stage.delta[i];
+            let v = (self.stage.delta[i] * self.stage.weight[i]).abs();
             // `max` passes NaN over: a NaN correction is infinitely large.
             norm = if v.is_nan() {
                 f64::INFINITY
@@ -577,7 +614,7 @@ where
     fn iterate(&mut self, t1: f64, beta: f64) -> Iteration {
         let mut last = f64::INFINITY;
         for it in 0..MAX_ITERATIONS {
-            if let Err(e) = self.ode.eval(t1, &self.y1, &mut self.f1) {
+            if let Err(e) = self.ode.eval(t1, &self.stage.x, &mut self.stage.f) {
                 self.error.get_or_insert(e);
                 return Iteration::Failed;
             }
@@ -617,11 +654,11 @@ where
     fn stage(&mut self, t1: f64, beta: f64) -> bool {
         let n = self.n;
         for i in 0..n {
-            self.w[i] = 1.0
+            self.stage.weight[i] = 1.0
                 / (self.atol[i]
-                    + self.rtol.min(NEWTON_RTOL) * self.y[i].abs().max(self.y1[i].abs()));
+                    + self.rtol.min(NEWTON_RTOL) * self.y[i].abs().max(self.stage.x[i].abs()));
         }
-        self.pred.copy_from_slice(&self.y1);
+        self.stage.pred.copy_from_slice(&self.stage.x);
         if self.exact {
             return self.followed_newton(t1, beta);
         }
@@ -653,7 +690,7 @@ where
         // The kept Jacobian does not take the iteration there (a junction
         // turning on bends f faster than one Jacobian follows): Newton
         // with the Jacobian of every iterate, from the predictor.
-        self.y1.copy_from_slice(&self.pred);
+        self.stage.x.copy_from_slice(&self.stage.pred);
         self.full_newton(t1, beta)
     }
 
@@ -664,9 +701,9 @@ where
 
     /// A fresh Jacobian at the stage's predictor.
     fn jacobian_at_predictor(&mut self, t1: f64) -> bool {
-        let p = std::mem::take(&mut self.pred);
+        let p = std::mem::take(&mut self.stage.pred);
         let ok = self.jacobian(t1, &p);
-        self.pred = p;
+        self.stage.pred = p;
         ok
     }
 
@@ -684,7 +721,7 @@ where
         }
         let mut last = f64::INFINITY;
         for it in 0..2 * MAX_ITERATIONS {
-            if let Err(e) = self.ode.eval(t1, &self.y1, &mut self.f1) {
+            if let Err(e) = self.ode.eval(t1, &self.stage.x, &mut self.stage.f) {
                 self.error.get_or_insert(e);
                 return false;
             }
@@ -747,7 +784,7 @@ where
         let kept = (jn.cap_j / jn.cap_p - 1.0)
             .abs()
             .max(((jn.gd_j - jn.gd_p) / (jn.cap_p * jkk)).abs());
-        (self.d[k] / jn.cap_p).abs() * jn.curv + kept
+        (self.stage.delta[k] / jn.cap_p).abs() * jn.curv + kept
     }
 
     /// The iteration has converged: what the last correction leaves (`θ`
@@ -771,9 +808,9 @@ where
                 return norm <= NEWTON_TOLERANCE;
             }
             theta_max = theta_max.max(theta);
-            let di = theta * self.d[k].abs() * jkk;
+            let di = theta * self.stage.delta[k].abs() * jkk;
             // The current `q` itself carries, rounded.
-            let rounding = 8.0 * f64::EPSILON * self.y1[k].abs() * jkk;
+            let rounding = 8.0 * f64::EPSILON * self.stage.x[k].abs() * jkk;
             if di > NEWTON_TOLERANCE * (self.atol_i + tol * jn.i_peak) + rounding {
                 return false;
             }
@@ -785,25 +822,23 @@ where
     fn full_newton(&mut self, t1: f64, beta: f64) -> bool {
         let mut last = f64::INFINITY;
         for it in 0..2 * MAX_ITERATIONS {
-            let y1 = std::mem::take(&mut self.y1);
             let r = self.ode.jacobian_columns(
                 Regs::Solver,
                 t1,
-                &y1,
-                &self.all,
+                &self.stage.x,
+                &self.columns,
                 &mut self.newton.jac,
-                &mut self.f1,
+                &mut self.stage.f,
             );
-            self.y1 = y1;
             self.stats.jacobians += 1;
             if let Err(e) = r {
                 self.error.get_or_insert(e);
                 return false;
             }
             self.newton.factored = false;
-            let y1 = std::mem::take(&mut self.y1);
+            let y1 = std::mem::take(&mut self.stage.x);
             self.note_jacobian_point(&y1);
-            self.y1 = y1;
+            self.stage.x = y1;
             if !self.factor(beta) {
                 return false;
             }
@@ -837,14 +872,14 @@ where
         // Stage 1, the trapezoidal rule to t + γh, predicted by the
         // quadratic through the previous point with the slope here.
         for i in 0..n {
-            self.c[i] = self.y[i] + beta * self.f[i];
-            self.y1[i] = self.y[i] + s * self.f[i];
+            self.stage.c[i] = self.y[i] + beta * self.f[i];
+            self.stage.x[i] = self.y[i] + s * self.f[i];
         }
         if let Some(tp) = self.prev {
             let hp = self.t - tp;
             for i in 0..n {
                 let c2 = (self.y_prev[i] - self.y[i] + hp * self.f[i]) / (hp * hp);
-                self.y1[i] += s * s * c2;
+                self.stage.x[i] += s * s * c2;
             }
             self.predict_junctions(-hp, s, |_, jn| jn.v_prev);
         } else {
@@ -855,13 +890,13 @@ where
             return Attempt::NoConvergence;
         }
         for i in 0..n {
-            self.z[i] = self.y1[i];
-            self.fz[i] = (self.y1[i] - self.c[i]) / beta;
+            self.gamma.y[i] = self.stage.x[i];
+            self.gamma.f[i] = (self.stage.x[i] - self.stage.c[i]) / beta;
         }
         for j in 0..self.junctions.len() {
             let Junction { k, ci, .. } = self.junctions[j];
-            self.vz[j] = self
-                .junction_voltage(ci, self.z[k])
+            self.gamma.v[j] = self
+                .junction_voltage(ci, self.gamma.y[k])
                 .map_or(f64::NAN, |(v, _)| v);
         }
         // Stage 2, BDF2 through t, t + γh and t + h, predicted by the
@@ -869,29 +904,35 @@ where
         let a = 1.0 / (GAMMA * (2.0 - GAMMA));
         let b = (1.0 - GAMMA) * (1.0 - GAMMA) / (GAMMA * (2.0 - GAMMA));
         for i in 0..n {
-            self.c[i] = a * self.z[i] - b * self.y[i];
-            let c2 = (self.z[i] - self.y[i] - s * self.f[i]) / (s * s);
-            self.y1[i] = self.y[i] + h * self.f[i] + h * h * c2;
+            self.stage.c[i] = a * self.gamma.y[i] - b * self.y[i];
+            let c2 = (self.gamma.y[i] - self.y[i] - s * self.f[i]) / (s * s);
+            self.stage.x[i] = self.y[i] + h * self.f[i] + h * h * c2;
         }
-        let vz = std::mem::take(&mut self.vz);
+        let vz = std::mem::take(&mut self.gamma.v);
         self.predict_junctions(s, h, |j, _| vz[j]);
-        self.vz = vz;
+        self.gamma.v = vz;
         if !self.stage(t1, beta) {
             return Attempt::NoConvergence;
         }
         for i in 0..n {
-            self.f1[i] = (self.y1[i] - self.c[i]) / beta;
+            self.stage.f[i] = (self.stage.x[i] - self.stage.c[i]) / beta;
         }
         // The local error C h³ y''', y''' from 2·f[t, t + γh, t + h],
         // filtered through (I - βJ)⁻¹.
         for i in 0..n {
-            let dd0 = (self.fz[i] - self.f[i]) / s;
-            let dd1 = (self.f1[i] - self.fz[i]) / (h - s);
-            self.d[i] = 2.0 * ERROR_CONSTANT * h * h * (dd1 - dd0);
+            let dd0 = (self.gamma.f[i] - self.f[i]) / s;
+            let dd1 = (self.stage.f[i] - self.gamma.f[i]) / (h - s);
+            self.stage.delta[i] = 2.0 * ERROR_CONSTANT * h * h * (dd1 - dd0);
         }
         {
             let nw = &self.newton;
-            lu_solve(n, &nw.lu, &nw.perm, &mut self.d, &mut self.tmp);
+            lu_solve(
+                n,
+                &nw.lu,
+                &nw.perm,
+                &mut self.stage.delta,
+                &mut self.stage.scratch,
+            );
         }
         // A junction charge's error is also a voltage error, `δq / Q′`, on
         // the scale of the largest junction voltage so far: a reverse-biased
@@ -909,10 +950,10 @@ where
                 f64::INFINITY
             };
         }
-        let (err, worst) = weighted_error(&self.d, &self.atol, self.rtol, |i| {
+        let (err, worst) = weighted_error(&self.stage.delta, &self.atol, self.rtol, |i| {
             self.peak[i]
                 .max(self.y[i].abs())
-                .max(self.y1[i].abs())
+                .max(self.stage.x[i].abs())
                 .min(self.jscale[i])
         });
         self.worst = worst.unwrap_or(self.worst);
@@ -931,8 +972,8 @@ where
         std::mem::swap(&mut self.f_prev, &mut self.f);
         self.prev = Some(self.t);
         self.t = t1;
-        self.y.copy_from_slice(&self.y1);
-        self.f.copy_from_slice(&self.f1);
+        self.y.copy_from_slice(&self.stage.x);
+        self.f.copy_from_slice(&self.stage.f);
         for (p, y) in self.peak.iter_mut().zip(&self.y) {
             *p = p.max(y.abs());
         }
