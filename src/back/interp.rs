@@ -5,7 +5,8 @@
 
 use crate::analysis::{Assignment, Schedule, Solved, Step};
 use crate::ir::{EqId, EquationSystem, Expr, ExprArena, ExprId, VarId};
-use crate::numeric::dense::solve_dense;
+use crate::numeric::DenseLu;
+use crate::numeric::newton;
 
 /// Why the interpreter failed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -158,25 +159,27 @@ pub fn run(
                             jac[i * n + j] = (r1[i] - r[i]) / h;
                         }
                     }
+                    let lu = DenseLu::new(n, jac.clone())
+                        .ok_or(InterpError::Singular { block: b.index })?;
+                    let mut scratch = vec![0.0; n];
                     let mut dx = r.clone();
-                    if !solve_dense(n, &mut jac.clone(), &mut dx) {
-                        return Err(InterpError::Singular { block: b.index });
-                    }
-                    // Damped step: halve until the residual is finite and smaller.
+                    lu.solve_in_place(&mut dx, &mut scratch);
+                    // Damped by the natural monotonicity test; where no damped
+                    // step passes, the shortest one tried is taken.
                     let x0: Vec<f64> = tears.iter().map(|v| vals[v.0 as usize]).collect();
+                    let scale = |j: usize| 1.0 + x0[j].abs();
+                    let full = newton::scaled_norm(&dx, scale);
                     let mut lambda = 1.0;
-                    loop {
+                    newton::damp(full, |l| {
+                        lambda = l;
                         for (j, &v) in tears.iter().enumerate() {
-                            vals[v.0 as usize] = x0[j] - lambda * dx[j];
+                            vals[v.0 as usize] = x0[j] - l * dx[j];
                         }
-                        let rn = resid(vals)?;
-                        let nn = norm(&rn, vals);
-                        if (nn.is_finite() && nn < last) || lambda < 1e-10 {
-                            r = rn;
-                            break;
-                        }
-                        lambda *= 0.5;
-                    }
+                        let mut bar = resid(vals)?;
+                        lu.solve_in_place(&mut bar, &mut scratch);
+                        Ok(newton::scaled_norm(&bar, scale))
+                    })?;
+                    r = resid(vals)?;
                     let small = dx
                         .iter()
                         .zip(&x0)
@@ -208,17 +211,4 @@ pub fn run(
         }
     }
     Ok(floors)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn dense_solve() {
-        let mut a = vec![2.0, 1.0, 1.0, 3.0];
-        let mut b = vec![3.0, 5.0];
-        assert!(solve_dense(2, &mut a, &mut b));
-        assert!((b[0] - 0.8).abs() < 1e-12 && (b[1] - 1.4).abs() < 1e-12);
-    }
 }
