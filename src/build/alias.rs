@@ -43,7 +43,7 @@ struct Aliases {
 impl Aliases {
     /// The root of `v` and `v = sign * root`, with the path compressed.
     /// Two passes, no recursion: a chain of 3·10^5 aliases (the currents of
-    /// resistors in series) overflowed the stack.
+    /// resistors in series) would overflow the stack.
     fn find(&mut self, v: VarId) -> (VarId, f64) {
         let (mut root, mut sign) = (v, 1.0);
         while let Some(l) = self.link[root] {

@@ -100,8 +100,8 @@ impl Elab {
         }
         // A junction's charge is its state (`build::diode`): with diffusion
         // charge alone, a reverse-biased junction holds ~TT·GMIN·v, so its
-        // charge cannot fix its voltage (1e-21 C moved it by 0.1 V at TT =
-        // 10 ns, and a half-wave rectifier turned on 0.5 V early).
+        // charge cannot fix its voltage (1e-21 C moves it by 0.1 V at TT =
+        // 10 ns, and a half-wave rectifier would turn on 0.5 V early).
         if m.cjo == 0.0 && m.tt > 0.0 {
             m.cjo = JUNCTION_CAPACITANCE_FLOOR;
             m.m = 0.0;

@@ -196,7 +196,7 @@ impl<'a> Parser<'a> {
     }
 
     /// Skip a `.control` block (opened at `start`) up to its `.endc`, and
-    /// say that it was not run.
+    /// report it as skipped.
     fn skip_control(&mut self, start: Span, lines: &[LogicalLine<'_, 'a>], idx: &mut usize) {
         let mut closed = false;
         while *idx < lines.len() {
