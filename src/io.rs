@@ -11,8 +11,8 @@ use crate::front::Loader;
 ///
 /// With THP on `always`, the first touch of any page of the allocator's
 /// arenas makes the kernel clear a whole 2 MiB page. A big circuit's IR is
-/// many small objects spread over fresh memory, so the kernel time dominated
-/// cold runs: `kausal sort` of a 10^5-section ladder took 1.3–1.55 s (0.7–1.0 s
+/// many small objects spread over fresh memory, so the kernel time dominates
+/// cold runs: `kausal sort` of a 10^5-section ladder takes 1.3–1.55 s (0.7–1.0 s
 /// system time) with THP and 0.85 s (0.2 s) without; its simulation 4.8–4.9 s
 /// against 4.2 s, the solve itself unchanged. `KAUSAL_THP=1` keeps THP.
 pub fn no_huge_pages() {

@@ -1,7 +1,7 @@
 //! The bipartite structure graph (equations × unknowns) in compressed
 //! adjacency form, and strongly connected components of dependency graphs
 //! (an iterative Tarjan: petgraph's `tarjan_scc` recurses once per node and
-//! overflowed the stack on a 10^5-element loop; its `kosaraju_scc` takes two
+//! overflows the stack on a 10^5-element loop; its `kosaraju_scc` takes two
 //! passes and orders independent components differently).
 
 use crate::ir::{EqId, EquationSystem, VarId};
@@ -113,11 +113,11 @@ impl StructureGraph {
 /// Strongly connected components of a digraph on `n` nodes given by
 /// `succ(i)`, in topological order (sources first), each sorted ascending.
 ///
-/// Tarjan's algorithm with an explicit stack (a recursive search overflowed
+/// Tarjan's algorithm with an explicit stack (a recursive search overflows
 /// the thread's stack on a 10^5-element algebraic loop). Roots are taken in
 /// node order and each node's successors in reverse insertion order, the
-/// order of petgraph's adjacency lists that this replaced: it fixes the
-/// order of independent components, which the schedule follows.
+/// order of petgraph's adjacency lists: it fixes the order of independent
+/// components, which the schedule follows.
 pub fn strong_components(n: usize, edges: impl Iterator<Item = (u32, u32)>) -> Vec<Vec<u32>> {
     let edges: Vec<(u32, u32)> = edges.collect();
     // Successor lists (CSR), each filled from its end: reverse insertion order.
@@ -197,8 +197,8 @@ pub fn strong_components(n: usize, edges: impl Iterator<Item = (u32, u32)>) -> V
 mod tests {
     use super::*;
 
-    /// A 10^6-node cycle and chain on a test thread's 2 MiB stack (the
-    /// recursive search it replaced overflowed at ~10^4 here).
+    /// A 10^6-node cycle and chain on a test thread's 2 MiB stack (a
+    /// recursive search overflows at ~10^4 here).
     #[test]
     fn deep_graphs_need_no_stack() {
         let n = 1_000_000u32;

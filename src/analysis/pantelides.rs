@@ -116,8 +116,8 @@ pub fn reduce_index(
         // Handling a set adds equations and turns one state into an unknown;
         // a later set whose equations do not contain that state keeps its
         // unknowns, so it is still over-determined, and is handled in the
-        // same round (one set a round made 3000 inductors in a cutset cost
-        // 3000 matchings of the whole system). The others wait a round.
+        // same round (one set a round would make 3000 inductors in a cutset
+        // cost 3000 matchings of the whole system). The others wait a round.
         // When the first set's state is in all the others (parallel
         // capacitors whose matching runs through one of them), the rest are
         // found again at once, without the preferred constraint: their own
@@ -170,8 +170,8 @@ pub fn reduce_index(
                 });
                 red.constraints.push(g);
             }
-            // New derivative unknowns were pushed directly: once per batch
-            // (once per set was quadratic).
+            // The new derivative unknowns are pushed directly; their flags are
+            // refreshed once per batch (once per set would be quadratic).
             aug.refresh_unknown();
             if skipped == 0 || pass == 1 {
                 break;

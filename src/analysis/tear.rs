@@ -52,8 +52,8 @@ impl BlockTearer {
         for &e in block {
             let eq = &sys.eqs[e];
             // Affine in all its unknowns together is affine in each: one pass
-            // over the equation instead of one per unknown (a KVL loop of
-            // 10^4 elements was quadratic).
+            // over the equation instead of one per unknown (which would be
+            // quadratic in a KVL loop of 10^4 elements).
             let affine = solve::is_linear_in(&sys.exprs, eq.lhs, &|_| true)
                 && solve::is_linear_in(&sys.exprs, eq.rhs, &|_| true);
             for k in c.g.eq_edges(e) {

@@ -498,6 +498,35 @@ fn run_ngspice(
     Ok((raw, median(solve), median(total), steps))
 }
 
+/// What every run of one netlist is measured against.
+struct Baseline<'b> {
+    sorted: &'b Sorted,
+    probes: &'b [String],
+    exact: Option<&'b Exact>,
+    ref_rtol: f64,
+    /// The reference at the time points of kausal's tight run.
+    reference: Waveforms,
+    /// The netlist's energy terms, when it states them.
+    energy: Option<Vec<(f64, String)>>,
+}
+
+impl Baseline<'_> {
+    /// The reference at `times`: the exact solution, else a tight kausal run.
+    fn on(&self, times: Vec<f64>) -> Result<Waveforms, String> {
+        match self.exact {
+            Some(x) => x.at(&times),
+            None => reference_at(self.sorted, self.probes, self.ref_rtol, Some(times))
+                .map_err(|e| e.to_string()),
+        }
+    }
+
+    fn drift(&self, names: &[String], data: &[Vec<f64>]) -> Option<f64> {
+        self.energy
+            .as_ref()
+            .and_then(|e| energy_drift(e, names, data))
+    }
+}
+
 /// Benchmark one netlist. `tick` is called after every measurement.
 pub fn bench_circuit(
     path: &Path,
@@ -538,17 +567,15 @@ pub fn bench_circuit(
         }
         None => (tight, None),
     };
-    let reference_on = |times: Vec<f64>| -> Result<Waveforms, String> {
-        match &exact {
-            Some(x) => x.at(&times),
-            None => reference_at(&sorted, &probes, opts.ref_rtol, Some(times))
-                .map_err(|e| e.to_string()),
-        }
+    let base = Baseline {
+        sorted: &sorted,
+        probes: &probes,
+        exact: exact.as_ref(),
+        ref_rtol: opts.ref_rtol,
+        reference,
+        energy,
     };
     tick("reference");
-    let drift = |names: &[String], data: &[Vec<f64>]| {
-        energy.as_ref().and_then(|e| energy_drift(e, names, data))
-    };
     let mut points = Vec::new();
     let methods = methods_for(opts, &text, sorted.system().states().count());
     // The measurements a large circuit skips still count for the progress
@@ -558,63 +585,14 @@ pub fn bench_circuit(
     }
     for m in methods {
         for &tol in &opts.tolerances {
-            let so = sim::Options {
-                method: Some(m),
-                rtol: Some(tol),
-                probes: probes.clone(),
-                ..Default::default()
-            };
-            let solver = format!("kausal {}", method_name(m));
-            let run = run_kausal(&sorted, &so, opts.repeats).map_err(|e| e.to_string());
-            let run = run.and_then(|(w, secs)| {
-                let total = match &opts.exe {
-                    Some(exe) => kausal_process(exe, path, m, tol, opts.repeats)?,
-                    None => front + sort + secs,
-                };
-                Ok((w, secs, total))
-            });
-            match run {
-                Ok((w, secs, total)) => {
-                    let (error, worst) = max_error(
-                        &reference.names,
-                        &reference.time,
-                        &reference.data,
-                        &w.names,
-                        &w.time,
-                        &w.data,
-                    );
-                    points.push(Point {
-                        solver,
-                        tol: Some(tol),
-                        solve_seconds: secs,
-                        total_seconds: total,
-                        error,
-                        worst_signal: worst,
-                        steps: w.stats.steps,
-                        energy_drift: drift(&w.names, &w.data),
-                        failed: None,
-                    });
-                }
-                Err(e) => points.push(failed_point(solver, Some(tol), e)),
-            }
+            points.push(kausal_point(path, opts, &base, m, tol, (front, sort)));
             tick(&format!("kausal {} {tol:e}", method_name(m)));
         }
     }
     let mut reference_check = None;
     let mut verdict = None;
     if opts.ngspice {
-        // The cross-check of the reference.
-        let tight = format!(
-            "reltol={:e} abstol=1e-15 vntol=1e-12 chgtol=1e-18 trtol=1",
-            opts.ngspice_ref_reltol
-        );
-        if let Ok((raw, _, _, _)) = run_ngspice(path, &tight, 1) {
-            let times = clean_times(&raw.time, tstop);
-            if let Ok(r) = reference_on(times) {
-                reference_check =
-                    Some(max_error(&r.names, &r.time, &r.data, &raw.names, &raw.time, &raw.data).0);
-            }
-        }
+        reference_check = ngspice_reference_check(path, opts, &base, tstop);
         tick("ngspice reference");
         let mut runs: Vec<(String, Option<f64>, String)> =
             vec![("ngspice default".into(), None, String::new())];
@@ -628,81 +606,13 @@ pub fn bench_circuit(
             }
         }
         for (solver, tol, line) in runs {
-            match run_ngspice(path, &line, opts.repeats) {
-                Ok((raw, solve, total, steps)) => {
-                    let times = clean_times(&raw.time, tstop);
-                    let r = match reference_on(times) {
-                        Ok(r) => r,
-                        Err(e) => {
-                            points.push(failed_point(
-                                solver,
-                                tol,
-                                format!("reference at ngspice's points: {e}"),
-                            ));
-                            tick(&line);
-                            continue;
-                        }
-                    };
-                    let (error, worst) =
-                        max_error(&r.names, &r.time, &r.data, &raw.names, &raw.time, &raw.data);
-                    points.push(Point {
-                        solver,
-                        tol,
-                        solve_seconds: solve,
-                        total_seconds: total,
-                        error,
-                        worst_signal: worst,
-                        steps,
-                        energy_drift: drift(&raw.names, &raw.data),
-                        failed: None,
-                    });
-                }
-                Err(e @ ValidateError::Missing { .. }) => return Err(e.into()),
-                Err(e) => points.push(failed_point(solver, tol, e.to_string())),
-            }
+            points.push(ngspice_point(path, opts, &base, tstop, solver, tol, &line)?);
             tick(&line);
         }
-        verdict = points
-            .iter()
-            .find(|p| p.solver == "ngspice default" && p.failed.is_none())
-            .map(|d| {
-                let best = points
-                    .iter()
-                    .filter(|p| {
-                        p.solver.starts_with("kausal") && p.failed.is_none() && p.error <= d.error
-                    })
-                    .min_by(|a, b| a.solve_seconds.total_cmp(&b.solve_seconds))
-                    .cloned();
-                Verdict {
-                    ngspice_default_error: d.error,
-                    solve_speedup: best
-                        .as_ref()
-                        .map(|b| d.solve_seconds / b.solve_seconds.max(1e-9)),
-                    total_speedup: best
-                        .as_ref()
-                        .map(|b| d.total_seconds / b.total_seconds.max(1e-9)),
-                    kausal: best,
-                }
-            });
+        verdict = verdict_of(&points);
     }
     let floor = reference_check.unwrap_or(0.0).max(1e-12);
-    let mut non_monotone = Vec::new();
-    let mut solvers: Vec<&str> = points.iter().map(|p| p.solver.as_str()).collect();
-    solvers.dedup();
-    for s in solvers {
-        let mut errs: Vec<(f64, f64)> = points
-            .iter()
-            .filter(|p| p.solver == s && p.failed.is_none())
-            .filter_map(|p| Some((p.tol?, p.error)))
-            .collect();
-        errs.sort_by(|a, b| b.0.total_cmp(&a.0));
-        if errs
-            .windows(2)
-            .any(|w| w[1].1 > 3.0 * w[0].1.max(floor) && w[1].1 > 10.0 * floor)
-        {
-            non_monotone.push(s.to_string());
-        }
-    }
+    let non_monotone = non_monotone(&points, floor);
     Ok(CircuitBench {
         netlist: path.display().to_string(),
         states: sorted.system().states().count(),
@@ -724,6 +634,155 @@ pub fn bench_circuit(
         verdict,
         non_monotone,
     })
+}
+
+/// One kausal run with method `m` at tolerance `tol`, against the
+/// reference. `front_sort` are the seconds parsing and sorting took, counted
+/// in the total when kausal is not timed as a process.
+fn kausal_point(
+    path: &Path,
+    opts: &Options,
+    base: &Baseline<'_>,
+    m: Method,
+    tol: f64,
+    (front, sort): (f64, f64),
+) -> Point {
+    let so = sim::Options {
+        method: Some(m),
+        rtol: Some(tol),
+        probes: base.probes.to_vec(),
+        ..Default::default()
+    };
+    let solver = format!("kausal {}", method_name(m));
+    let run = run_kausal(base.sorted, &so, opts.repeats).map_err(|e| e.to_string());
+    let run = run.and_then(|(w, secs)| {
+        let total = match &opts.exe {
+            Some(exe) => kausal_process(exe, path, m, tol, opts.repeats)?,
+            None => front + sort + secs,
+        };
+        Ok((w, secs, total))
+    });
+    match run {
+        Ok((w, secs, total)) => {
+            let r = &base.reference;
+            let (error, worst) = max_error(&r.names, &r.time, &r.data, &w.names, &w.time, &w.data);
+            Point {
+                solver,
+                tol: Some(tol),
+                solve_seconds: secs,
+                total_seconds: total,
+                error,
+                worst_signal: worst,
+                steps: w.stats.steps,
+                energy_drift: base.drift(&w.names, &w.data),
+                failed: None,
+            }
+        }
+        Err(e) => failed_point(solver, Some(tol), e),
+    }
+}
+
+/// The cross-check of the reference: its largest error against a tight
+/// ngspice run (`None` when either cannot be had).
+fn ngspice_reference_check(
+    path: &Path,
+    opts: &Options,
+    base: &Baseline<'_>,
+    tstop: f64,
+) -> Option<f64> {
+    let tight = format!(
+        "reltol={:e} abstol=1e-15 vntol=1e-12 chgtol=1e-18 trtol=1",
+        opts.ngspice_ref_reltol
+    );
+    let (raw, _, _, _) = run_ngspice(path, &tight, 1).ok()?;
+    let times = clean_times(&raw.time, tstop);
+    let r = base.on(times).ok()?;
+    Some(max_error(&r.names, &r.time, &r.data, &raw.names, &raw.time, &raw.data).0)
+}
+
+/// One ngspice run with the options `line`, against the reference at
+/// ngspice's own time points. A missing ngspice is an error; any other
+/// failure is a failed point.
+fn ngspice_point(
+    path: &Path,
+    opts: &Options,
+    base: &Baseline<'_>,
+    tstop: f64,
+    solver: String,
+    tol: Option<f64>,
+    line: &str,
+) -> Result<Point, BenchError> {
+    let (raw, solve, total, steps) = match run_ngspice(path, line, opts.repeats) {
+        Ok(run) => run,
+        Err(e @ ValidateError::Missing { .. }) => return Err(e.into()),
+        Err(e) => return Ok(failed_point(solver, tol, e.to_string())),
+    };
+    let times = clean_times(&raw.time, tstop);
+    let r = match base.on(times) {
+        Ok(r) => r,
+        Err(e) => {
+            let why = format!("reference at ngspice's points: {e}");
+            return Ok(failed_point(solver, tol, why));
+        }
+    };
+    let (error, worst) = max_error(&r.names, &r.time, &r.data, &raw.names, &raw.time, &raw.data);
+    Ok(Point {
+        solver,
+        tol,
+        solve_seconds: solve,
+        total_seconds: total,
+        error,
+        worst_signal: worst,
+        steps,
+        energy_drift: base.drift(&raw.names, &raw.data),
+        failed: None,
+    })
+}
+
+/// ngspice's default run against the fastest kausal run at least as
+/// accurate (`None` when the default run failed).
+fn verdict_of(points: &[Point]) -> Option<Verdict> {
+    let d = points
+        .iter()
+        .find(|p| p.solver == "ngspice default" && p.failed.is_none())?;
+    let best = points
+        .iter()
+        .filter(|p| p.solver.starts_with("kausal") && p.failed.is_none() && p.error <= d.error)
+        .min_by(|a, b| a.solve_seconds.total_cmp(&b.solve_seconds))
+        .cloned();
+    Some(Verdict {
+        ngspice_default_error: d.error,
+        solve_speedup: best
+            .as_ref()
+            .map(|b| d.solve_seconds / b.solve_seconds.max(1e-9)),
+        total_speedup: best
+            .as_ref()
+            .map(|b| d.total_seconds / b.total_seconds.max(1e-9)),
+        kausal: best,
+    })
+}
+
+/// The solvers whose error grows markedly as their tolerance tightens
+/// (errors below ten times `floor`, the reference's own error, are noise).
+fn non_monotone(points: &[Point], floor: f64) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut solvers: Vec<&str> = points.iter().map(|p| p.solver.as_str()).collect();
+    solvers.dedup();
+    for s in solvers {
+        let mut errs: Vec<(f64, f64)> = points
+            .iter()
+            .filter(|p| p.solver == s && p.failed.is_none())
+            .filter_map(|p| Some((p.tol?, p.error)))
+            .collect();
+        errs.sort_by(|a, b| b.0.total_cmp(&a.0));
+        if errs
+            .windows(2)
+            .any(|w| w[1].1 > 3.0 * w[0].1.max(floor) && w[1].1 > 10.0 * floor)
+        {
+            out.push(s.to_string());
+        }
+    }
+    out
 }
 
 fn failed_point(solver: String, tol: Option<f64>, why: String) -> Point {

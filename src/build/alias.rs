@@ -43,7 +43,7 @@ struct Aliases {
 impl Aliases {
     /// The root of `v` and `v = sign * root`, with the path compressed.
     /// Two passes, no recursion: a chain of 3·10^5 aliases (the currents of
-    /// resistors in series) overflowed the stack.
+    /// resistors in series) would overflow the stack.
     fn find(&mut self, v: VarId) -> (VarId, f64) {
         let (mut root, mut sign) = (v, 1.0);
         while let Some(l) = self.link[root] {
@@ -108,7 +108,17 @@ fn value_alias(b: &Built, lhs: ExprId, rhs: ExprId) -> Option<(VarId, ExprId)> {
     }
 }
 
+/// Remove the alias equations of `b` and replace each eliminated variable
+/// by its root (or the root's known value) everywhere: in the equations
+/// left and in the node potentials.
 pub fn eliminate(b: &mut Built, circuit: &Circuit) {
+    let passive = passive_vars(b, circuit);
+    let ranks: Vec<u8> = b
+        .system
+        .vars
+        .ids()
+        .map(|v| keep_rank(b, v, passive[v.0 as usize]))
+        .collect();
     let n = b.system.vars.len();
     let mut al = Aliases {
         link: IdVec::filled(n, None),
@@ -116,7 +126,28 @@ pub fn eliminate(b: &mut Built, circuit: &Circuit) {
     };
     let mut removed: Vec<EqId> = Vec::new();
     let mut notes: Vec<String> = Vec::new();
-    let mut passive = vec![false; n];
+    for eq in b.system.eqs.ids() {
+        if al.join(b, &ranks, eq) {
+            removed.push(eq);
+            let e = &b.system.eqs[eq];
+            notes.push(format!(
+                "{}  ({})",
+                print::equation(&b.system, eq),
+                e.origin.describe()
+            ));
+        }
+    }
+    if removed.is_empty() {
+        return;
+    }
+    let repl = al.replacements(b);
+    substitute(b, &removed, &repl);
+    b.system.eliminated = notes;
+}
+
+/// Which variables belong to an R, C, L or D (by variable index).
+fn passive_vars(b: &Built, circuit: &Circuit) -> Vec<bool> {
+    let mut passive = vec![false; b.system.vars.len()];
     for (k, ev) in b.elem_vars.iter().enumerate() {
         if let Some(ev) = ev
             && matches!(
@@ -131,22 +162,23 @@ pub fn eliminate(b: &mut Built, circuit: &Circuit) {
             passive[ev.i.0 as usize] = true;
         }
     }
-    let ranks: Vec<u8> = b
-        .system
-        .vars
-        .ids()
-        .map(|v| keep_rank(b, v, passive[v.0 as usize]))
-        .collect();
-    let is_fixed = |v: VarId| ranks[v.0 as usize] >= 8;
-    for (eq, e) in b.system.eqs.iter() {
-        if let Some((a, s, c)) = var_alias(b, e.lhs, e.rhs) {
-            let (ra, sa) = al.find(a);
-            let (rc, sc) = al.find(c);
+    passive
+}
+
+impl Aliases {
+    /// Record equation `eq` if it is an alias the variables' `ranks` allow
+    /// to eliminate; whether it did (the equation is then removed).
+    fn join(&mut self, b: &mut Built, ranks: &[u8], eq: EqId) -> bool {
+        let is_fixed = |v: VarId| ranks[v.0 as usize] >= 8;
+        let (lhs, rhs) = (b.system.eqs[eq].lhs, b.system.eqs[eq].rhs);
+        if let Some((a, s, c)) = var_alias(b, lhs, rhs) {
+            let (ra, sa) = self.find(a);
+            let (rc, sc) = self.find(c);
             if ra == rc || (is_fixed(ra) && is_fixed(rc)) {
-                continue;
+                return false;
             }
-            if al.value[ra].is_some() && al.value[rc].is_some() {
-                continue;
+            if self.value[ra].is_some() && self.value[rc].is_some() {
+                return false;
             }
             // sa*ra = s*sc*rc  =>  ra = (sa*s*sc) rc
             let k = sa * s * sc;
@@ -157,59 +189,58 @@ pub fn eliminate(b: &mut Built, circuit: &Circuit) {
             };
             // A state never takes a value: `state = known` is a constraint
             // for the analysis to report, not an alias.
-            if is_fixed(child) || (is_fixed(parent) && al.value[child].is_some()) {
-                continue;
+            if is_fixed(child) || (is_fixed(parent) && self.value[child].is_some()) {
+                return false;
             }
-            al.link[child] = Some(Link { parent, sign: k });
-            if let Some(v) = al.value[child].take() {
+            self.link[child] = Some(Link { parent, sign: k });
+            if let Some(v) = self.value[child].take() {
                 // child = v and child = k*parent  =>  parent = k*v
                 let scaled = if k < 0.0 { b.system.exprs.neg(v) } else { v };
-                al.value[parent] = Some(scaled);
+                self.value[parent] = Some(scaled);
             }
-            removed.push(eq);
-            notes.push(format!(
-                "{}  ({})",
-                print::equation(&b.system, eq),
-                e.origin.describe()
-            ));
-        } else if let Some((v, val)) = value_alias(b, e.lhs, e.rhs) {
-            let (r, s) = al.find(v);
-            if is_fixed(r) || al.value[r].is_some() {
-                continue;
+            true
+        } else if let Some((v, val)) = value_alias(b, lhs, rhs) {
+            let (r, s) = self.find(v);
+            if is_fixed(r) || self.value[r].is_some() {
+                return false;
             }
             let scaled = if s < 0.0 {
                 b.system.exprs.neg(val)
             } else {
                 val
             };
-            al.value[r] = Some(scaled);
-            removed.push(eq);
-            notes.push(format!(
-                "{}  ({})",
-                print::equation(&b.system, eq),
-                e.origin.describe()
-            ));
+            self.value[r] = Some(scaled);
+            true
+        } else {
+            false
         }
     }
-    if removed.is_empty() {
-        return;
+
+    /// The replacement of every eliminated variable: its root times its
+    /// sign, or the root's known value.
+    fn replacements(&mut self, b: &mut Built) -> HashMap<VarId, ExprId> {
+        let mut repl: HashMap<VarId, ExprId> = HashMap::new();
+        for v in b.system.vars.ids() {
+            let (r, s) = self.find(v);
+            let target = match self.value[r] {
+                Some(val) => val,
+                None if r != v => b.system.exprs.var(r),
+                None => continue,
+            };
+            let e = if s < 0.0 {
+                b.system.exprs.neg(target)
+            } else {
+                target
+            };
+            repl.insert(v, e);
+        }
+        repl
     }
-    // The replacement of every eliminated variable.
-    let mut repl: HashMap<VarId, ExprId> = HashMap::new();
-    for v in b.system.vars.ids() {
-        let (r, s) = al.find(v);
-        let target = match al.value[r] {
-            Some(val) => val,
-            None if r != v => b.system.exprs.var(r),
-            None => continue,
-        };
-        let e = if s < 0.0 {
-            b.system.exprs.neg(target)
-        } else {
-            target
-        };
-        repl.insert(v, e);
-    }
+}
+
+/// Drop the `removed` equations (in id order) and apply `repl` to the
+/// others and to the node potentials.
+fn substitute(b: &mut Built, removed: &[EqId], repl: &HashMap<VarId, ExprId>) {
     let sys = &mut b.system;
     let mut memo = HashMap::new();
     let old = std::mem::take(&mut sys.eqs);
@@ -228,7 +259,7 @@ pub fn eliminate(b: &mut Built, circuit: &Circuit) {
         sys.eqs.push(e);
     }
     sys.rebuild_incidence();
-    for (&v, &e) in &repl {
+    for (&v, &e) in repl {
         sys.set_alias(v, e);
     }
     for p in b.node_pot.iter_mut() {
@@ -236,5 +267,4 @@ pub fn eliminate(b: &mut Built, circuit: &Circuit) {
             .exprs
             .substitute(*p, &mut |v| repl.get(&v).copied(), &mut memo);
     }
-    sys.eliminated = notes;
 }

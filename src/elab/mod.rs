@@ -5,7 +5,9 @@
 //! It knows the netlist AST and the circuit, nothing about equations.
 
 mod circuit;
+mod element;
 mod error;
+mod model;
 pub mod topology;
 
 use std::collections::HashMap;
@@ -14,10 +16,10 @@ use rustc_hash::{FxHashMap, FxHashSet};
 
 pub use circuit::*;
 pub use error::ElabError;
+pub use model::JUNCTION_CAPACITANCE_FLOOR;
 
 use crate::diag::Span;
-use crate::front::ast::{self, ElementBody, ElementLetter, Stmt, TranFnKind, Value};
-use crate::ir::Waveform;
+use crate::front::ast::{self, Stmt, Value};
 
 /// Output points of a `.tran` above which it warns (K0295): a 10^8-row CSV
 /// is several gigabytes, most likely a TSTEP meant as a step limit.
@@ -144,30 +146,6 @@ struct Elab {
     globals: FxHashSet<String>,
 }
 
-/// The constant junction capacitance kausal gives a diode model with TT and
-/// no CJO (warning K0297), so that the junction's charge fixes its voltage.
-/// Smaller floors leave the charge too weak a coordinate: with 1 fF a clamp
-/// whose two junctions and source form a loop (index reduction keeps one
-/// junction's charge) is off ngspice by volts, and a bridge takes minutes.
-/// 1 pF is physical, and visible where nothing else sets a voltage: the
-/// floating common mode of a bridge (its four junctions' capacitance against
-/// a 10 MΩ path), or a clamp's nA current.
-pub const JUNCTION_CAPACITANCE_FLOOR: f64 = 1e-12;
-
-/// Level-1 diode parameters kausal models, with their aliases.
-const DIODE_PARAMS: &[&str] = &[
-    "is", "n", "rs", "cjo", "cj0", "cj", "vj", "pb", "m", "mj", "fc", "tt", "bv", "ibv",
-];
-/// ngspice diode parameters that do not change kausal's transient result at
-/// the nominal temperature.
-const DIODE_IGNORED: &[&str] = &[
-    "eg", "xti", "kf", "af", "tnom", "level", "ikf", "ik", "ikr", "isr", "nr", "nbv", "ibvl",
-    "nbvl", "tbv1", "tbv2", "trs", "trs1", "trs2", "tt1", "tt2", "tm1", "tm2", "cta", "ctp", "tpb",
-    "tphp", "jsw", "cjsw", "cjp", "php", "mjsw", "fcs", "area", "pj", "vp", "lm", "lp", "wm", "wp",
-    "xom", "xoi", "xm", "xp", "d", "bvj", "iave", "vrev", "version", "bv_max", "fv_max", "id_max",
-    "pd_max", "te_max", "rth0", "cth0", "kms",
-];
-
 impl Elab {
     /// Gather subcircuit and model definitions of one scope (through includes).
     fn collect<'s, 'a>(&mut self, stmts: &'s [Stmt<'a>], scope: &mut Scope<'s, 'a>) {
@@ -236,103 +214,14 @@ impl Elab {
         }
     }
 
-    /// `.tran`, `.options`, `.ic` of the top level (through includes).
+    /// `.tran`, `.options`, `.global` of the top level (through includes).
     fn settings(&mut self, stmts: &[Stmt<'_>], scope: &Scope<'_, '_>) {
         for s in stmts {
             match s {
-                Stmt::Tran(t) => {
-                    let tstep = self.value(&t.tstep, scope);
-                    let tstop = self.value(&t.tstop, scope);
-                    let tstart = match &t.tstart {
-                        Some(v) => self.value(v, scope),
-                        None => Some(0.0),
-                    };
-                    let tmax = t.tmax.as_ref().and_then(|v| self.value(v, scope));
-                    if let (Some(tstep), Some(tstop), Some(tstart)) = (tstep, tstop, tstart) {
-                        if !(tstep > 0.0 && tstop > tstart && tstart >= 0.0) {
-                            self.errors.push(ElabError::BadTran { span: t.span });
-                            continue;
-                        }
-                        // Each point is a CSV row of ~24 bytes per column
-                        // (time and at least one vector).
-                        let points = (tstop - tstart) / tstep + 1.0;
-                        if points > MANY_OUTPUT_POINTS {
-                            self.errors.push(ElabError::ManyOutputPoints {
-                                span: t.tstep.span(),
-                                points,
-                                gigabytes: points * 48.0 / 1e9,
-                            });
-                        }
-                        self.tstep = tstep;
-                        self.tstop = tstop;
-                        self.circuit.tran = Some(Tran {
-                            tstep,
-                            tstop,
-                            tstart,
-                            tmax,
-                            uic: t.uic,
-                        });
-                    }
-                }
+                Stmt::Tran(t) => self.tran(t, scope),
                 Stmt::Options(opts, _) => {
                     for o in opts {
-                        let key = o.name.key();
-                        let num = match &o.value {
-                            ast::OptValue::Value(v) => self.value(v, scope),
-                            _ => None,
-                        };
-                        // Out-of-range tolerances would stall or void the
-                        // error control (reltol 0 with abstol 0 never ends).
-                        let range = match key.as_str() {
-                            "reltol" => Some((
-                                "a number in (0, 1)",
-                                num.is_some_and(|x| x > 0.0 && x < 1.0),
-                            )),
-                            "maxord" => {
-                                Some(("1 to 6", num.is_some_and(|x| (1.0..=6.0).contains(&x))))
-                            }
-                            "abstol" | "vntol" | "chgtol" | "trtol" => {
-                                Some(("above 0", num.is_some_and(|x| x > 0.0 && x.is_finite())))
-                            }
-                            _ => None,
-                        };
-                        if let (Some((range, false)), Some(_), ast::OptValue::Value(v)) =
-                            (range, num, &o.value)
-                        {
-                            let value = match v {
-                                Value::Num { text, .. } | Value::Expr { text, .. } => {
-                                    text.to_string()
-                                }
-                                Value::Ident(n) => n.text.to_string(),
-                            };
-                            self.errors.push(ElabError::BadOption {
-                                span: v.span(),
-                                name: key.clone(),
-                                value,
-                                range,
-                            });
-                            continue;
-                        }
-                        let opt = &mut self.circuit.options;
-                        let slot = match key.as_str() {
-                            "reltol" => Some(&mut opt.reltol),
-                            "abstol" => Some(&mut opt.abstol),
-                            "vntol" => Some(&mut opt.vntol),
-                            "chgtol" => Some(&mut opt.chgtol),
-                            "trtol" => Some(&mut opt.trtol),
-                            "maxord" => Some(&mut opt.maxord),
-                            _ => None,
-                        };
-                        match (slot, &o.value) {
-                            (Some(slot), _) => *slot = num,
-                            (None, ast::OptValue::Word(w)) if key == "method" => {
-                                opt.method = Some(w.key());
-                            }
-                            _ => self.errors.push(ElabError::IgnoredOption {
-                                span: o.name.span,
-                                name: o.name.text.to_string(),
-                            }),
-                        }
+                        self.option(o, scope);
                     }
                 }
                 Stmt::Global(names, _) => {
@@ -346,6 +235,100 @@ impl Elab {
                 Stmt::Include { body, .. } => self.settings(body, scope),
                 _ => {}
             }
+        }
+    }
+
+    /// A `.tran` line: the circuit's transient analysis, and the TSTEP and
+    /// TSTOP that source defaults refer to.
+    fn tran(&mut self, t: &ast::Tran<'_>, scope: &Scope<'_, '_>) {
+        let tstep = self.value(&t.tstep, scope);
+        let tstop = self.value(&t.tstop, scope);
+        let tstart = match &t.tstart {
+            Some(v) => self.value(v, scope),
+            None => Some(0.0),
+        };
+        let tmax = t.tmax.as_ref().and_then(|v| self.value(v, scope));
+        let (Some(tstep), Some(tstop), Some(tstart)) = (tstep, tstop, tstart) else {
+            return;
+        };
+        if !(tstep > 0.0 && tstop > tstart && tstart >= 0.0) {
+            self.errors.push(ElabError::BadTran { span: t.span });
+            return;
+        }
+        // Each point is a CSV row of ~24 bytes per column
+        // (time and at least one vector).
+        let points = (tstop - tstart) / tstep + 1.0;
+        if points > MANY_OUTPUT_POINTS {
+            self.errors.push(ElabError::ManyOutputPoints {
+                span: t.tstep.span(),
+                points,
+                gigabytes: points * 48.0 / 1e9,
+            });
+        }
+        self.tstep = tstep;
+        self.tstop = tstop;
+        self.circuit.tran = Some(Tran {
+            tstep,
+            tstop,
+            tstart,
+            tmax,
+            uic: t.uic,
+        });
+    }
+
+    /// One `.options` entry: a tolerance in its range, `method=`, or a
+    /// warning that kausal ignores it.
+    fn option(&mut self, o: &ast::OptionDef<'_>, scope: &Scope<'_, '_>) {
+        let key = o.name.key();
+        let num = match &o.value {
+            ast::OptValue::Value(v) => self.value(v, scope),
+            _ => None,
+        };
+        // Out-of-range tolerances would stall or void the
+        // error control (reltol 0 with abstol 0 never ends).
+        let range = match key.as_str() {
+            "reltol" => Some((
+                "a number in (0, 1)",
+                num.is_some_and(|x| x > 0.0 && x < 1.0),
+            )),
+            "maxord" => Some(("1 to 6", num.is_some_and(|x| (1.0..=6.0).contains(&x)))),
+            "abstol" | "vntol" | "chgtol" | "trtol" => {
+                Some(("above 0", num.is_some_and(|x| x > 0.0 && x.is_finite())))
+            }
+            _ => None,
+        };
+        if let (Some((range, false)), Some(_), ast::OptValue::Value(v)) = (range, num, &o.value) {
+            let value = match v {
+                Value::Num { text, .. } | Value::Expr { text, .. } => text.to_string(),
+                Value::Ident(n) => n.text.to_string(),
+            };
+            self.errors.push(ElabError::BadOption {
+                span: v.span(),
+                name: key.clone(),
+                value,
+                range,
+            });
+            return;
+        }
+        let opt = &mut self.circuit.options;
+        let slot = match key.as_str() {
+            "reltol" => Some(&mut opt.reltol),
+            "abstol" => Some(&mut opt.abstol),
+            "vntol" => Some(&mut opt.vntol),
+            "chgtol" => Some(&mut opt.chgtol),
+            "trtol" => Some(&mut opt.trtol),
+            "maxord" => Some(&mut opt.maxord),
+            _ => None,
+        };
+        match (slot, &o.value) {
+            (Some(slot), _) => *slot = num,
+            (None, ast::OptValue::Word(w)) if key == "method" => {
+                opt.method = Some(w.key());
+            }
+            _ => self.errors.push(ElabError::IgnoredOption {
+                span: o.name.span,
+                name: o.name.text.to_string(),
+            }),
         }
     }
 
@@ -414,458 +397,6 @@ impl Elab {
                 _ => {}
             }
         }
-    }
-
-    fn element<'s, 'a>(
-        &mut self,
-        el: &'s ast::Element<'a>,
-        scope: &Scope<'s, 'a>,
-        stack: &mut Vec<String>,
-    ) {
-        let mut name = String::with_capacity(scope.prefix.len() + el.name.text.len());
-        name.push_str(&scope.prefix);
-        name.push_str(el.name.text);
-        if let ElementBody::Instance { subckt, params } = &el.body {
-            self.instance(el, &name, subckt, params, scope, stack);
-            return;
-        }
-        let key = name.to_ascii_lowercase();
-        if let Some(&(_, first)) = self.elem_map.get(&key) {
-            self.errors.push(ElabError::DuplicateElement {
-                span: el.name.span,
-                name,
-                first,
-            });
-            return;
-        }
-        let nodes: Vec<NodeId> = el.nodes.iter().map(|n| self.node(n, scope)).collect();
-        if nodes.len() >= 2 && nodes[0] == nodes[1] {
-            self.errors.push(ElabError::SingleNode {
-                span: el.nodes[0].span.to(el.nodes[1].span),
-                name: name.clone(),
-                node: self.circuit.nodes[nodes[0]].name.clone(),
-            });
-            return;
-        }
-        let letter = el.letter;
-        let Some(kind) = self.kind(el, &name, letter, scope) else {
-            return;
-        };
-        let id = self.circuit.elements.push(Element {
-            name: name.clone(),
-            kind,
-            nodes,
-            span: el.span,
-        });
-        self.elem_map.insert(key, (id, el.name.span));
-        match &el.body {
-            ElementBody::CurrentControlled { vsrc, .. } => self.pending.push(Pending {
-                elem: id,
-                what: PendingRef::Control {
-                    vsrc: format!("{}{}", scope.prefix, vsrc.text).to_ascii_lowercase(),
-                },
-                spans: [vsrc.span, vsrc.span],
-            }),
-            ElementBody::Coupling { l1, l2, .. } => self.pending.push(Pending {
-                elem: id,
-                what: PendingRef::Coupling {
-                    l1: format!("{}{}", scope.prefix, l1.text).to_ascii_lowercase(),
-                    l2: format!("{}{}", scope.prefix, l2.text).to_ascii_lowercase(),
-                },
-                spans: [l1.span, l2.span],
-            }),
-            _ => {}
-        }
-    }
-
-    fn kind(
-        &mut self,
-        el: &ast::Element<'_>,
-        name: &str,
-        letter: ElementLetter,
-        scope: &Scope<'_, '_>,
-    ) -> Option<ElementKind> {
-        let nonzero = |this: &mut Elab, v: f64, span: Span, what: &'static str| {
-            if v == 0.0 || !v.is_finite() {
-                this.errors.push(ElabError::BadElementValue {
-                    span,
-                    element: name.to_string(),
-                    what,
-                    value: v,
-                });
-                None
-            } else {
-                Some(v)
-            }
-        };
-        // The multiplier of enclosing instances: R, C, L and D scale with
-        // it; a source or controlled source inside cannot be multiplied.
-        let (inherited, from) = scope.multiplier();
-        if let Some(from) = from
-            && inherited != 1.0
-            && !matches!(
-                el.body,
-                ElementBody::Passive { .. }
-                    | ElementBody::Diode { .. }
-                    | ElementBody::Coupling { .. }
-            )
-        {
-            self.errors.push(ElabError::UnscalableElement {
-                span: el.name.span,
-                element: name.to_string(),
-                instance: from,
-            });
-            return None;
-        }
-        Some(match &el.body {
-            ElementBody::Passive { value, params } => {
-                let v = self.value(value, scope)?;
-                let mut ic = None;
-                // `m`: that many elements in parallel.
-                let mut m = inherited;
-                for p in params {
-                    if p.name.is("ic") && letter != ElementLetter::R {
-                        ic = Some(self.value(&p.value, scope)?);
-                    } else if p.name.is("m") {
-                        m *= self.multiplier(p, name, scope)?;
-                    } else {
-                        self.errors.push(ElabError::IgnoredElementParam {
-                            span: p.name.span,
-                            name: p.name.text.to_string(),
-                            element: name.to_string(),
-                        });
-                    }
-                }
-                match letter {
-                    ElementLetter::R => ElementKind::Resistor {
-                        r: nonzero(self, v, value.span(), "resistance")? / m,
-                    },
-                    ElementLetter::C => ElementKind::Capacitor {
-                        c: nonzero(self, v, value.span(), "capacitance")? * m,
-                        ic,
-                    },
-                    _ => ElementKind::Inductor {
-                        l: nonzero(self, v, value.span(), "inductance")? / m,
-                        ic,
-                    },
-                }
-            }
-            ElementBody::Coupling { k, .. } => {
-                let kv = self.value(k, scope)?;
-                if !(kv > 0.0 && kv <= 1.0) {
-                    self.errors.push(ElabError::CouplingRange {
-                        span: k.span(),
-                        element: name.to_string(),
-                        k: kv,
-                    });
-                    return None;
-                }
-                // The inductors are filled in once every element exists.
-                ElementKind::Coupling {
-                    l1: ElemId(u32::MAX),
-                    l2: ElemId(u32::MAX),
-                    k: kv,
-                }
-            }
-            ElementBody::Source { dc, tran, .. } => {
-                let wave = match tran {
-                    Some(f) => self.waveform(f, name, scope)?,
-                    None => Waveform::Dc {
-                        value: match dc {
-                            Some(v) => self.value(v, scope)?,
-                            None => 0.0,
-                        },
-                    },
-                };
-                if letter == ElementLetter::V {
-                    ElementKind::VSource {
-                        wave: Box::new(wave),
-                    }
-                } else {
-                    // ngspice 39: "for now available only with the voltage source".
-                    if let Some(f) = tran {
-                        for (param, v) in [("r", &f.repeat), ("td", &f.delay)] {
-                            if let Some(v) = v {
-                                self.errors.push(ElabError::PwlParamOnCurrent {
-                                    span: v.span(),
-                                    name: name.to_string(),
-                                    param,
-                                });
-                            }
-                        }
-                    }
-                    ElementKind::ISource {
-                        wave: Box::new(wave),
-                    }
-                }
-            }
-            ElementBody::VoltageControlled { gain } => {
-                let g = self.value(gain, scope)?;
-                if letter == ElementLetter::E {
-                    ElementKind::Vcvs { gain: g }
-                } else {
-                    ElementKind::Vccs { gm: g }
-                }
-            }
-            ElementBody::CurrentControlled { gain, .. } => {
-                let g = self.value(gain, scope)?;
-                let ctrl = ElemId(u32::MAX);
-                if letter == ElementLetter::F {
-                    ElementKind::Cccs { gain: g, ctrl }
-                } else {
-                    ElementKind::Ccvs { r: g, ctrl }
-                }
-            }
-            ElementBody::Diode {
-                model,
-                area,
-                params,
-            } => {
-                let mut area = inherited
-                    * match area {
-                        Some(a) => self.value(a, scope)?,
-                        None => 1.0,
-                    };
-                for p in params {
-                    if p.name.is("m") {
-                        // `m` junctions in parallel: as `m` times the area.
-                        area *= self.multiplier(p, name, scope)?;
-                    } else {
-                        self.errors.push(ElabError::IgnoredElementParam {
-                            span: p.name.span,
-                            name: p.name.text.to_string(),
-                            element: name.to_string(),
-                        });
-                    }
-                }
-                let model = self.diode_model(model, name, scope)?;
-                ElementKind::Diode {
-                    model: Box::new(model),
-                    area,
-                }
-            }
-            ElementBody::Instance { .. } => unreachable!("instances are expanded before"),
-        })
-    }
-
-    /// The value of an element's `m=` (parallel multiplier): positive and finite.
-    fn multiplier(
-        &mut self,
-        p: &ast::Assign<'_>,
-        element: &str,
-        scope: &Scope<'_, '_>,
-    ) -> Option<f64> {
-        let m = self.value(&p.value, scope)?;
-        if m > 0.0 && m.is_finite() {
-            Some(m)
-        } else {
-            self.errors.push(ElabError::BadElementValue {
-                span: p.value.span(),
-                element: element.to_string(),
-                what: "multiplier m =",
-                value: m,
-            });
-            None
-        }
-    }
-
-    fn diode_model(
-        &mut self,
-        model: &ast::Name<'_>,
-        element: &str,
-        scope: &Scope<'_, '_>,
-    ) -> Option<DiodeModel> {
-        let Some(def) = scope.model(&model.key()) else {
-            self.errors.push(ElabError::UndefinedModel {
-                span: model.span,
-                name: model.text.to_string(),
-            });
-            return None;
-        };
-        if !def.kind.is("d") {
-            self.errors.push(ElabError::WrongModelType {
-                span: model.span,
-                name: model.text.to_string(),
-                found: def.kind.text.to_string(),
-                expected: "D",
-                element: element.to_string(),
-            });
-            return None;
-        }
-        let cache_key = (def.span.file.0, def.span.start, scope.prefix.clone());
-        if let Some(m) = self.model_cache.get(&cache_key) {
-            return Some(m.clone());
-        }
-        let first_use = !self
-            .model_cache
-            .keys()
-            .any(|k| k.0 == cache_key.0 && k.1 == cache_key.1);
-        let mut m = DiodeModel {
-            name: def.name.key(),
-            ..DiodeModel::default()
-        };
-        for p in &def.params {
-            let key = p.name.key();
-            if !DIODE_PARAMS.contains(&key.as_str()) {
-                if first_use {
-                    self.errors.push(if DIODE_IGNORED.contains(&key.as_str()) {
-                        ElabError::IgnoredModelParam {
-                            span: p.name.span,
-                            name: p.name.text.to_string(),
-                        }
-                    } else {
-                        ElabError::UnknownModelParam {
-                            span: p.name.span,
-                            name: p.name.text.to_string(),
-                            model: def.name.text.to_string(),
-                        }
-                    });
-                }
-                continue;
-            }
-            let v = self.value(&p.value, scope)?;
-            match key.as_str() {
-                "is" => m.is = v,
-                "n" => m.n = v,
-                "rs" => m.rs = v,
-                "cjo" | "cj0" | "cj" => m.cjo = v,
-                "vj" | "pb" => m.vj = v,
-                "m" | "mj" => m.m = v,
-                "fc" => m.fc = v,
-                "tt" => m.tt = v,
-                "bv" => m.bv = Some(v.abs()),
-                "ibv" => m.ibv = v,
-                _ => {}
-            }
-        }
-        // A junction's charge is its state (`build::diode`): with diffusion
-        // charge alone, a reverse-biased junction holds ~TT·GMIN·v, so its
-        // charge cannot fix its voltage (1e-21 C moved it by 0.1 V at TT =
-        // 10 ns, and a half-wave rectifier turned on 0.5 V early).
-        if m.cjo == 0.0 && m.tt > 0.0 {
-            m.cjo = JUNCTION_CAPACITANCE_FLOOR;
-            m.m = 0.0;
-            if first_use && let Some(tt) = def.params.iter().find(|p| p.name.key() == "tt") {
-                self.errors.push(ElabError::TransitTimeWithoutCapacitance {
-                    span: tt.name.span,
-                    model: def.name.text.to_string(),
-                });
-            }
-        }
-        self.model_cache.insert(cache_key, m.clone());
-        Some(m)
-    }
-
-    fn waveform(
-        &mut self,
-        f: &ast::TranFn<'_>,
-        element: &str,
-        scope: &Scope<'_, '_>,
-    ) -> Option<Waveform> {
-        let mut args = Vec::with_capacity(f.args.len());
-        for a in &f.args {
-            args.push(self.value(a, scope)?);
-        }
-        let (min, max) = match f.kind {
-            TranFnKind::Pulse => (2, 8),
-            TranFnKind::Sin => (2, 6),
-            TranFnKind::Exp => (2, 6),
-            TranFnKind::Pwl => (2, usize::MAX),
-        };
-        let bad = |this: &mut Elab, problem: String| {
-            this.errors.push(ElabError::BadSourceArgs {
-                span: f.span,
-                element: element.to_string(),
-                kind: f.kind.name(),
-                problem,
-            });
-            None
-        };
-        if args.len() < min || args.len() > max {
-            let want = if max == usize::MAX {
-                format!("at least {min}")
-            } else {
-                format!("{min} to {max}")
-            };
-            return bad(self, format!("takes {want} values, found {}", args.len()));
-        }
-        // Optional argument k, with 0 or absence meaning `default`.
-        let arg = |k: usize, default: f64| match args.get(k) {
-            Some(&v) if v != 0.0 => v,
-            _ => default,
-        };
-        let (tstep, tstop) = (self.tstep, self.tstop);
-        Some(match f.kind {
-            TranFnKind::Pulse => Waveform::Pulse {
-                v1: args[0],
-                v2: args[1],
-                td: args.get(2).copied().unwrap_or(0.0),
-                tr: arg(3, tstep),
-                tf: arg(4, tstep),
-                pw: arg(5, tstop),
-                per: arg(6, tstop),
-            },
-            TranFnKind::Sin => Waveform::Sin {
-                vo: args[0],
-                va: args[1],
-                freq: arg(2, 1.0 / tstop),
-                td: args.get(3).copied().unwrap_or(0.0),
-                theta: args.get(4).copied().unwrap_or(0.0),
-                phase: args.get(5).copied().unwrap_or(0.0),
-            },
-            TranFnKind::Exp => {
-                // ngspice (vsrcload.c) reads a zero or absent TD1 as TSTEP,
-                // not 0 as its manual says: the rise starts one step late.
-                let td1 = arg(2, tstep);
-                Waveform::Exp {
-                    v1: args[0],
-                    v2: args[1],
-                    td1,
-                    tau1: arg(3, tstep),
-                    td2: arg(4, td1 + tstep),
-                    tau2: arg(5, tstep),
-                }
-            }
-            TranFnKind::Pwl => {
-                if args.len() % 2 != 0 {
-                    return bad(self, "needs time-value pairs (an even count)".into());
-                }
-                let points: Vec<(f64, f64)> = args.chunks(2).map(|c| (c[0], c[1])).collect();
-                if points.windows(2).any(|w| w[1].0 < w[0].0) {
-                    return bad(self, "has times that decrease".into());
-                }
-                let delay = match &f.delay {
-                    Some(v) => self.value(v, scope)?,
-                    None => 0.0,
-                };
-                let repeat = match &f.repeat {
-                    Some(v) => Some(self.value(v, scope)?),
-                    None => None,
-                };
-                if let Some(r) = repeat {
-                    // ngspice repeats from one of the sequence's own points,
-                    // and the part repeated must last.
-                    let last = points[points.len() - 1].0;
-                    let near = |t: f64| (t - r).abs() <= 1e-12 * last.abs().max(r.abs());
-                    if !points.iter().any(|p| near(p.0)) || near(last) || r > last {
-                        self.errors.push(ElabError::BadSourceArgs {
-                            span: f.repeat.as_ref().map_or(f.span, |v| v.span()),
-                            element: element.to_string(),
-                            kind: f.kind.name(),
-                            problem: format!(
-                                "repeats from r={r:e}, which must be one of its time points before the last ({last:e})"
-                            ),
-                        });
-                        return None;
-                    }
-                }
-                Waveform::Pwl {
-                    points,
-                    repeat,
-                    delay,
-                }
-            }
-        })
     }
 
     fn instance<'s, 'a>(

@@ -165,7 +165,7 @@ fn components(n: usize, edges: impl Iterator<Item = (usize, usize)>) -> Vec<usiz
 /// Which storage elements are directly tied to a source: a capacitor
 /// across the same two nodes as a voltage source, an inductor sharing a
 /// two-element node with a current source. One pass over the elements (a
-/// scan per element was quadratic: 3·10^4 inductors in a cutset).
+/// scan per element would be quadratic: 3·10^4 inductors in a cutset).
 fn tied_to_sources(c: &Circuit, degree: &[usize]) -> Vec<bool> {
     let pair = |x: &super::Element| {
         let (a, b) = (x.nodes[0], x.nodes[1]);
@@ -323,7 +323,7 @@ pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
 /// The components of `comp` that `take` accepts (asked at each one's first
 /// node), in order of their first node: their nodes, and the elements of the
 /// kinds `crosses` selects with one terminal inside and one outside. One pass
-/// over nodes and elements (a scan of the elements per component was
+/// over nodes and elements (a scan of the elements per component would be
 /// quadratic: 3·10^4 inductors in series make 3·10^4 parts).
 fn component_groups(
     c: &Circuit,

@@ -213,7 +213,7 @@ pub const MAX_OPERATORS: usize = 1000;
 /// Where `s` first has more than [`MAX_NESTING`] nested parentheses or
 /// [`MAX_OPERATORS`] operators, and which: parsing, evaluating, printing
 /// and dropping an expression recurse over its tree, whose depth these
-/// bound (a 10^5-term sum overflowed the stack).
+/// bound (a 10^5-term sum would overflow the stack).
 pub fn too_complex(s: &str) -> Option<(usize, String)> {
     let (mut depth, mut ops) = (0usize, 0usize);
     for (k, c) in s.char_indices() {

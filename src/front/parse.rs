@@ -1,13 +1,14 @@
 //! Statements from logical lines: blocks, subcircuits, includes, library
-//! sections and directives; element lines are read in `element.rs`.
+//! sections; directive lines are read in `directive.rs`, element lines in
+//! `element.rs`.
 
 use super::ast::*;
 use super::error::ParseError;
 use super::expr::{parse_expr, parse_number, too_complex};
 use super::lex::{LogicalLine, TokKind, Token, lex_file};
-use super::resolve_include;
 use crate::diag::{FileId, SourceMap, Span};
 
+mod directive;
 mod element;
 
 pub(super) struct Parser<'a> {
@@ -150,47 +151,12 @@ impl<'a> Parser<'a> {
                             out.push(Stmt::Subckt(Box::new(s)));
                         }
                     }
-                    "lib" if line.tokens.len() == 2 => {
-                        // A section's definition: read only where a
-                        // `.lib FILE SECTION` asks for it.
-                        let start = line.span();
-                        let section = line.tokens[1].text.to_string();
-                        match lines[*idx..]
-                            .iter()
-                            .position(|l| l.tokens[0].is_word(".endl"))
-                        {
-                            Some(k) => *idx += k + 1,
-                            None => {
-                                *idx = lines.len();
-                                self.errors.push(ParseError::UnclosedLib {
-                                    span: start,
-                                    section,
-                                });
-                            }
-                        }
-                    }
+                    "lib" if line.tokens.len() == 2 => self.skip_lib_definition(line, lines, idx),
                     "endl" => self.errors.push(ParseError::Unexpected {
                         span: first.span,
                         what: "`.endl` without `.lib SECTION`".into(),
                     }),
-                    "control" => {
-                        let start = first.span;
-                        let mut closed = false;
-                        while *idx < lines.len() {
-                            let l = &lines[*idx];
-                            *idx += 1;
-                            if l.tokens[0].is_word(".endc") {
-                                closed = true;
-                                break;
-                            }
-                        }
-                        if closed {
-                            self.errors.push(ParseError::SkippedControl { span: start });
-                        } else {
-                            self.errors
-                                .push(ParseError::UnclosedControl { span: start });
-                        }
-                    }
+                    "control" => self.skip_control(first.span, lines, idx),
                     _ => {
                         if let Some(s) = self.directive(&d, line) {
                             out.push(s);
@@ -202,6 +168,51 @@ impl<'a> Parser<'a> {
             }
         }
         (out, BlockEnd::Eof)
+    }
+
+    /// Skip a section's definition (`.lib SECTION` up to `.endl`): it is
+    /// read only where a `.lib FILE SECTION` asks for it.
+    fn skip_lib_definition(
+        &mut self,
+        line: &LogicalLine<'_, 'a>,
+        lines: &[LogicalLine<'_, 'a>],
+        idx: &mut usize,
+    ) {
+        let start = line.span();
+        let section = line.tokens[1].text.to_string();
+        match lines[*idx..]
+            .iter()
+            .position(|l| l.tokens[0].is_word(".endl"))
+        {
+            Some(k) => *idx += k + 1,
+            None => {
+                *idx = lines.len();
+                self.errors.push(ParseError::UnclosedLib {
+                    span: start,
+                    section,
+                });
+            }
+        }
+    }
+
+    /// Skip a `.control` block (opened at `start`) up to its `.endc`, and
+    /// report it as skipped.
+    fn skip_control(&mut self, start: Span, lines: &[LogicalLine<'_, 'a>], idx: &mut usize) {
+        let mut closed = false;
+        while *idx < lines.len() {
+            let l = &lines[*idx];
+            *idx += 1;
+            if l.tokens[0].is_word(".endc") {
+                closed = true;
+                break;
+            }
+        }
+        if closed {
+            self.errors.push(ParseError::SkippedControl { span: start });
+        } else {
+            self.errors
+                .push(ParseError::UnclosedControl { span: start });
+        }
     }
 
     fn subckt(
@@ -253,395 +264,6 @@ impl<'a> Parser<'a> {
             params,
             body,
             span: line.span(),
-        })
-    }
-
-    fn directive(&mut self, d: &str, line: &LogicalLine<'_, 'a>) -> Option<Stmt<'a>> {
-        let toks = &line.tokens;
-        let span = line.span();
-        let mut c = Cursor::new(toks);
-        c.next();
-        match d {
-            "model" => {
-                let (Some(name), Some(kind)) = (c.word(), c.word()) else {
-                    self.errors.push(ParseError::Expected {
-                        span,
-                        expected: "`.model NAME TYPE(PARAM=VALUE ...)`".into(),
-                    });
-                    return None;
-                };
-                let paren = c.eat(TokKind::LParen);
-                let params = self.assigns(&mut c);
-                if paren && !c.eat(TokKind::RParen) {
-                    self.errors.push(ParseError::Expected {
-                        span: c.here(span),
-                        expected: "`)` closing the model parameters".into(),
-                    });
-                    return None;
-                }
-                self.rest_unexpected(&c);
-                Some(Stmt::Model(Model {
-                    name,
-                    kind,
-                    params,
-                    span,
-                }))
-            }
-            "param" => {
-                let params = self.assigns(&mut c);
-                self.rest_unexpected(&c);
-                if params.is_empty() {
-                    self.errors.push(ParseError::Expected {
-                        span,
-                        expected: "`NAME=VALUE` after `.param`".into(),
-                    });
-                    return None;
-                }
-                Some(Stmt::Param(params, span))
-            }
-            "func" => {
-                let def = self.func_def(&mut c, span)?;
-                self.rest_unexpected(&c);
-                Some(Stmt::Func(Box::new(def)))
-            }
-            "global" => {
-                let mut names = Vec::new();
-                while let Some(t) = c.peek() {
-                    if t.kind != TokKind::Word {
-                        break;
-                    }
-                    names.push(name_of(t));
-                    c.next();
-                }
-                self.rest_unexpected(&c);
-                if names.is_empty() {
-                    self.errors.push(ParseError::Expected {
-                        span,
-                        expected: "node names after `.global`".into(),
-                    });
-                    return None;
-                }
-                Some(Stmt::Global(names, span))
-            }
-            "ic" | "nodeset" => {
-                let mut ics = Vec::new();
-                let name = if d == "ic" { ".ic" } else { ".nodeset" };
-                while !c.done() {
-                    let Some(v) = self.out_vec(&mut c) else {
-                        break;
-                    };
-                    if !c.eat(TokKind::Eq) {
-                        self.errors.push(ParseError::Expected {
-                            span: c.here(span),
-                            expected: format!("`=` after `v(node)` in `{name}`"),
-                        });
-                        return None;
-                    }
-                    let val = self.value_tok(&mut c, name, "value")?;
-                    ics.push((v, val));
-                }
-                self.rest_unexpected(&c);
-                Some(if d == "ic" {
-                    Stmt::Ic(ics, span)
-                } else {
-                    Stmt::Nodeset(ics, span)
-                })
-            }
-            "tran" => {
-                let mut vals = Vec::new();
-                let mut uic = false;
-                while let Some(t) = c.peek() {
-                    if t.is_word("uic") {
-                        uic = true;
-                        c.next();
-                        continue;
-                    }
-                    vals.push(self.value_tok(&mut c, ".tran", "time")?);
-                }
-                if vals.len() < 2 {
-                    self.errors.push(ParseError::MissingValue {
-                        span,
-                        name: ".tran".into(),
-                        what: "TSTEP and TSTOP",
-                    });
-                    return None;
-                }
-                if vals.len() > 4 {
-                    self.errors.push(ParseError::Unexpected {
-                        span: vals[4].span(),
-                        what: "fifth value in `.tran`".into(),
-                    });
-                }
-                let mut it = vals.into_iter();
-                Some(Stmt::Tran(Box::new(Tran {
-                    tstep: it.next()?,
-                    tstop: it.next()?,
-                    tstart: it.next(),
-                    tmax: it.next(),
-                    uic,
-                    span,
-                })))
-            }
-            "options" | "option" | "opt" | "opts" => {
-                let mut opts = Vec::new();
-                while let Some(t) = c.peek() {
-                    if t.kind != TokKind::Word {
-                        self.errors.push(ParseError::Unexpected {
-                            span: t.span,
-                            what: format!("`{}` in `.options`", t.text),
-                        });
-                        c.next();
-                        continue;
-                    }
-                    let name = name_of(t);
-                    c.next();
-                    let value = if c.eat(TokKind::Eq) {
-                        match c.peek() {
-                            Some(v)
-                                if v.kind == TokKind::Word
-                                    && parse_number(v.text).is_none()
-                                    && v.text.starts_with(|ch: char| ch.is_ascii_alphabetic()) =>
-                            {
-                                c.next();
-                                OptValue::Word(name_of(v))
-                            }
-                            _ => OptValue::Value(self.value_tok(&mut c, name.text, "value")?),
-                        }
-                    } else {
-                        OptValue::Flag
-                    };
-                    opts.push(OptionDef { name, value });
-                }
-                Some(Stmt::Options(opts, span))
-            }
-            "print" | "save" | "probe" | "plot" => {
-                let directive = name_of(&toks[0]);
-                let mut analysis = None;
-                if let Some(t) = c.peek()
-                    && ["tran", "ac", "dc", "op", "noise"]
-                        .iter()
-                        .any(|a| t.is_word(a))
-                {
-                    analysis = Some(name_of(t));
-                    c.next();
-                }
-                let mut vectors = Vec::new();
-                while let Some(t) = c.peek() {
-                    if t.is_word("all") {
-                        c.next();
-                        continue;
-                    }
-                    match self.out_vec(&mut c) {
-                        Some(v) => vectors.push(v),
-                        None => break,
-                    }
-                }
-                Some(Stmt::Output {
-                    directive,
-                    analysis,
-                    vectors,
-                    span,
-                })
-            }
-            "include" | "inc" => {
-                let Some(t) = c.next() else {
-                    self.errors.push(ParseError::Expected {
-                        span,
-                        expected: "a file name after `.include`".into(),
-                    });
-                    return None;
-                };
-                if self.too_deep(t.span, "includes") {
-                    return None;
-                }
-                // The loader reported why it could not read a missing file.
-                let (path, file) = self.loaded(t)?;
-                if self.include_stack.contains(&file) {
-                    // Reported by the loader as a cycle.
-                    return None;
-                }
-                self.include_stack.push(file);
-                let lexed = lex_file(self.sources, file, false, &mut self.errors);
-                let mut i = 0;
-                let (body, end) = self.block(&lexed.lines(), &mut i, false);
-                if let BlockEnd::Ends(span) = end {
-                    self.errors.push(ParseError::StrayEnds { span });
-                }
-                self.include_stack.pop();
-                Some(Stmt::Include {
-                    path,
-                    section: None,
-                    span: t.span,
-                    body,
-                })
-            }
-            "lib" => self.lib_section(toks, span),
-            "ac" | "op" | "dc" | "noise" | "tf" | "four" | "disto" | "pz" | "sens" | "sp"
-            | "meas" | "measure" | "fft" => {
-                self.errors.push(ParseError::SkippedAnalysis {
-                    span: toks[0].span,
-                    name: toks[0].text.to_string(),
-                });
-                None
-            }
-            "temp" | "width" | "csparam" | "title" | "save_all" => {
-                self.errors.push(ParseError::IgnoredDirective {
-                    span: toks[0].span,
-                    name: d.to_string(),
-                });
-                None
-            }
-            "if" | "else" | "endif" | "model_lib" => {
-                self.errors.push(ParseError::UnsupportedDirective {
-                    span: toks[0].span,
-                    name: toks[0].text.to_string(),
-                });
-                None
-            }
-            "endc" => {
-                self.errors.push(ParseError::Unexpected {
-                    span: toks[0].span,
-                    what: "`.endc` without `.control`".into(),
-                });
-                None
-            }
-            _ => {
-                self.errors.push(ParseError::UnknownDirective {
-                    span: toks[0].span,
-                    name: toks[0].text.to_string(),
-                });
-                None
-            }
-        }
-    }
-
-    /// The path a `.include` or `.lib` token names, and its file as loaded.
-    fn loaded(&self, t: &Token<'a>) -> Option<(&'a str, FileId)> {
-        let path = include_path(t);
-        let from = self.sources.file(t.span.file);
-        let resolved = resolve_include(&from.path, path);
-        Some((path, self.sources.find_path(&resolved)?))
-    }
-
-    /// `.lib FILE SECTION`: the statements between `.lib SECTION` and `.endl`
-    /// in FILE (loaded beside the includes), parsed in place.
-    fn lib_section(&mut self, toks: &[Token<'a>], span: Span) -> Option<Stmt<'a>> {
-        let (Some(t), Some(sect)) = (toks.get(1), toks.get(2)) else {
-            self.errors.push(ParseError::Expected {
-                span,
-                expected: "a file and a section name after `.lib`".into(),
-            });
-            return None;
-        };
-        // The loader reported why it could not read a missing file.
-        let (path, file) = self.loaded(t)?;
-        let key = (file, sect.text.to_ascii_lowercase());
-        if self.lib_stack.contains(&key) {
-            self.errors.push(ParseError::IncludeCycle {
-                span: sect.span,
-                path: format!("{path} {}", sect.text),
-            });
-            return None;
-        }
-        // Lex errors count inside the section only: the rest of a library
-        // is not read.
-        let mut lex_errors = Vec::new();
-        let lexed = lex_file(self.sources, file, false, &mut lex_errors);
-        let lines = lexed.lines();
-        let Some(open) = lines.iter().position(|l| {
-            l.tokens.len() == 2
-                && l.tokens[0].is_word(".lib")
-                && l.tokens[1].text.eq_ignore_ascii_case(sect.text)
-        }) else {
-            self.errors.push(ParseError::LibSectionNotFound {
-                span: sect.span,
-                path: path.to_string(),
-                section: sect.text.to_string(),
-            });
-            return None;
-        };
-        let close = lines[open + 1..]
-            .iter()
-            .position(|l| l.tokens[0].is_word(".endl"))
-            .map(|k| open + 1 + k);
-        let Some(close) = close else {
-            self.errors.push(ParseError::UnclosedLib {
-                span: lines[open].span(),
-                section: sect.text.to_string(),
-            });
-            return None;
-        };
-        let (lo, hi) = (lines[open].span().start, lines[close].span().start);
-        self.errors.extend(lex_errors.into_iter().filter(|e| {
-            let s = e.span();
-            s.file == file && s.start > lo && s.start < hi
-        }));
-        if self.too_deep(t.span, "library sections") {
-            return None;
-        }
-        self.lib_stack.push(key);
-        let mut i = 0;
-        let (body, end) = self.block(&lines[open + 1..close], &mut i, false);
-        if let BlockEnd::Ends(span) = end {
-            self.errors.push(ParseError::StrayEnds { span });
-        }
-        self.lib_stack.pop();
-        Some(Stmt::Include {
-            path,
-            section: Some(sect.text),
-            span: t.span,
-            body,
-        })
-    }
-
-    /// `name(arg ...) [=] {expression}` of a `.func`.
-    fn func_def(&mut self, c: &mut Cursor<'_, 'a>, span: Span) -> Option<FuncDef<'a>> {
-        let expected = |this: &mut Self, c: &Cursor<'_, 'a>, what: &str| {
-            this.errors.push(ParseError::Expected {
-                span: c.here(span),
-                expected: what.into(),
-            });
-        };
-        let Some(name) = c.peek().filter(|t| t.kind == TokKind::Word).map(name_of) else {
-            expected(self, c, "a function name after `.func`");
-            return None;
-        };
-        c.next();
-        if !c.eat(TokKind::LParen) {
-            expected(self, c, "`(` and the argument names");
-            return None;
-        }
-        let mut params = Vec::new();
-        while let Some(t) = c.peek().filter(|t| t.kind == TokKind::Word) {
-            params.push(name_of(t));
-            c.next();
-        }
-        if !c.eat(TokKind::RParen) {
-            expected(self, c, "`)` closing the argument names");
-            return None;
-        }
-        // The lexer takes commas as separators: look between the names.
-        let text = &self.sources.file(span.file).text;
-        if let Some(w) = params.windows(2).find(|w| {
-            let (a, b) = (w[0].span.end as usize, w[1].span.start as usize);
-            text.get(a..b).is_some_and(|between| !between.contains(','))
-        }) {
-            self.errors.push(ParseError::FuncArgsWithoutComma {
-                span: w[1].span,
-                name: name.text.to_string(),
-            });
-        }
-        c.eat(TokKind::Eq);
-        if c.done() {
-            expected(self, c, "the function's `{expression}`");
-            return None;
-        }
-        let body = self.value_tok(c, name.text, "function body")?;
-        Some(FuncDef {
-            name,
-            params,
-            body,
-            span,
         })
     }
 

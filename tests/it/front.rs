@@ -244,7 +244,7 @@ proptest! {
 }
 
 /// Expressions too deep for a recursive parser and evaluator are refused
-/// with a diagnostic (they overflowed the stack and aborted): nesting,
+/// with a diagnostic (they would overflow the stack and abort): nesting,
 /// operator count, and `.func` chains, which are not called recursive.
 #[test]
 fn deep_expressions_are_refused() {
@@ -291,7 +291,7 @@ fn deep_expressions_are_refused() {
 }
 
 /// Nesting that reading recurses over is bounded with a diagnostic (10^4
-/// levels overflowed the stack): subcircuit definitions (64), includes (64)
+/// levels would overflow the stack): subcircuit definitions (64), includes (64)
 /// and instance hierarchies (100). At the bounds, on a test thread's stack,
 /// the netlists elaborate.
 #[test]

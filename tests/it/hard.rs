@@ -112,7 +112,7 @@ fn bridge_rectifiers_run_at_every_tolerance() {
 /// Its steps end on the output points, and its error is measured against
 /// each state's largest magnitude so far: a diode's charge passing through
 /// zero or decaying after turn-off is not followed to a relative accuracy
-/// no output shows, and BDF took 60–110 steps per switching event there.
+/// no output shows, one for which BDF takes 60–110 steps per switching event.
 #[test]
 fn circuit_integrator_on_the_bridges() {
     for name in ["rectifier_big_cap.cir", "../diode_bridge.cir"] {
@@ -170,7 +170,7 @@ fn circuit_integrator_error_shrinks_on_a_floating_bridge() {
 /// junction charge's Newton error reaches the current amplified by
 /// 1/(C·RS): the circuit integrator at rtol 1e-7 within 1e-4 of each
 /// output's range of a tight BDF run (one Newton iterate, with the error
-/// measured in the charge alone, left i(V2) 0.7 % of its range off).
+/// measured in the charge alone, leaves i(V2) 0.7 % of its range off).
 #[test]
 fn circuit_integrator_converges_junction_currents() {
     let s = sorted("clamp_leakage.cir");

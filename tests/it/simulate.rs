@@ -139,7 +139,7 @@ fn an_exploding_circuit_ends_with_a_clear_error() {
     }
     let msg = e.to_string();
     assert!(msg.contains("t = "), "{msg}");
-    // Named by its variable (it was named by an internal index).
+    // Named by its variable, never by an internal index.
     if matches!(
         e,
         SimError::StepUnderflow { .. } | SimError::NonFinite { .. }
@@ -378,9 +378,9 @@ fn an_ic_that_cannot_be_held_is_reported() {
     assert!(w.warnings.is_empty(), "{:?}", w.warnings);
 }
 
-/// A `.tran` TMAX far below the run (here 1e-308 s, found by fuzzing) is no
-/// step cap to precompute: kausal has no step cap (error control), and it
-/// allocated one stop per TMAX.
+/// A `.tran` TMAX far below the run (here 1e-308 s) is no step cap to
+/// precompute: kausal has no step cap (error control), and one stop per
+/// TMAX would never fit in memory.
 #[test]
 fn a_tiny_tmax_runs() {
     let text = "tmax\nV1 a 0 SIN(0 1 1k)\nR1 a b 1k\nC1 b 0 1u\n.tran 10u 2m 0 1e-308\n.end\n";
@@ -389,8 +389,8 @@ fn a_tiny_tmax_runs() {
     assert!(y.iter().all(|v| v.abs() < 1.0), "{y:?}");
 }
 
-/// Tolerances out of range are errors, not a run that never ends (rtol
-/// NaN stalled the step control) or one without error control.
+/// Tolerances out of range are errors, not a run that never ends (a NaN
+/// rtol stalls the step control) or one without error control.
 #[test]
 fn tolerances_out_of_range_are_rejected() {
     let text = "tol\nV1 a 0 SIN(0 1 1k)\nR1 a b 1k\nC1 b 0 1u\n.tran 10u 2m\n.end\n";
@@ -428,9 +428,9 @@ fn tolerances_out_of_range_are_rejected() {
 /// A 3·10^4-resistor series chain is one algebraic loop of 9·10^4
 /// equations: it sorts (also with alias elimination, whose alias chain is as
 /// long, and in the loop formulation, whose node potentials are sums as
-/// deep) and runs in time linear in its size, on a test thread's stack. The
-/// recursive strongly-connected-components search and alias lookup overflowed
-/// the stack, and two quadratic scans took 27 s at 10^5.
+/// deep) and runs in time linear in its size, on a test thread's stack: a
+/// recursive strongly-connected-components search or alias lookup would
+/// overflow the stack, and two quadratic scans would take 27 s at 10^5.
 #[test]
 fn a_long_series_chain_sorts_and_runs() {
     let n = 30_000;
@@ -473,11 +473,11 @@ fn a_long_series_chain_sorts_and_runs() {
 
 /// Two capacitors in parallel between internal nodes: a loop that touches
 /// neither ground nor a source. On node potentials the two branch
-/// equations took the two potentials; in the loop formulation C2's KVL was
-/// a difference of two paths to ground whose common part cancelled only in
-/// value. Either way index reduction never started and the loop's block
-/// was singular at t = 0 (K0402; found by fuzzing against ngspice). Every
-/// formulation now reduces it to one state and gives the same waveform.
+/// equations can take the two potentials; in the loop formulation C2's KVL
+/// is a difference of two paths to ground whose common part cancels only in
+/// value. Either way, unless the loop is found, index reduction never starts
+/// and the loop's block is singular at t = 0 (K0402). Every formulation
+/// reduces it to one state and gives the same waveform.
 #[test]
 fn a_capacitor_loop_between_internal_nodes_is_reduced_in_every_formulation() {
     let path = root().join("netlists/parallel_caps_floating.cir");
@@ -519,9 +519,9 @@ fn a_capacitor_loop_between_internal_nodes_is_reduced_in_every_formulation() {
 
 /// A loop that is singular in the transient but not in the `.ic` operating
 /// point (there the inductor into it is a short to a held node): f is NaN at
-/// t = 0, diffsol sized its first step from it, and the NaN step never
-/// failed a step-size test, so the run never ended (found by fuzzing). It
-/// must stop at once with the loop named; the test kills it after 20 s.
+/// t = 0, and a first step sized from it is NaN, which never fails a
+/// step-size test, so the run would never end. It must stop at once with
+/// the loop named; the test kills it after 20 s.
 #[test]
 fn a_loop_singular_from_the_start_is_an_error_not_a_hang() {
     let dir = tempfile::tempdir().unwrap();
@@ -633,8 +633,8 @@ fn a_resistive_ladder_with_many_tears_is_solved_sparse() {
 }
 
 /// A node with 3·10^4 elements: its KCL sum is chains of 64 terms added
-/// pairwise, not one chain 3·10^4 deep (which overflowed the stack of the
-/// recursive passes over expressions at 10^5); the divider's value is exact.
+/// pairwise, not one chain 3·10^4 deep (which would overflow the stack of
+/// the recursive passes over expressions at 10^5); the divider's value is exact.
 #[test]
 fn a_node_with_many_elements_sorts_and_runs() {
     let n = 30_000;

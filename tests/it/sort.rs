@@ -440,9 +440,10 @@ proptest! {
     }
 }
 
-/// Cases the property test found: loops through controlled sources whose
-/// equations the reference interpreter left 4e-9 relative (a residual
-/// judged against the cancelling sum, not its terms) or 5e-11 A off KCL.
+/// Cases from the property test: loops through controlled sources whose
+/// equations the reference interpreter must not leave 4e-9 relative (a
+/// residual judged against the cancelling sum, not its terms) or 5e-11 A off
+/// KCL.
 #[test]
 fn random_circuit_regressions() {
     let cases = [

@@ -39,9 +39,9 @@ fn bucket(x: f64) -> String {
 
 /// The rectifiers of the hard set agree too. Their diodes' series
 /// resistance carries the junction-charge error into the current (δq/(C·RS)):
-/// with the charge tolerance at 1e-17 C the SIN rectifier's i(V1) was 1.8e-3
-/// off, at any rtol; with the charges interpolated as they are between
-/// steps, the lightly loaded half-wave's reverse current was 2.0e-3 off.
+/// a charge tolerance of 1e-17 C leaves the SIN rectifier's i(V1) 1.8e-3 off
+/// at any rtol, and interpolating the charges as they are between steps
+/// leaves the lightly loaded half-wave's reverse current 2.0e-3 off.
 #[test]
 fn hard_rectifiers_agree_with_ngspice() {
     require_ngspice();
@@ -72,8 +72,8 @@ fn hard_case_validates(name: &str) {
 /// Ladders torn into more than 48 variables, whose block Jacobians are
 /// gathered by coloured tangent runs and factored sparse: diodes to ground
 /// every third section (a Newton block) and a resistor/VCCS ladder (a
-/// constant Jacobian, factored once). Before, the 2000-section diode ladder
-/// took 12 s in dense LUs; a mis-coloured column would stall Newton or move
+/// constant Jacobian, factored once). Dense LUs would take 12 s on the
+/// 2000-section diode ladder; a mis-coloured column would stall Newton or move
 /// the far nodes. Large linear loops are solved whole (every unknown, every
 /// equation), which a resistor mesh needs.
 #[test]
@@ -83,7 +83,7 @@ fn large_algebraic_loops_agree_with_ngspice() {
     let n = 240;
     // "rc": diodes, and R-C shunts whose 80 capacitor voltages make the
     // ODE sparse: diffsol's Jacobian comes from J·v, whose block solves are
-    // cached per point (it panicked when the cache was not yet valid).
+    // cached per point (J·v must work before a point's cache is valid).
     for shunt in ["diode", "vccs", "rc"] {
         let mut text = format!("{shunt} ladder\nV1 n0 0 SIN(0 5 1k)\n");
         for k in 1..=n {
@@ -144,8 +144,8 @@ fn validate_text(name: &str, text: &str) -> validate::Report {
 
 /// ngspice's last time point can be TSTOP plus an ulp (4.233000000000001e-2
 /// for `.tran 0.1058m 42.33m`); kausal's value there is its value at TSTOP.
-/// It was NaN (kausal does not extrapolate), an infinite error that failed
-/// every signal of 5 in 60 fuzzed rectifiers.
+/// A NaN there (kausal does not extrapolate) would be an infinite error,
+/// failing every signal of 5 in 60 fuzzed rectifiers.
 #[test]
 fn a_reference_point_an_ulp_past_tstop_is_compared_at_tstop() {
     require_ngspice();
@@ -183,9 +183,9 @@ fn a_corner_an_ulp_off_is_compared_one_sided() {
 }
 
 /// A signal that is zero but for rounding is compared on the absolute floor
-/// (1e-9), not on its own range: a reference ranging over 2e-16 made kausal's
-/// rounding a normalized error of 1 (3 of 80 fuzzed linear circuits). A
-/// real error on a small signal still fails.
+/// (1e-9), not on its own range: on a reference ranging over 2e-16, kausal's
+/// rounding would be a normalized error of 1 (3 of 80 fuzzed linear circuits
+/// have such a signal). A real error on a small signal still fails.
 #[test]
 fn rounding_is_not_its_own_scale() {
     let time = [0.0, 1.0, 2.0, 3.0];
@@ -198,8 +198,8 @@ fn rounding_is_not_its_own_scale() {
 }
 
 /// Operating points that Newton from all-zero cannot reach without junction
-/// limiting: zeners in breakdown, a clamp in a high-gain loop (which was
-/// silently wrong: the solve stopped at a point violating KCL by 2 mA), a
+/// limiting: zeners in breakdown, a clamp in a high-gain loop (without
+/// limiting the solve stops silently at a point violating KCL by 2 mA), a
 /// bridge from 300 V. Each starts where ngspice's operating point is.
 #[test]
 fn hard_operating_points_agree_with_ngspice() {
@@ -293,7 +293,7 @@ fn fake(dir: &Path, name: &str, body: &str) -> String {
 
 /// An ngspice that never finishes (it can shrink its step without end at a
 /// tight reltol) is stopped at the time limit with a clear error, not waited
-/// for: `validate` hung on 3 of 60 fuzzed RLC circuits.
+/// for: `validate` would hang on 3 of 60 fuzzed RLC circuits.
 #[test]
 fn an_ngspice_that_never_finishes_is_stopped() {
     let dir = tempfile::tempdir().unwrap();
@@ -354,7 +354,7 @@ fn missing_failing_and_garbled_ngspice_give_clear_errors() {
 }
 
 /// An interrupted `kausal validate` stops its ngspice and removes ngspice's
-/// scratch directory (netlist, raw file) from `$TMPDIR`; it once left both.
+/// scratch directory (netlist, raw file) from `$TMPDIR`: it leaves neither.
 #[cfg(unix)]
 #[test]
 fn an_interrupted_validation_leaves_no_scratch() {

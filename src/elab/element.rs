@@ -1,0 +1,462 @@
+//! Element lines → [`ElementKind`]: values evaluated and checked, `m=`
+//! multipliers applied, sources' transient functions made waveforms; one
+//! function per element kind. Diode models are read in `model.rs`.
+
+use super::{Elab, ElabError, ElemId, Element, ElementKind, NodeId, Pending, PendingRef, Scope};
+use crate::diag::Span;
+use crate::front::ast::{self, ElementBody, ElementLetter, TranFnKind, Value};
+use crate::ir::Waveform;
+
+impl Elab {
+    pub(super) fn element<'s, 'a>(
+        &mut self,
+        el: &'s ast::Element<'a>,
+        scope: &Scope<'s, 'a>,
+        stack: &mut Vec<String>,
+    ) {
+        let mut name = String::with_capacity(scope.prefix.len() + el.name.text.len());
+        name.push_str(&scope.prefix);
+        name.push_str(el.name.text);
+        if let ElementBody::Instance { subckt, params } = &el.body {
+            self.instance(el, &name, subckt, params, scope, stack);
+            return;
+        }
+        let key = name.to_ascii_lowercase();
+        if let Some(&(_, first)) = self.elem_map.get(&key) {
+            self.errors.push(ElabError::DuplicateElement {
+                span: el.name.span,
+                name,
+                first,
+            });
+            return;
+        }
+        let nodes: Vec<NodeId> = el.nodes.iter().map(|n| self.node(n, scope)).collect();
+        if nodes.len() >= 2 && nodes[0] == nodes[1] {
+            self.errors.push(ElabError::SingleNode {
+                span: el.nodes[0].span.to(el.nodes[1].span),
+                name: name.clone(),
+                node: self.circuit.nodes[nodes[0]].name.clone(),
+            });
+            return;
+        }
+        let letter = el.letter;
+        let Some(kind) = self.kind(el, &name, letter, scope) else {
+            return;
+        };
+        let id = self.circuit.elements.push(Element {
+            name: name.clone(),
+            kind,
+            nodes,
+            span: el.span,
+        });
+        self.elem_map.insert(key, (id, el.name.span));
+        match &el.body {
+            ElementBody::CurrentControlled { vsrc, .. } => self.pending.push(Pending {
+                elem: id,
+                what: PendingRef::Control {
+                    vsrc: format!("{}{}", scope.prefix, vsrc.text).to_ascii_lowercase(),
+                },
+                spans: [vsrc.span, vsrc.span],
+            }),
+            ElementBody::Coupling { l1, l2, .. } => self.pending.push(Pending {
+                elem: id,
+                what: PendingRef::Coupling {
+                    l1: format!("{}{}", scope.prefix, l1.text).to_ascii_lowercase(),
+                    l2: format!("{}{}", scope.prefix, l2.text).to_ascii_lowercase(),
+                },
+                spans: [l1.span, l2.span],
+            }),
+            _ => {}
+        }
+    }
+
+    /// What the element is, with its values evaluated; `None` (reported)
+    /// when a value is missing or out of range. Dispatches on the element's
+    /// body, one function per kind.
+    fn kind(
+        &mut self,
+        el: &ast::Element<'_>,
+        name: &str,
+        letter: ElementLetter,
+        scope: &Scope<'_, '_>,
+    ) -> Option<ElementKind> {
+        let inherited = self.inherited_multiplier(el, name, scope)?;
+        match &el.body {
+            ElementBody::Passive { value, params } => {
+                self.passive(value, params, name, letter, inherited, scope)
+            }
+            ElementBody::Coupling { k, .. } => self.coupling(k, name, scope),
+            ElementBody::Source { dc, tran, .. } => {
+                self.source(dc.as_ref(), tran.as_ref(), name, letter, scope)
+            }
+            ElementBody::VoltageControlled { gain } => {
+                let g = self.value(gain, scope)?;
+                Some(if letter == ElementLetter::E {
+                    ElementKind::Vcvs { gain: g }
+                } else {
+                    ElementKind::Vccs { gm: g }
+                })
+            }
+            ElementBody::CurrentControlled { gain, .. } => {
+                let g = self.value(gain, scope)?;
+                // The controlling source is filled in once every element exists.
+                let ctrl = ElemId(u32::MAX);
+                Some(if letter == ElementLetter::F {
+                    ElementKind::Cccs { gain: g, ctrl }
+                } else {
+                    ElementKind::Ccvs { r: g, ctrl }
+                })
+            }
+            ElementBody::Diode {
+                model,
+                area,
+                params,
+            } => self.diode(model, area.as_ref(), params, name, inherited, scope),
+            ElementBody::Instance { .. } => unreachable!("instances are expanded before"),
+        }
+    }
+
+    /// The multiplier of enclosing instances: R, C, L and D scale with it;
+    /// a source or controlled source inside cannot be multiplied (`None`,
+    /// reported).
+    fn inherited_multiplier(
+        &mut self,
+        el: &ast::Element<'_>,
+        name: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<f64> {
+        let (inherited, from) = scope.multiplier();
+        if let Some(from) = from
+            && inherited != 1.0
+            && !matches!(
+                el.body,
+                ElementBody::Passive { .. }
+                    | ElementBody::Diode { .. }
+                    | ElementBody::Coupling { .. }
+            )
+        {
+            self.errors.push(ElabError::UnscalableElement {
+                span: el.name.span,
+                element: name.to_string(),
+                instance: from,
+            });
+            return None;
+        }
+        Some(inherited)
+    }
+
+    /// `v` if it is finite and not zero, else `None` (reported as the
+    /// element's `what`).
+    fn nonzero(&mut self, v: f64, span: Span, element: &str, what: &'static str) -> Option<f64> {
+        if v == 0.0 || !v.is_finite() {
+            self.errors.push(ElabError::BadElementValue {
+                span,
+                element: element.to_string(),
+                what,
+                value: v,
+            });
+            None
+        } else {
+            Some(v)
+        }
+    }
+
+    /// R, C, L: the value scaled by `m` (that many elements in parallel,
+    /// times the enclosing instances' `inherited`), and C's and L's `ic=`.
+    fn passive(
+        &mut self,
+        value: &Value<'_>,
+        params: &[ast::Assign<'_>],
+        name: &str,
+        letter: ElementLetter,
+        inherited: f64,
+        scope: &Scope<'_, '_>,
+    ) -> Option<ElementKind> {
+        let v = self.value(value, scope)?;
+        let mut ic = None;
+        let mut m = inherited;
+        for p in params {
+            if p.name.is("ic") && letter != ElementLetter::R {
+                ic = Some(self.value(&p.value, scope)?);
+            } else if p.name.is("m") {
+                m *= self.multiplier(p, name, scope)?;
+            } else {
+                self.ignored_param(p, name);
+            }
+        }
+        Some(match letter {
+            ElementLetter::R => ElementKind::Resistor {
+                r: self.nonzero(v, value.span(), name, "resistance")? / m,
+            },
+            ElementLetter::C => ElementKind::Capacitor {
+                c: self.nonzero(v, value.span(), name, "capacitance")? * m,
+                ic,
+            },
+            _ => ElementKind::Inductor {
+                l: self.nonzero(v, value.span(), name, "inductance")? / m,
+                ic,
+            },
+        })
+    }
+
+    /// An element parameter kausal does not read (a warning).
+    fn ignored_param(&mut self, p: &ast::Assign<'_>, element: &str) {
+        self.errors.push(ElabError::IgnoredElementParam {
+            span: p.name.span,
+            name: p.name.text.to_string(),
+            element: element.to_string(),
+        });
+    }
+
+    /// K: the coupling coefficient, in (0, 1].
+    fn coupling(
+        &mut self,
+        k: &Value<'_>,
+        name: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<ElementKind> {
+        let kv = self.value(k, scope)?;
+        if !(kv > 0.0 && kv <= 1.0) {
+            self.errors.push(ElabError::CouplingRange {
+                span: k.span(),
+                element: name.to_string(),
+                k: kv,
+            });
+            return None;
+        }
+        // The inductors are filled in once every element exists.
+        Some(ElementKind::Coupling {
+            l1: ElemId(u32::MAX),
+            l2: ElemId(u32::MAX),
+            k: kv,
+        })
+    }
+
+    /// V, I: the transient function, else the DC value (0 when absent).
+    fn source(
+        &mut self,
+        dc: Option<&Value<'_>>,
+        tran: Option<&ast::TranFn<'_>>,
+        name: &str,
+        letter: ElementLetter,
+        scope: &Scope<'_, '_>,
+    ) -> Option<ElementKind> {
+        let wave = match tran {
+            Some(f) => self.waveform(f, name, scope)?,
+            None => Waveform::Dc {
+                value: match dc {
+                    Some(v) => self.value(v, scope)?,
+                    None => 0.0,
+                },
+            },
+        };
+        if letter == ElementLetter::V {
+            return Some(ElementKind::VSource {
+                wave: Box::new(wave),
+            });
+        }
+        // ngspice 39: "for now available only with the voltage source".
+        if let Some(f) = tran {
+            for (param, v) in [("r", &f.repeat), ("td", &f.delay)] {
+                if let Some(v) = v {
+                    self.errors.push(ElabError::PwlParamOnCurrent {
+                        span: v.span(),
+                        name: name.to_string(),
+                        param,
+                    });
+                }
+            }
+        }
+        Some(ElementKind::ISource {
+            wave: Box::new(wave),
+        })
+    }
+
+    /// D: the model, and the area scaled by `m` (junctions in parallel) and
+    /// the enclosing instances' `inherited`.
+    fn diode(
+        &mut self,
+        model: &ast::Name<'_>,
+        area: Option<&Value<'_>>,
+        params: &[ast::Assign<'_>],
+        name: &str,
+        inherited: f64,
+        scope: &Scope<'_, '_>,
+    ) -> Option<ElementKind> {
+        let mut area = inherited
+            * match area {
+                Some(a) => self.value(a, scope)?,
+                None => 1.0,
+            };
+        for p in params {
+            if p.name.is("m") {
+                // `m` junctions in parallel: as `m` times the area.
+                area *= self.multiplier(p, name, scope)?;
+            } else {
+                self.ignored_param(p, name);
+            }
+        }
+        let model = self.diode_model(model, name, scope)?;
+        Some(ElementKind::Diode {
+            model: Box::new(model),
+            area,
+        })
+    }
+
+    /// The value of an element's `m=` (parallel multiplier): positive and finite.
+    pub(super) fn multiplier(
+        &mut self,
+        p: &ast::Assign<'_>,
+        element: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<f64> {
+        let m = self.value(&p.value, scope)?;
+        if m > 0.0 && m.is_finite() {
+            Some(m)
+        } else {
+            self.errors.push(ElabError::BadElementValue {
+                span: p.value.span(),
+                element: element.to_string(),
+                what: "multiplier m =",
+                value: m,
+            });
+            None
+        }
+    }
+
+    /// The waveform of a source's transient function: its argument count
+    /// checked, zero or absent optional arguments defaulted as ngspice does.
+    fn waveform(
+        &mut self,
+        f: &ast::TranFn<'_>,
+        element: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<Waveform> {
+        let mut args = Vec::with_capacity(f.args.len());
+        for a in &f.args {
+            args.push(self.value(a, scope)?);
+        }
+        let (min, max) = match f.kind {
+            TranFnKind::Pulse => (2, 8),
+            TranFnKind::Sin => (2, 6),
+            TranFnKind::Exp => (2, 6),
+            TranFnKind::Pwl => (2, usize::MAX),
+        };
+        if args.len() < min || args.len() > max {
+            let want = if max == usize::MAX {
+                format!("at least {min}")
+            } else {
+                format!("{min} to {max}")
+            };
+            let problem = format!("takes {want} values, found {}", args.len());
+            return self.bad_source_args(f, element, problem);
+        }
+        // Optional argument k, with 0 or absence meaning `default`.
+        let arg = |k: usize, default: f64| match args.get(k) {
+            Some(&v) if v != 0.0 => v,
+            _ => default,
+        };
+        let (tstep, tstop) = (self.tstep, self.tstop);
+        Some(match f.kind {
+            TranFnKind::Pulse => Waveform::Pulse {
+                v1: args[0],
+                v2: args[1],
+                td: args.get(2).copied().unwrap_or(0.0),
+                tr: arg(3, tstep),
+                tf: arg(4, tstep),
+                pw: arg(5, tstop),
+                per: arg(6, tstop),
+            },
+            TranFnKind::Sin => Waveform::Sin {
+                vo: args[0],
+                va: args[1],
+                freq: arg(2, 1.0 / tstop),
+                td: args.get(3).copied().unwrap_or(0.0),
+                theta: args.get(4).copied().unwrap_or(0.0),
+                phase: args.get(5).copied().unwrap_or(0.0),
+            },
+            TranFnKind::Exp => {
+                // ngspice (vsrcload.c) reads a zero or absent TD1 as TSTEP,
+                // not 0 as its manual says: the rise starts one step late.
+                let td1 = arg(2, tstep);
+                Waveform::Exp {
+                    v1: args[0],
+                    v2: args[1],
+                    td1,
+                    tau1: arg(3, tstep),
+                    td2: arg(4, td1 + tstep),
+                    tau2: arg(5, tstep),
+                }
+            }
+            TranFnKind::Pwl => return self.pwl(f, &args, element, scope),
+        })
+    }
+
+    /// A transient function's arguments do not make a waveform (`problem`).
+    fn bad_source_args(
+        &mut self,
+        f: &ast::TranFn<'_>,
+        element: &str,
+        problem: String,
+    ) -> Option<Waveform> {
+        self.errors.push(ElabError::BadSourceArgs {
+            span: f.span,
+            element: element.to_string(),
+            kind: f.kind.name(),
+            problem,
+        });
+        None
+    }
+
+    /// PWL: time-value pairs in time order, with its `td=` delay and the
+    /// time point `r=` it repeats from.
+    fn pwl(
+        &mut self,
+        f: &ast::TranFn<'_>,
+        args: &[f64],
+        element: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<Waveform> {
+        if !args.len().is_multiple_of(2) {
+            return self.bad_source_args(
+                f,
+                element,
+                "needs time-value pairs (an even count)".into(),
+            );
+        }
+        let points: Vec<(f64, f64)> = args.chunks(2).map(|c| (c[0], c[1])).collect();
+        if points.windows(2).any(|w| w[1].0 < w[0].0) {
+            return self.bad_source_args(f, element, "has times that decrease".into());
+        }
+        let delay = match &f.delay {
+            Some(v) => self.value(v, scope)?,
+            None => 0.0,
+        };
+        let repeat = match &f.repeat {
+            Some(v) => Some(self.value(v, scope)?),
+            None => None,
+        };
+        if let Some(r) = repeat {
+            // ngspice repeats from one of the sequence's own points,
+            // and the part repeated must last.
+            let last = points[points.len() - 1].0;
+            let near = |t: f64| (t - r).abs() <= 1e-12 * last.abs().max(r.abs());
+            if !points.iter().any(|p| near(p.0)) || near(last) || r > last {
+                self.errors.push(ElabError::BadSourceArgs {
+                    span: f.repeat.as_ref().map_or(f.span, |v| v.span()),
+                    element: element.to_string(),
+                    kind: f.kind.name(),
+                    problem: format!(
+                        "repeats from r={r:e}, which must be one of its time points before the last ({last:e})"
+                    ),
+                });
+                return None;
+            }
+        }
+        Some(Waveform::Pwl {
+            points,
+            repeat,
+            delay,
+        })
+    }
+}

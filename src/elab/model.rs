@@ -1,0 +1,118 @@
+//! Diode `.model` cards → [`DiodeModel`]: the level-1 parameters kausal
+//! reads, the ones it ignores, and the junction capacitance it adds.
+
+use super::{DiodeModel, Elab, ElabError, Scope};
+use crate::front::ast;
+
+/// The constant junction capacitance kausal gives a diode model with TT and
+/// no CJO (warning K0297), so that the junction's charge fixes its voltage.
+/// Smaller floors leave the charge too weak a coordinate: with 1 fF a clamp
+/// whose two junctions and source form a loop (index reduction keeps one
+/// junction's charge) is off ngspice by volts, and a bridge takes minutes.
+/// 1 pF is physical, and visible where nothing else sets a voltage: the
+/// floating common mode of a bridge (its four junctions' capacitance against
+/// a 10 MΩ path), or a clamp's nA current.
+pub const JUNCTION_CAPACITANCE_FLOOR: f64 = 1e-12;
+
+/// Level-1 diode parameters kausal models, with their aliases.
+const DIODE_PARAMS: &[&str] = &[
+    "is", "n", "rs", "cjo", "cj0", "cj", "vj", "pb", "m", "mj", "fc", "tt", "bv", "ibv",
+];
+/// ngspice diode parameters that do not change kausal's transient result at
+/// the nominal temperature.
+const DIODE_IGNORED: &[&str] = &[
+    "eg", "xti", "kf", "af", "tnom", "level", "ikf", "ik", "ikr", "isr", "nr", "nbv", "ibvl",
+    "nbvl", "tbv1", "tbv2", "trs", "trs1", "trs2", "tt1", "tt2", "tm1", "tm2", "cta", "ctp", "tpb",
+    "tphp", "jsw", "cjsw", "cjp", "php", "mjsw", "fcs", "area", "pj", "vp", "lm", "lp", "wm", "wp",
+    "xom", "xoi", "xm", "xp", "d", "bvj", "iave", "vrev", "version", "bv_max", "fv_max", "id_max",
+    "pd_max", "te_max", "rth0", "cth0", "kms",
+];
+
+impl Elab {
+    pub(super) fn diode_model(
+        &mut self,
+        model: &ast::Name<'_>,
+        element: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<DiodeModel> {
+        let Some(def) = scope.model(&model.key()) else {
+            self.errors.push(ElabError::UndefinedModel {
+                span: model.span,
+                name: model.text.to_string(),
+            });
+            return None;
+        };
+        if !def.kind.is("d") {
+            self.errors.push(ElabError::WrongModelType {
+                span: model.span,
+                name: model.text.to_string(),
+                found: def.kind.text.to_string(),
+                expected: "D",
+                element: element.to_string(),
+            });
+            return None;
+        }
+        let cache_key = (def.span.file.0, def.span.start, scope.prefix.clone());
+        if let Some(m) = self.model_cache.get(&cache_key) {
+            return Some(m.clone());
+        }
+        let first_use = !self
+            .model_cache
+            .keys()
+            .any(|k| k.0 == cache_key.0 && k.1 == cache_key.1);
+        let mut m = DiodeModel {
+            name: def.name.key(),
+            ..DiodeModel::default()
+        };
+        for p in &def.params {
+            let key = p.name.key();
+            if !DIODE_PARAMS.contains(&key.as_str()) {
+                if first_use {
+                    self.errors.push(if DIODE_IGNORED.contains(&key.as_str()) {
+                        ElabError::IgnoredModelParam {
+                            span: p.name.span,
+                            name: p.name.text.to_string(),
+                        }
+                    } else {
+                        ElabError::UnknownModelParam {
+                            span: p.name.span,
+                            name: p.name.text.to_string(),
+                            model: def.name.text.to_string(),
+                        }
+                    });
+                }
+                continue;
+            }
+            let v = self.value(&p.value, scope)?;
+            match key.as_str() {
+                "is" => m.is = v,
+                "n" => m.n = v,
+                "rs" => m.rs = v,
+                "cjo" | "cj0" | "cj" => m.cjo = v,
+                "vj" | "pb" => m.vj = v,
+                "m" | "mj" => m.m = v,
+                "fc" => m.fc = v,
+                "tt" => m.tt = v,
+                "bv" => m.bv = Some(v.abs()),
+                "ibv" => m.ibv = v,
+                _ => {}
+            }
+        }
+        // A junction's charge is its state (`build::diode`): with diffusion
+        // charge alone, a reverse-biased junction holds ~TT·GMIN·v, so its
+        // charge cannot fix its voltage (1e-21 C moves it by 0.1 V at TT =
+        // 10 ns, and a half-wave rectifier would turn on 0.5 V early).
+        if m.cjo == 0.0 && m.tt > 0.0 {
+            m.cjo = JUNCTION_CAPACITANCE_FLOOR;
+            m.m = 0.0;
+            if first_use && let Some(tt) = def.params.iter().find(|p| p.name.key() == "tt") {
+                self.errors.push(ElabError::TransitTimeWithoutCapacitance {
+                    span: tt.name.span,
+                    model: def.name.text.to_string(),
+                });
+            }
+        }
+        self.model_cache.insert(cache_key, m.clone());
+        Some(m)
+    }
+}
