@@ -201,8 +201,8 @@ where
     }
 
     /// One register of the solver's evaluations, as the last left it.
-    pub fn register(&self, r: u32) -> f64 {
-        self.regs.borrow()[r as usize]
+    pub fn register(&self, r: crate::tape::Reg) -> f64 {
+        self.regs.borrow()[r]
     }
 
     /// The registers after the last evaluation (to find where a NaN came from).

@@ -8,11 +8,11 @@ use super::*;
 
 /// Mark the blocks whose body values (other than the tears) are read only
 /// inside the body itself.
-pub(super) fn set_private(blocks: &mut [TapeBlock], programs: &[&[Instr]], direct: &[&[u32]]) {
+pub(super) fn set_private(blocks: &mut [TapeBlock], programs: &[&[Instr]], direct: &[&[Reg]]) {
     // Who reads each register: `None` for top-level code, `Some(k)` for the
     // body of block k, and a conflict (read by two) as top level.
-    let mut reader: HashMap<u32, Option<usize>> = HashMap::new();
-    let mut note = |r: u32, by: Option<usize>| {
+    let mut reader: HashMap<Reg, Option<usize>> = HashMap::new();
+    let mut note = |r: Reg, by: Option<usize>| {
         reader
             .entry(r)
             .and_modify(|old| {
@@ -43,7 +43,7 @@ pub(super) fn set_private(blocks: &mut [TapeBlock], programs: &[&[Instr]], direc
     }
     for (k, b) in blocks.iter_mut().enumerate() {
         // A set: a block can have 10^4 tears and 10^5 instructions.
-        let tears: std::collections::HashSet<u32> = b.tears.iter().copied().collect();
+        let tears: std::collections::HashSet<Reg> = b.tears.iter().copied().collect();
         b.private = b.body.iter().all(|ins| {
             let d = ins.dest();
             d == NONE || reader.get(&d).is_none_or(|by| *by == Some(k)) || tears.contains(&d)
@@ -79,9 +79,9 @@ pub(super) fn charge_inverse(b: &TapeBlock) -> Option<ChargeInverse> {
 pub(super) fn set_constant_jacobians(
     blocks: &mut [TapeBlock],
     programs: &[&[Instr]],
-    states: &[u32],
+    states: &[Reg],
 ) {
-    let mut written: std::collections::HashSet<u32> = states.iter().copied().collect();
+    let mut written: std::collections::HashSet<Reg> = states.iter().copied().collect();
     for ins in programs
         .iter()
         .flat_map(|c| c.iter())
@@ -91,11 +91,11 @@ pub(super) fn set_constant_jacobians(
     }
     written.extend(blocks.iter().flat_map(|b| b.tears.iter().copied()));
     for b in blocks.iter_mut() {
-        let mut varies: std::collections::HashSet<u32> = b.tears.iter().copied().collect();
+        let mut varies: std::collections::HashSet<Reg> = b.tears.iter().copied().collect();
         let mut constant = !b.tears.is_empty();
         for ins in &b.body {
-            let v = |x: u32| varies.contains(&x);
-            let coefficient = |x: u32| !written.contains(&x);
+            let v = |x: Reg| varies.contains(&x);
+            let coefficient = |x: Reg| !written.contains(&x);
             // Whether the result moves with the tears, and whether its
             // derivative with respect to them is still a constant.
             let (moves, stays_affine) = match *ins {
@@ -126,12 +126,12 @@ pub(super) fn set_constant_jacobians(
 }
 
 /// Tears `x` of a block whose body computes `exp(x / vt)`.
-pub(super) fn junctions(b: &TapeBlock, vte_regs: &dyn Fn(u32) -> Option<u32>) -> Vec<(usize, u32)> {
+pub(super) fn junctions(b: &TapeBlock, vte_regs: &dyn Fn(u32) -> Option<Reg>) -> Vec<(usize, Reg)> {
     let mut out = Vec::new();
     // Maps, not scans: a block can hold 10^4 tears and junctions.
-    let tear_index: HashMap<u32, usize> =
+    let tear_index: HashMap<Reg, usize> =
         b.tears.iter().enumerate().map(|(j, &x)| (x, j)).collect();
-    let mut by_dest: HashMap<u32, &Instr> = HashMap::new();
+    let mut by_dest: HashMap<Reg, &Instr> = HashMap::new();
     for i in &b.body {
         by_dest.entry(i.dest()).or_insert(i);
     }
@@ -244,7 +244,7 @@ pub(super) fn memo_links(
     blocks: &[TapeBlock],
     code: &[Instr],
     out_code: &[Instr],
-) -> Vec<(u32, u32)> {
+) -> Vec<(Reg, Reg)> {
     let inversions = |code: &[Instr]| -> Vec<ChargeInverse> {
         code.iter()
             .filter_map(|i| match *i {
@@ -269,7 +269,7 @@ impl Tape {
     /// For each state, the junction-charge inversion whose charge it is
     /// (the block that finds the junction voltage from it), if any.
     pub fn charge_states(&self) -> Vec<Option<ChargeInverse>> {
-        let slot: HashMap<u32, usize> = self
+        let slot: HashMap<Reg, usize> = self
             .state_regs
             .iter()
             .enumerate()
@@ -306,7 +306,7 @@ impl Tape {
         let mut dep = vec![Dep::Const; self.n_regs];
         let charges = self.charge_states();
         for (k, &s) in self.state_regs.iter().enumerate() {
-            dep[s as usize] = match charges[k] {
+            dep[s] = match charges[k] {
                 Some(ci) => Dep::Charge(ci.diode),
                 None => Dep::Lin,
             };
@@ -315,7 +315,7 @@ impl Tape {
         self.deriv_regs
             .iter()
             .enumerate()
-            .all(|(k, &d)| match dep[d as usize] {
+            .all(|(k, &d)| match dep[d] {
                 Dep::Const | Dep::Time | Dep::Lin | Dep::Volt(_) => true,
                 Dep::IdNeg(diode) => charges[k].is_some_and(|ci| ci.diode == diode),
                 Dep::Charge(_) | Dep::IdPos(_) | Dep::Bad => false,
@@ -327,30 +327,21 @@ impl Tape {
     pub(super) fn classify(&self, code: &[Instr], dep: &mut [Dep]) {
         for ins in code {
             let (d, v) = match *ins {
-                Instr::Neg { d, a } => (d, dep[a as usize].negate()),
-                Instr::Add { d, a, b } => (d, Dep::sum(dep[a as usize], dep[b as usize])),
-                Instr::Sub { d, a, b } => (d, Dep::sum(dep[a as usize], dep[b as usize].negate())),
-                Instr::Mul { d, a, b } => (d, Dep::product(dep[a as usize], dep[b as usize])),
-                Instr::Div { d, a, b } => match (dep[a as usize], dep[b as usize]) {
+                Instr::Neg { d, a } => (d, dep[a].negate()),
+                Instr::Add { d, a, b } => (d, Dep::sum(dep[a], dep[b])),
+                Instr::Sub { d, a, b } => (d, Dep::sum(dep[a], dep[b].negate())),
+                Instr::Mul { d, a, b } => (d, Dep::product(dep[a], dep[b])),
+                Instr::Div { d, a, b } => match (dep[a], dep[b]) {
                     (x, Dep::Const) => (d, Dep::product(x, Dep::Const)),
                     (x, y) if x.timed() && y.timed() => (d, Dep::Time),
                     _ => (d, Dep::Bad),
                 },
-                Instr::Pow { d, a, b } => {
-                    match dep[a as usize].timed() && dep[b as usize].timed() {
-                        true => (d, dep[a as usize].max_timed(dep[b as usize])),
-                        false => (d, Dep::Bad),
-                    }
-                }
-                Instr::Call { d, a, .. } => (
-                    d,
-                    if dep[a as usize].timed() {
-                        dep[a as usize]
-                    } else {
-                        Dep::Bad
-                    },
-                ),
-                Instr::Device { d, f, a } => match dep[a as usize] {
+                Instr::Pow { d, a, b } => match dep[a].timed() && dep[b].timed() {
+                    true => (d, dep[a].max_timed(dep[b])),
+                    false => (d, Dep::Bad),
+                },
+                Instr::Call { d, a, .. } => (d, if dep[a].timed() { dep[a] } else { Dep::Bad }),
+                Instr::Device { d, f, a } => match dep[a] {
                     x if x.timed() => (d, x),
                     Dep::Volt(diode)
                         if diode == f.diode
@@ -367,13 +358,13 @@ impl Tape {
                     continue;
                 }
             };
-            dep[d as usize] = v;
+            dep[d] = v;
         }
     }
 
     pub(super) fn classify_block(&self, b: &TapeBlock, dep: &mut [Dep]) {
         if let Some(ci) = b.charge_inverse {
-            let v = match dep[ci.target as usize] {
+            let v = match dep[ci.target] {
                 Dep::Charge(diode) if diode == ci.diode => Dep::Volt(diode),
                 x if x.timed() => x,
                 _ => Dep::Bad,
@@ -382,21 +373,18 @@ impl Tape {
             // the analysis can follow if `f` reads it.
             self.classify_tears(b, dep, Dep::Bad);
             for &x in &b.tears {
-                dep[x as usize] = v;
+                dep[x] = v;
             }
             return;
         }
         // Independent of the states; else affine with constant coefficients.
         let linear = |dep: &[Dep]| {
-            b.residuals.iter().all(|&r| {
-                matches!(
-                    dep[r as usize],
-                    Dep::Const | Dep::Time | Dep::Lin | Dep::Volt(_)
-                )
-            })
+            b.residuals
+                .iter()
+                .all(|&r| matches!(dep[r], Dep::Const | Dep::Time | Dep::Lin | Dep::Volt(_)))
         };
         self.classify_tears(b, dep, Dep::Time);
-        if b.residuals.iter().all(|&r| dep[r as usize].timed()) {
+        if b.residuals.iter().all(|&r| dep[r].timed()) {
             return;
         }
         if b.constant_jacobian {
@@ -411,7 +399,7 @@ impl Tape {
     /// Classify `b`'s body with its tears taken as `tear`.
     pub(super) fn classify_tears(&self, b: &TapeBlock, dep: &mut [Dep], tear: Dep) {
         for &x in &b.tears {
-            dep[x as usize] = tear;
+            dep[x] = tear;
         }
         self.classify(&b.body, dep);
     }
@@ -421,7 +409,7 @@ impl Tape {
         // Dependencies propagate through the program as sorted state lists.
         let mut deps: Vec<Vec<u32>> = vec![Vec::new(); self.n_regs];
         for (k, &s) in self.state_regs.iter().enumerate() {
-            deps[s as usize] = vec![k as u32];
+            deps[s] = vec![k as u32];
         }
         fn merge(into: &mut Vec<u32>, from: &[u32]) {
             if from.is_empty() {
@@ -462,28 +450,28 @@ impl Tape {
                     let mut all = Vec::new();
                     for i in &b.body {
                         for s in i.operands() {
-                            let from = std::mem::take(&mut deps[s as usize]);
+                            let from = std::mem::take(&mut deps[s]);
                             merge(&mut all, &from);
-                            deps[s as usize] = from;
+                            deps[s] = from;
                         }
                     }
                     for i in &b.body {
                         let d = i.dest();
                         if d != NONE {
-                            deps[d as usize] = all.clone();
+                            deps[d] = all.clone();
                         }
                     }
                     for &x in &b.tears {
-                        deps[x as usize] = all.clone();
+                        deps[x] = all.clone();
                     }
                     // Second pass: body values depend on the tears' dependencies.
                     walk(tape, &b.body, deps);
                     for i in &b.body {
                         let d = i.dest();
                         if d != NONE {
-                            let mut v = std::mem::take(&mut deps[d as usize]);
+                            let mut v = std::mem::take(&mut deps[d]);
                             merge(&mut v, &all);
-                            deps[d as usize] = v;
+                            deps[d] = v;
                         }
                     }
                     continue;
@@ -491,15 +479,15 @@ impl Tape {
                 let d = ins.dest();
                 let mut acc = Vec::new();
                 for s in ins.operands() {
-                    merge(&mut acc, &deps[s as usize]);
+                    merge(&mut acc, &deps[s]);
                 }
-                deps[d as usize] = acc;
+                deps[d] = acc;
             }
         }
         walk(self, &self.code, &mut deps);
         let mut out = Vec::new();
         for (i, &d) in self.deriv_regs.iter().enumerate() {
-            for &j in &deps[d as usize] {
+            for &j in &deps[d] {
                 out.push((i, j as usize));
             }
         }

@@ -33,7 +33,7 @@ impl Tape {
             unreachable!("a charge inversion is [Device, Sub]")
         };
         let sign = if l == q { 1.0 } else { -1.0 };
-        (b.tears[0] as usize, q as usize, res as usize, sign)
+        (b.tears[0].idx(), q.idx(), res.idx(), sign)
     }
 
     /// ∂residuals/∂tears at the current point into `jac` (row-major n×n),
@@ -53,12 +53,12 @@ impl Tape {
         for j in 0..n {
             // Registers read by the body but not written are constants here.
             for &x in &b.touched {
-                dr[x as usize] = 0.0;
+                dr[x] = 0.0;
             }
-            dr[b.tears[j] as usize] = 1.0;
+            dr[b.tears[j]] = 1.0;
             self.run_tangent(&b.body, r, dr, t, None)?;
             for (i, &res) in b.residuals.iter().enumerate() {
-                jac[i * n + j] = dr[res as usize];
+                jac[i * n + j] = dr[res];
             }
         }
         Ok(())
@@ -75,7 +75,7 @@ impl Tape {
             return self.settle(b, r, t);
         }
         let mut w = Work::take(b.tears.len(), r.len());
-        w.start.extend(b.tears.iter().map(|&x| r[x as usize]));
+        w.start.extend(b.tears.iter().map(|&x| r[x]));
         let result = if b.constant_jacobian {
             self.solve_affine(b, r, t, &mut w)
         } else if b.tears.len() == 1 {
@@ -85,7 +85,7 @@ impl Tape {
         };
         if result.is_err() {
             for (j, &x) in b.tears.iter().enumerate() {
-                r[x as usize] = w.start[j];
+                r[x] = w.start[j];
             }
         }
         w.give();
@@ -186,18 +186,18 @@ impl Tape {
         let n_colours = pattern.as_ref().map_or(n, |p| p.members.len()) as u32;
         for c in 0..n_colours {
             for &x in &b.touched {
-                dr[x as usize] = 0.0;
+                dr[x] = 0.0;
             }
             let seeds = match pattern {
                 Some(p) => &p.members[c as usize][..],
                 None => std::slice::from_ref(&c),
             };
             for &j in seeds {
-                dr[b.tears[j as usize] as usize] = 1.0;
+                dr[b.tears[j as usize]] = 1.0;
             }
             self.run_tangent(&b.body, r, dr, t, None)?;
             for (i, &res) in b.residuals.iter().enumerate() {
-                let v = dr[res as usize];
+                let v = dr[res];
                 let j = match pattern {
                     Some(p) => p.rows[i]
                         .iter()
@@ -227,7 +227,7 @@ impl Tape {
         let lu = self.constant_lu(b, r, t, w)?;
         self.run(&b.body, r, t)?;
         for (j, &x) in b.residuals.iter().enumerate() {
-            w.step[j] = r[x as usize];
+            w.step[j] = r[x];
         }
         if w.step.iter().all(|v| *v == 0.0) {
             return Ok(());
@@ -237,7 +237,7 @@ impl Tape {
             return Err(b.singular(t));
         }
         for (j, &x) in b.tears.iter().enumerate() {
-            r[x as usize] -= w.step[j];
+            r[x] -= w.step[j];
         }
         self.settle(b, r, t)
     }
@@ -251,19 +251,19 @@ impl Tape {
     /// cannot proceed: the damped Newton takes over.
     pub(super) fn invert_charge(&self, b: &TapeBlock, ci: ChargeInverse, r: &mut [f64]) -> bool {
         let p = &self.diodes[ci.diode as usize];
-        let (x_reg, target) = (b.tears[0] as usize, r[ci.target as usize]);
-        let memo = ci.memo as usize;
+        let (x_reg, target) = (b.tears[0].idx(), r[ci.target]);
+        let memo = ci.memo;
         let start = r[x_reg];
         // From the last evaluated point when there is one: its values are
         // known, so the first step is free.
         let mut x = if r[memo].is_finite() { r[memo] } else { start };
         for _ in 0..100 {
             let [q, c, c2] = if x == r[memo] {
-                [r[memo + 1], r[memo + 2], r[memo + 3]]
+                [r[memo.offset(1)], r[memo.offset(2)], r[memo.offset(3)]]
             } else {
                 let v = p.charge(x);
                 r[memo] = x;
-                r[memo + 1..memo + 4].copy_from_slice(&v);
+                r[memo.idx() + 1..memo.idx() + 4].copy_from_slice(&v);
                 v
             };
             let f = q - target;
@@ -312,8 +312,8 @@ impl Tape {
         t: f64,
         w: &mut Work,
     ) -> Result<(), EvalError> {
-        let (x, res) = (b.tears[0] as usize, b.residuals[0] as usize);
-        let vt = b.junctions.first().map(|&(_, vt)| vt as usize);
+        let (x, res) = (b.tears[0].idx(), b.residuals[0].idx());
+        let vt = b.junctions.first().map(|&(_, vt)| vt.idx());
         let finish = |r: &mut [f64], value: f64| {
             r[x] = value;
             self.settle(b, r, t)
@@ -322,7 +322,7 @@ impl Tape {
         let mut last: Option<(f64, f64, f64, f64, f64)> = None;
         for _ in 0..400 {
             for &z in &b.touched {
-                w.dr[z as usize] = 0.0;
+                w.dr[z] = 0.0;
             }
             w.dr[x] = 1.0;
             self.run_tangent(&b.body, r, &mut w.dr, t, None)?;
@@ -395,17 +395,13 @@ impl Tape {
         w: &mut Work,
     ) -> Result<(), EvalError> {
         let no_convergence = |r: &[f64]| {
-            let residual = b
-                .residuals
-                .iter()
-                .map(|&x| r[x as usize].abs())
-                .fold(0.0, f64::max);
+            let residual = b.residuals.iter().map(|&x| r[x].abs()).fold(0.0, f64::max);
             b.no_convergence(residual, t)
         };
         let scaled = |d: &[f64], x: &[f64]| newton::scaled_norm(d, |k| 1.0 + x[k].abs());
         let set = |r: &mut [f64], x0: &[f64], step: &[f64], lambda: f64| {
             for (j, &x) in b.tears.iter().enumerate() {
-                r[x as usize] = x0[j] - lambda * step[j];
+                r[x] = x0[j] - lambda * step[j];
             }
         };
         // The Jacobian's tangent runs evaluate the body too.
@@ -415,14 +411,14 @@ impl Tape {
             w.dr = dr;
             let sparse = factored?;
             for (j, &x) in b.residuals.iter().enumerate() {
-                w.step[j] = r[x as usize];
+                w.step[j] = r[x];
             }
             if w.step.iter().all(|v| *v == 0.0) {
                 return Ok(());
             }
             solve_factored(sparse.as_ref(), &w.jac, &w.perm, &mut w.step, &mut w.tmp);
             for (j, &x) in b.tears.iter().enumerate() {
-                w.x0[j] = r[x as usize];
+                w.x0[j] = r[x];
             }
             let full = scaled(&w.step, &w.x0);
             if !full.is_finite() {
@@ -437,7 +433,7 @@ impl Tape {
             // A limited step is taken as it is, as SPICE does.
             let mut limited = false;
             for &(j, vt) in &b.junctions {
-                let vt = r[vt as usize].abs();
+                let vt = r[vt].abs();
                 if vt > 0.0 {
                     let new = pnjlim(w.x0[j] - w.step[j], w.x0[j], vt);
                     if new != w.x0[j] - w.step[j] {
@@ -454,7 +450,7 @@ impl Tape {
                 set(r, &w.x0, &w.step, lambda);
                 self.run(&b.body, r, t)?;
                 for (j, &x) in b.residuals.iter().enumerate() {
-                    w.bar[j] = r[x as usize];
+                    w.bar[j] = r[x];
                 }
                 solve_factored(sparse.as_ref(), &w.jac, &w.perm, &mut w.bar, &mut w.tmp);
                 // The same scaling as the full correction: a scale that moved
@@ -475,7 +471,7 @@ impl Tape {
                 // Quadratic convergence has set in: the simplified correction
                 // leaves an error of order `simplified * full`, below rounding.
                 for (j, &x) in b.tears.iter().enumerate() {
-                    r[x as usize] -= w.bar[j];
+                    r[x] -= w.bar[j];
                 }
                 return self.settle(b, r, t);
             }
@@ -556,7 +552,7 @@ impl Work {
 /// [`PATTERN_MAX`] (dense enough for one column per run) or the body holds a
 /// nested block.
 pub(super) fn tear_pattern(b: &TapeBlock) -> Option<Vec<Vec<u32>>> {
-    let mut deps: HashMap<u32, Vec<u32>> = HashMap::new();
+    let mut deps: HashMap<Reg, Vec<u32>> = HashMap::new();
     for (j, &x) in b.tears.iter().enumerate() {
         deps.insert(x, vec![j as u32]);
     }
@@ -654,7 +650,8 @@ mod tests {
     /// A block with `tears`, `residuals` and `body`; what it touches is
     /// everything its body reads or writes.
     fn block(tears: Vec<u32>, residuals: Vec<u32>, body: Vec<Instr>) -> TapeBlock {
-        let mut touched: Vec<u32> = body
+        let regs = |v: Vec<u32>| v.into_iter().map(Reg).collect();
+        let mut touched: Vec<Reg> = body
             .iter()
             .flat_map(|i| i.operands().into_iter().chain([i.dest()]))
             .collect();
@@ -662,7 +659,7 @@ mod tests {
         touched.dedup();
         let mut b = TapeBlock::new(
             1,
-            (tears, residuals),
+            (regs(tears), regs(residuals)),
             body,
             false,
             vec!["R1".into(), "D1".into()],
@@ -676,10 +673,26 @@ mod tests {
     fn cubic() -> Tape {
         use Instr::*;
         let body = vec![
-            Mul { d: 1, a: 0, b: 0 },
-            Mul { d: 2, a: 1, b: 0 },
-            Add { d: 2, a: 2, b: 0 },
-            Sub { d: 3, a: 2, b: 4 },
+            Mul {
+                d: Reg(1),
+                a: Reg(0),
+                b: Reg(0),
+            },
+            Mul {
+                d: Reg(2),
+                a: Reg(1),
+                b: Reg(0),
+            },
+            Add {
+                d: Reg(2),
+                a: Reg(2),
+                b: Reg(0),
+            },
+            Sub {
+                d: Reg(3),
+                a: Reg(2),
+                b: Reg(4),
+            },
         ];
         tape_of(
             vec![0.5, 0.0, 0.0, 0.0, 10.0],
@@ -705,11 +718,31 @@ mod tests {
     fn circle_and_line(x0: f64, y0: f64) -> Tape {
         use Instr::*;
         let body = vec![
-            Mul { d: 2, a: 0, b: 0 },
-            Mul { d: 3, a: 1, b: 1 },
-            Add { d: 4, a: 2, b: 3 },
-            Sub { d: 5, a: 4, b: 7 },
-            Sub { d: 6, a: 0, b: 1 },
+            Mul {
+                d: Reg(2),
+                a: Reg(0),
+                b: Reg(0),
+            },
+            Mul {
+                d: Reg(3),
+                a: Reg(1),
+                b: Reg(1),
+            },
+            Add {
+                d: Reg(4),
+                a: Reg(2),
+                b: Reg(3),
+            },
+            Sub {
+                d: Reg(5),
+                a: Reg(4),
+                b: Reg(7),
+            },
+            Sub {
+                d: Reg(6),
+                a: Reg(0),
+                b: Reg(1),
+            },
         ];
         tape_of(
             vec![x0, y0, 0.0, 0.0, 0.0, 0.0, 0.0, 4.0],
@@ -736,10 +769,26 @@ mod tests {
         use Instr::*;
         // 2x + y - 3 = 0, x - y = 0: x = y = 1.
         let body = vec![
-            Mul { d: 2, a: 0, b: 5 },
-            Add { d: 3, a: 2, b: 1 },
-            Sub { d: 3, a: 3, b: 6 },
-            Sub { d: 4, a: 0, b: 1 },
+            Mul {
+                d: Reg(2),
+                a: Reg(0),
+                b: Reg(5),
+            },
+            Add {
+                d: Reg(3),
+                a: Reg(2),
+                b: Reg(1),
+            },
+            Sub {
+                d: Reg(3),
+                a: Reg(3),
+                b: Reg(6),
+            },
+            Sub {
+                d: Reg(4),
+                a: Reg(0),
+                b: Reg(1),
+            },
         ];
         let mut b = block(vec![0, 1], vec![3, 4], body);
         b.constant_jacobian = true;
@@ -759,10 +808,26 @@ mod tests {
         use Instr::*;
         // x - y - 1 = 0 twice: no unique solution.
         let body = vec![
-            Sub { d: 2, a: 0, b: 1 },
-            Sub { d: 2, a: 2, b: 4 },
-            Sub { d: 3, a: 0, b: 1 },
-            Sub { d: 3, a: 3, b: 4 },
+            Sub {
+                d: Reg(2),
+                a: Reg(0),
+                b: Reg(1),
+            },
+            Sub {
+                d: Reg(2),
+                a: Reg(2),
+                b: Reg(4),
+            },
+            Sub {
+                d: Reg(3),
+                a: Reg(0),
+                b: Reg(1),
+            },
+            Sub {
+                d: Reg(3),
+                a: Reg(3),
+                b: Reg(4),
+            },
         ];
         let tape = tape_of(
             vec![0.25, 0.5, 0.0, 0.0, 1.0],
@@ -789,7 +854,18 @@ mod tests {
     fn a_block_without_a_root_fails_to_converge() {
         use Instr::*;
         // x² + 1 = 0 has no real root: Newton wanders, damping stalls.
-        let body = vec![Mul { d: 1, a: 0, b: 0 }, Add { d: 2, a: 1, b: 3 }];
+        let body = vec![
+            Mul {
+                d: Reg(1),
+                a: Reg(0),
+                b: Reg(0),
+            },
+            Add {
+                d: Reg(2),
+                a: Reg(1),
+                b: Reg(3),
+            },
+        ];
         let tape = tape_of(
             vec![0.3, 0.0, 0.0, 1.0],
             vec![block(vec![0], vec![2], body)],

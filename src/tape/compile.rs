@@ -11,18 +11,18 @@ pub(super) struct Compiler<'a> {
     sched: &'a Schedule,
     n_regs: u32,
     init: Vec<f64>,
-    memo: HashMap<ExprId, u32>,
-    var_reg: Vec<u32>,
-    param_reg: Vec<u32>,
+    memo: HashMap<ExprId, Reg>,
+    var_reg: Vec<Reg>,
+    param_reg: Vec<Reg>,
     /// Constant registers (constants, parameters, reciprocals) by value.
-    consts: HashMap<u64, u32>,
+    consts: HashMap<u64, Reg>,
     reg_var: Vec<Option<VarId>>,
     blocks: Vec<TapeBlock>,
 }
 
 impl Compiler<'_> {
-    fn reg(&mut self, value: f64) -> u32 {
-        let r = self.n_regs;
+    fn reg(&mut self, value: f64) -> Reg {
+        let r = Reg(self.n_regs);
         self.n_regs += 1;
         self.init.push(value);
         self.reg_var.push(None);
@@ -32,7 +32,7 @@ impl Compiler<'_> {
     /// Emit `e` into `out` (post-order, memoized); returns its register.
     /// The register of a constant value, one per distinct value: a ladder
     /// of 10^5 equal resistors reads one `1/R`, which stays in cache.
-    fn const_reg(&mut self, v: f64) -> u32 {
+    fn const_reg(&mut self, v: f64) -> Reg {
         if let Some(&r) = self.consts.get(&v.to_bits()) {
             return r;
         }
@@ -51,7 +51,7 @@ impl Compiler<'_> {
     }
 
     /// The register of `e`, its code appended to `out` (each node once).
-    fn emit(&mut self, e: ExprId, out: &mut Vec<Instr>) -> u32 {
+    fn emit(&mut self, e: ExprId, out: &mut Vec<Instr>) -> Reg {
         self.emit_at(e, out, 0)
     }
 
@@ -69,7 +69,7 @@ impl Compiler<'_> {
     /// loop formulation's node potentials are tree-path sums 10^5 deep,
     /// which overflowed the stack) the operands are emitted bottom-up with
     /// an explicit stack, each then found memoized.
-    fn emit_at(&mut self, e: ExprId, out: &mut Vec<Instr>, depth: usize) -> u32 {
+    fn emit_at(&mut self, e: ExprId, out: &mut Vec<Instr>, depth: usize) -> Reg {
         if let Some(&r) = self.memo.get(&e) {
             return r;
         }
@@ -200,7 +200,7 @@ impl Compiler<'_> {
     /// A nested block (compiled before its enclosing one) contributes its
     /// own registers: a Jacobian column must clear those tangents too.
     fn set_touched(&mut self, k: usize) {
-        let mut touched: Vec<u32> = Vec::new();
+        let mut touched: Vec<Reg> = Vec::new();
         for ins in &self.blocks[k].body {
             match *ins {
                 Instr::Block { k: inner } => {
@@ -236,7 +236,7 @@ impl Compiler<'_> {
     }
 
     /// The register of variable `v` (an alias is emitted on first use).
-    fn var(&mut self, v: VarId, out: &mut Vec<Instr>) -> u32 {
+    fn var(&mut self, v: VarId, out: &mut Vec<Instr>) -> Reg {
         let r = self.var_reg[v.0 as usize];
         if r != NONE {
             return r;
@@ -257,7 +257,7 @@ impl Compiler<'_> {
     fn push_block(
         &mut self,
         index: usize,
-        (tears, residuals): (Vec<u32>, Vec<u32>),
+        (tears, residuals): (Vec<Reg>, Vec<Reg>),
         body: Vec<Instr>,
         linear: bool,
         elements: Vec<String>,
@@ -281,15 +281,15 @@ impl Compiler<'_> {
             Solved::Explicit(e) => {
                 let r = self.emit(e, out);
                 self.var_reg[a.var.0 as usize] = r;
-                if self.reg_var[r as usize].is_none() {
-                    self.reg_var[r as usize] = Some(a.var);
+                if self.reg_var[r].is_none() {
+                    self.reg_var[r] = Some(a.var);
                 }
             }
             Solved::Implicit(f) => {
                 // A one-equation block: guess the unknown, zero the residual.
                 let t = self.reg(0.0);
                 self.var_reg[a.var.0 as usize] = t;
-                self.reg_var[t as usize] = Some(a.var);
+                self.reg_var[t] = Some(a.var);
                 let mut body = Vec::new();
                 let r = self.emit(f, &mut body);
                 let elements = self.sys.eqs[a.eq]
@@ -317,12 +317,12 @@ impl Compiler<'_> {
                 } else {
                     b.tears.clone()
                 };
-                let tears: Vec<u32> = unknowns
+                let tears: Vec<Reg> = unknowns
                     .iter()
                     .map(|&v| {
                         let r = self.reg(0.0);
                         self.var_reg[v.0 as usize] = r;
-                        self.reg_var[r as usize] = Some(v);
+                        self.reg_var[r] = Some(v);
                         r
                     })
                     .collect();
@@ -398,12 +398,12 @@ pub fn compile(
         reg_var: Vec::new(),
         blocks: Vec::new(),
     };
-    let state_regs: Vec<u32> = states
+    let state_regs: Vec<Reg> = states
         .iter()
         .map(|&s| {
             let r = c.reg(0.0);
             c.var_reg[s.0 as usize] = r;
-            c.reg_var[r as usize] = Some(s);
+            c.reg_var[r] = Some(s);
             r
         })
         .collect();
@@ -481,7 +481,7 @@ pub fn compile(
             c.step(step, &mut code);
         }
     }
-    let deriv_regs: Vec<u32> = ders.iter().map(|d| c.var_reg[d.0 as usize]).collect();
+    let deriv_regs: Vec<Reg> = ders.iter().map(|d| c.var_reg[d.0 as usize]).collect();
     // The output program gets its own registers for everything computed.
     c.memo
         .retain(|&e, _| matches!(sched.exprs.get(e), Expr::Const(_)));
@@ -496,7 +496,7 @@ pub fn compile(
             c.step(step, &mut out_code);
         }
     }
-    let out_regs: Vec<u32> = outputs
+    let out_regs: Vec<Reg> = outputs
         .iter()
         .map(|&o| match o {
             OutputRef::Expr(e) => c.emit(e, &mut out_code),
@@ -521,7 +521,7 @@ pub fn compile(
             })
             .sum()
     };
-    let read: std::collections::HashSet<u32> = out_code
+    let read: std::collections::HashSet<Reg> = out_code
         .iter()
         .flat_map(|i| match i {
             Instr::Block { k } => c.blocks[*k as usize]
@@ -533,7 +533,7 @@ pub fn compile(
         })
         .chain(out_regs.iter().copied())
         .collect();
-    let out_inputs: Vec<(usize, u32)> = state_regs
+    let out_inputs: Vec<(usize, Reg)> = state_regs
         .iter()
         .enumerate()
         .filter(|(_, r)| read.contains(r))
@@ -557,7 +557,7 @@ pub fn compile(
     let memo_links = memo_links(&c.blocks, &code, &out_code);
     let n_in_f = count(&in_f);
     let n_at_outputs = count(&at_out);
-    let source_params: Vec<(u32, f64)> = sys
+    let source_params: Vec<(Reg, f64)> = sys
         .params
         .iter()
         .zip(&c.param_reg)

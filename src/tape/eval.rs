@@ -36,26 +36,25 @@ impl Tape {
     pub fn scale_sources(&self, regs: &mut [f64], s: f64) {
         self.source_scale.set(s);
         for &(r, v) in &self.source_params {
-            regs[r as usize] = v * s;
+            regs[r] = v * s;
         }
     }
 
     pub(super) fn run(&self, code: &[Instr], r: &mut [f64], t: f64) -> Result<(), EvalError> {
         for ins in code {
             match *ins {
-                Instr::Neg { d, a } => r[d as usize] = -r[a as usize],
-                Instr::Add { d, a, b } => r[d as usize] = r[a as usize] + r[b as usize],
-                Instr::Sub { d, a, b } => r[d as usize] = r[a as usize] - r[b as usize],
-                Instr::Mul { d, a, b } => r[d as usize] = r[a as usize] * r[b as usize],
-                Instr::Div { d, a, b } => r[d as usize] = r[a as usize] / r[b as usize],
-                Instr::Pow { d, a, b } => r[d as usize] = r[a as usize].powf(r[b as usize]),
-                Instr::Call { d, f, a } => r[d as usize] = f.apply(r[a as usize]),
+                Instr::Neg { d, a } => r[d] = -r[a],
+                Instr::Add { d, a, b } => r[d] = r[a] + r[b],
+                Instr::Sub { d, a, b } => r[d] = r[a] - r[b],
+                Instr::Mul { d, a, b } => r[d] = r[a] * r[b],
+                Instr::Div { d, a, b } => r[d] = r[a] / r[b],
+                Instr::Pow { d, a, b } => r[d] = r[a].powf(r[b]),
+                Instr::Call { d, f, a } => r[d] = f.apply(r[a]),
                 Instr::Device { d, f, a } => {
-                    r[d as usize] =
-                        self.diodes[f.diode as usize].eval(f.part, f.order, r[a as usize])
+                    r[d] = self.diodes[f.diode as usize].eval(f.part, f.order, r[a])
                 }
-                Instr::Src { d, s, order } => r[d as usize] = self.source(s, t, order),
-                Instr::Time { d } => r[d as usize] = t,
+                Instr::Src { d, s, order } => r[d] = self.source(s, t, order),
+                Instr::Time { d } => r[d] = t,
                 Instr::Block { k } => self.solve_block(k as usize, r, t)?,
             }
         }
@@ -71,11 +70,11 @@ impl Tape {
         dy: &mut [f64],
     ) -> Result<(), EvalError> {
         for (k, &s) in self.state_regs.iter().enumerate() {
-            regs[s as usize] = y[k];
+            regs[s] = y[k];
         }
         self.run(&self.code, regs, t)?;
         for (k, &d) in self.deriv_regs.iter().enumerate() {
-            dy[k] = regs[d as usize];
+            dy[k] = regs[d];
         }
         Ok(())
     }
@@ -89,17 +88,17 @@ impl Tape {
         out: &mut [f64],
     ) -> Result<(), EvalError> {
         for &(k, s) in &self.out_inputs {
-            regs[s as usize] = y[k];
+            regs[s] = y[k];
         }
         for &(from, to) in &self.memo_links {
-            let (from, to) = (from as usize, to as usize);
+            let (from, to) = (from.idx(), to.idx());
             if regs[from].is_finite() {
                 regs.copy_within(from..from + 4, to);
             }
         }
         self.run(&self.out_code, regs, t)?;
         for (k, &o) in self.out_regs.iter().enumerate() {
-            out[k] = regs[o as usize];
+            out[k] = regs[o];
         }
         Ok(())
     }
@@ -113,15 +112,12 @@ impl Tape {
             .chain(self.blocks.iter().flat_map(|b| b.body.iter()))
         {
             let d = ins.dest();
-            if d == NONE || regs[d as usize].is_finite() {
+            if d == NONE || regs[d].is_finite() {
                 continue;
             }
-            let inputs_finite = ins
-                .operands()
-                .into_iter()
-                .all(|s| regs[s as usize].is_finite());
+            let inputs_finite = ins.operands().into_iter().all(|s| regs[s].is_finite());
             if inputs_finite {
-                return Some((d as usize, self.reg_var[d as usize]));
+                return Some((d.idx(), self.reg_var[d]));
             }
         }
         None

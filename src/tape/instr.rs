@@ -3,57 +3,105 @@
 
 use crate::ir::{DeviceFn, Func};
 
+/// A register of the tape: an index into the `f64` register file that
+/// every program of one tape shares.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Reg(pub u32);
+
+impl Reg {
+    /// Its index in the register file.
+    #[inline]
+    pub fn idx(self) -> usize {
+        self.0 as usize
+    }
+
+    /// The register `k` places after it (a block of registers).
+    pub fn offset(self, k: u32) -> Reg {
+        Reg(self.0 + k)
+    }
+}
+
+impl<T> std::ops::Index<Reg> for [T] {
+    type Output = T;
+    #[inline]
+    fn index(&self, r: Reg) -> &T {
+        &self[r.idx()]
+    }
+}
+
+impl<T> std::ops::IndexMut<Reg> for [T] {
+    #[inline]
+    fn index_mut(&mut self, r: Reg) -> &mut T {
+        &mut self[r.idx()]
+    }
+}
+
+impl<T> std::ops::Index<Reg> for Vec<T> {
+    type Output = T;
+    #[inline]
+    fn index(&self, r: Reg) -> &T {
+        &self[r.idx()]
+    }
+}
+
+impl<T> std::ops::IndexMut<Reg> for Vec<T> {
+    #[inline]
+    fn index_mut(&mut self, r: Reg) -> &mut T {
+        &mut self[r.idx()]
+    }
+}
+
 /// One instruction: `dst = op(a, b)`; operands are registers.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Instr {
     Neg {
-        d: u32,
-        a: u32,
+        d: Reg,
+        a: Reg,
     },
     /// A device function (diode current or charge, or a derivative).
     Device {
-        d: u32,
+        d: Reg,
         f: DeviceFn,
-        a: u32,
+        a: Reg,
     },
     Add {
-        d: u32,
-        a: u32,
-        b: u32,
+        d: Reg,
+        a: Reg,
+        b: Reg,
     },
     Sub {
-        d: u32,
-        a: u32,
-        b: u32,
+        d: Reg,
+        a: Reg,
+        b: Reg,
     },
     Mul {
-        d: u32,
-        a: u32,
-        b: u32,
+        d: Reg,
+        a: Reg,
+        b: Reg,
     },
     Div {
-        d: u32,
-        a: u32,
-        b: u32,
+        d: Reg,
+        a: Reg,
+        b: Reg,
     },
     Pow {
-        d: u32,
-        a: u32,
-        b: u32,
+        d: Reg,
+        a: Reg,
+        b: Reg,
     },
     Call {
-        d: u32,
+        d: Reg,
         f: Func,
-        a: u32,
+        a: Reg,
     },
     /// The `order`-th time derivative of source `s`.
     Src {
-        d: u32,
+        d: Reg,
         s: u32,
         order: u8,
     },
     Time {
-        d: u32,
+        d: Reg,
     },
     /// Solve block `k` (see [`TapeBlock`]).
     Block {
@@ -62,18 +110,18 @@ pub enum Instr {
 }
 
 /// No register: the destination of a [`Instr::Block`].
-pub(super) const NONE: u32 = u32::MAX;
+pub(super) const NONE: Reg = Reg(u32::MAX);
 
 /// The registers an instruction reads (at most two), without allocating.
 #[derive(Clone, Copy, Debug)]
 pub struct Operands {
-    regs: [u32; 2],
+    regs: [Reg; 2],
     n: usize,
 }
 
 impl IntoIterator for Operands {
-    type Item = u32;
-    type IntoIter = std::iter::Take<std::array::IntoIter<u32, 2>>;
+    type Item = Reg;
+    type IntoIter = std::iter::Take<std::array::IntoIter<Reg, 2>>;
     fn into_iter(self) -> Self::IntoIter {
         self.regs.into_iter().take(self.n)
     }
@@ -82,7 +130,7 @@ impl IntoIterator for Operands {
 impl Instr {
     /// The register it writes; [`NONE`] for a block, whose writes are its
     /// body's.
-    pub fn dest(&self) -> u32 {
+    pub fn dest(&self) -> Reg {
         match *self {
             Instr::Neg { d, .. }
             | Instr::Add { d, .. }
@@ -103,13 +151,15 @@ impl Instr {
     /// time read none; a block's reads are its body's.
     pub fn operands(&self) -> Operands {
         let (regs, n) = match *self {
-            Instr::Neg { a, .. } | Instr::Call { a, .. } | Instr::Device { a, .. } => ([a, 0], 1),
+            Instr::Neg { a, .. } | Instr::Call { a, .. } | Instr::Device { a, .. } => {
+                ([a, NONE], 1)
+            }
             Instr::Add { a, b, .. }
             | Instr::Sub { a, b, .. }
             | Instr::Mul { a, b, .. }
             | Instr::Div { a, b, .. }
             | Instr::Pow { a, b, .. } => ([a, b], 2),
-            Instr::Src { .. } | Instr::Time { .. } | Instr::Block { .. } => ([0, 0], 0),
+            Instr::Src { .. } | Instr::Time { .. } | Instr::Block { .. } => ([NONE, NONE], 0),
         };
         Operands { regs, n }
     }

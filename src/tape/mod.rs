@@ -26,7 +26,7 @@ mod instr;
 mod tangent;
 
 pub use compile::compile;
-pub use instr::Instr;
+pub use instr::{Instr, Reg};
 pub use tangent::TangentCache;
 
 use analyze::*;
@@ -39,18 +39,18 @@ use instr::*;
 pub struct TapeBlock {
     /// 1-based index in the schedule (for messages).
     pub index: usize,
-    pub tears: Vec<u32>,
-    pub residuals: Vec<u32>,
+    pub tears: Vec<Reg>,
+    pub residuals: Vec<Reg>,
     pub body: Vec<Instr>,
     pub linear: bool,
     /// The circuit elements of the block, for messages.
     pub elements: Vec<String>,
     /// Tears that enter an `exp(x/vt)` (junction voltages), with the register
     /// of `vt`: their Newton steps are limited as ngspice limits junctions.
-    pub junctions: Vec<(usize, u32)>,
+    pub junctions: Vec<(usize, Reg)>,
     /// Registers the body reads or writes, each once: the tangents a
     /// Jacobian column clears before it runs.
-    pub touched: Vec<u32>,
+    pub touched: Vec<Reg>,
     /// Nothing outside the body reads what it computes but the tears: a
     /// converged Newton may move the tears last without re-running it.
     pub private: bool,
@@ -71,12 +71,12 @@ pub struct TapeBlock {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ChargeInverse {
     pub diode: u32,
-    pub target: u32,
+    pub target: Reg,
     /// Four registers: the last voltage the inversion evaluated the junction
     /// at, and its charge, `Q′` and `Q″` there (NaN: none yet). The next
     /// inversion starts from it and takes its first step without evaluating
     /// the junction.
-    pub memo: u32,
+    pub memo: Reg,
 }
 
 impl TapeBlock {
@@ -85,7 +85,7 @@ impl TapeBlock {
     /// solution method.
     pub fn new(
         index: usize,
-        (tears, residuals): (Vec<u32>, Vec<u32>),
+        (tears, residuals): (Vec<Reg>, Vec<Reg>),
         body: Vec<Instr>,
         linear: bool,
         elements: Vec<String>,
@@ -154,11 +154,11 @@ pub enum EvalError {
 pub struct Tape {
     pub n_regs: usize,
     /// Register of each state, in state order (the ODE's `y`).
-    pub state_regs: Vec<u32>,
+    pub state_regs: Vec<Reg>,
     /// The state variables, in the same order.
     pub states: Vec<VarId>,
     /// Register of each state's derivative (the ODE's `f`).
-    pub deriv_regs: Vec<u32>,
+    pub deriv_regs: Vec<Reg>,
     /// Initial register contents (parameters and constants).
     pub init: Vec<f64>,
     pub code: Vec<Instr>,
@@ -166,13 +166,13 @@ pub struct Tape {
     /// Computes the outputs from the states, on its own registers.
     pub out_code: Vec<Instr>,
     /// The states `out_code` reads: (index in `y`, register).
-    pub out_inputs: Vec<(usize, u32)>,
-    pub out_regs: Vec<u32>,
+    pub out_inputs: Vec<(usize, Reg)>,
+    pub out_regs: Vec<Reg>,
     /// `(from, to)`: the inversion memo of a junction charge in `code` and
     /// of the same charge in `out_code`. An output point after a step
     /// starts each inversion where the step's last evaluation ended (a
     /// Halley step or none), not where the last output point did.
-    memo_links: Vec<(u32, u32)>,
+    memo_links: Vec<(Reg, Reg)>,
     pub sources: Vec<Waveform>,
     pub diodes: Vec<DiodeParams>,
     /// Where the schedule's assignments are evaluated.
@@ -187,7 +187,7 @@ pub struct Tape {
     /// DC values in their registers (see [`Tape::scale_sources`]).
     pub source_scale: std::cell::Cell<f64>,
     /// The registers of DC sources' values, and the values.
-    pub source_params: Vec<(u32, f64)>,
+    pub source_params: Vec<(Reg, f64)>,
     /// Each source's last `(t, value)` (unscaled, order 0): the Newton
     /// iterations of an implicit stage evaluate `f` at one time again and
     /// again, and a transcendental source (SIN) is then computed once.

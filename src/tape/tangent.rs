@@ -57,59 +57,59 @@ impl Tape {
         for ins in code {
             match *ins {
                 Instr::Neg { d, a } => {
-                    r[d as usize] = -r[a as usize];
-                    dr[d as usize] = -dr[a as usize];
+                    r[d] = -r[a];
+                    dr[d] = -dr[a];
                 }
                 Instr::Add { d, a, b } => {
-                    r[d as usize] = r[a as usize] + r[b as usize];
-                    dr[d as usize] = dr[a as usize] + dr[b as usize];
+                    r[d] = r[a] + r[b];
+                    dr[d] = dr[a] + dr[b];
                 }
                 Instr::Sub { d, a, b } => {
-                    r[d as usize] = r[a as usize] - r[b as usize];
-                    dr[d as usize] = dr[a as usize] - dr[b as usize];
+                    r[d] = r[a] - r[b];
+                    dr[d] = dr[a] - dr[b];
                 }
                 Instr::Mul { d, a, b } => {
-                    let (x, y) = (r[a as usize], r[b as usize]);
-                    r[d as usize] = x * y;
-                    dr[d as usize] = dr[a as usize] * y + x * dr[b as usize];
+                    let (x, y) = (r[a], r[b]);
+                    r[d] = x * y;
+                    dr[d] = dr[a] * y + x * dr[b];
                 }
                 Instr::Div { d, a, b } => {
-                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let (x, y) = (r[a], r[b]);
                     let q = x / y;
-                    r[d as usize] = q;
-                    dr[d as usize] = (dr[a as usize] - q * dr[b as usize]) / y;
+                    r[d] = q;
+                    dr[d] = (dr[a] - q * dr[b]) / y;
                 }
                 Instr::Pow { d, a, b } => {
-                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let (x, y) = (r[a], r[b]);
                     let p = x.powf(y);
-                    r[d as usize] = p;
-                    let (dx, dy) = (dr[a as usize], dr[b as usize]);
+                    r[d] = p;
+                    let (dx, dy) = (dr[a], dr[b]);
                     let mut dp = y * x.powf(y - 1.0) * dx;
                     if dy != 0.0 {
                         dp += p * x.ln() * dy;
                     }
-                    dr[d as usize] = dp;
+                    dr[d] = dp;
                 }
                 Instr::Call { d, f, a } => {
-                    let x = r[a as usize];
+                    let x = r[a];
                     let fx = f.apply(x);
-                    r[d as usize] = fx;
-                    dr[d as usize] = f.derivative(x, fx) * dr[a as usize];
+                    r[d] = fx;
+                    dr[d] = f.derivative(x, fx) * dr[a];
                 }
                 Instr::Device { d, f, a } => {
-                    let x = r[a as usize];
+                    let x = r[a];
                     let p = &self.diodes[f.diode as usize];
                     let (v, slope) = p.eval_with_slope(f.part, f.order, x);
-                    r[d as usize] = v;
-                    dr[d as usize] = slope * dr[a as usize];
+                    r[d] = v;
+                    dr[d] = slope * dr[a];
                 }
                 Instr::Src { d, s, order } => {
-                    r[d as usize] = self.source(s, t, order);
-                    dr[d as usize] = 0.0;
+                    r[d] = self.source(s, t, order);
+                    dr[d] = 0.0;
                 }
                 Instr::Time { d } => {
-                    r[d as usize] = t;
-                    dr[d as usize] = 0.0;
+                    r[d] = t;
+                    dr[d] = 0.0;
                 }
                 Instr::Block { k } => {
                     // Value first (Newton), then the tangent of the solution by
@@ -140,7 +140,7 @@ impl Tape {
                         if !(slope.is_finite() && slope != 0.0) {
                             return Err(b.singular(t));
                         }
-                        let dq = dr[ci.target as usize];
+                        let dq = dr[ci.target];
                         dr[x] = dq / slope;
                         dr[q] = dq;
                         dr[res] = 0.0;
@@ -160,10 +160,10 @@ impl Tape {
                     if !kept {
                         self.solve_block(k, r, t)?;
                         if !b.constant_jacobian {
-                            w.saved.extend(b.touched.iter().map(|&x| dr[x as usize]));
+                            w.saved.extend(b.touched.iter().map(|&x| dr[x]));
                             let factored = self.factor_jacobian(b, r, dr, t, &mut w);
                             for (&x, &v) in b.touched.iter().zip(&w.saved) {
-                                dr[x as usize] = v;
+                                dr[x] = v;
                             }
                             sparse = factored?;
                         }
@@ -182,10 +182,10 @@ impl Tape {
                         }
                     }
                     for &x in &b.tears {
-                        dr[x as usize] = 0.0;
+                        dr[x] = 0.0;
                     }
                     self.run_tangent(&b.body, r, dr, t, None)?;
-                    w.res.extend(b.residuals.iter().map(|&x| -dr[x as usize]));
+                    w.res.extend(b.residuals.iter().map(|&x| -dr[x]));
                     if b.constant_jacobian {
                         self.constant_lu(b, r, t, &mut w)?
                             .solve_in_place(&mut w.res, &mut w.tmp);
@@ -197,7 +197,7 @@ impl Tape {
                         solve_factored(sparse.as_ref(), &w.jac, &w.perm, &mut w.res, &mut w.tmp);
                     }
                     for (j, &x) in b.tears.iter().enumerate() {
-                        dr[x as usize] = w.res[j];
+                        dr[x] = w.res[j];
                     }
                     w.give();
                     self.run_tangent(&b.body, r, dr, t, None)?;
@@ -220,11 +220,11 @@ impl Tape {
         t: f64,
     ) -> Result<(), EvalError> {
         // dr[d] = ka·dr[a] (+ kb·dr[b]) in every direction.
-        fn lin(dr: &mut [f64], m: usize, d: u32, a: (u32, f64), b: Option<(u32, f64)>) {
-            let (d, a0, ka) = (d as usize * m, a.0 as usize * m, a.1);
+        fn lin(dr: &mut [f64], m: usize, d: Reg, a: (Reg, f64), b: Option<(Reg, f64)>) {
+            let (d, a0, ka) = (d.idx() * m, a.0.idx() * m, a.1);
             match b {
                 Some((b, kb)) => {
-                    let b0 = b as usize * m;
+                    let b0 = b.idx() * m;
                     for j in 0..m {
                         dr[d + j] = ka * dr[a0 + j] + kb * dr[b0 + j];
                     }
@@ -239,34 +239,34 @@ impl Tape {
         for ins in code {
             match *ins {
                 Instr::Neg { d, a } => {
-                    r[d as usize] = -r[a as usize];
+                    r[d] = -r[a];
                     lin(dr, m, d, (a, -1.0), None);
                 }
                 Instr::Add { d, a, b } => {
-                    r[d as usize] = r[a as usize] + r[b as usize];
+                    r[d] = r[a] + r[b];
                     lin(dr, m, d, (a, 1.0), Some((b, 1.0)));
                 }
                 Instr::Sub { d, a, b } => {
-                    r[d as usize] = r[a as usize] - r[b as usize];
+                    r[d] = r[a] - r[b];
                     lin(dr, m, d, (a, 1.0), Some((b, -1.0)));
                 }
                 Instr::Mul { d, a, b } => {
-                    let (x, y) = (r[a as usize], r[b as usize]);
-                    r[d as usize] = x * y;
+                    let (x, y) = (r[a], r[b]);
+                    r[d] = x * y;
                     lin(dr, m, d, (a, y), Some((b, x)));
                 }
                 Instr::Div { d, a, b } => {
-                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let (x, y) = (r[a], r[b]);
                     let q = x / y;
-                    r[d as usize] = q;
+                    r[d] = q;
                     lin(dr, m, d, (a, 1.0 / y), Some((b, -q / y)));
                 }
                 Instr::Pow { d, a, b } => {
-                    let (x, y) = (r[a as usize], r[b as usize]);
+                    let (x, y) = (r[a], r[b]);
                     let p = x.powf(y);
-                    r[d as usize] = p;
+                    r[d] = p;
                     let ka = y * x.powf(y - 1.0);
-                    let b0 = b as usize * m;
+                    let b0 = b.idx() * m;
                     if dr[b0..b0 + m].iter().all(|v| *v == 0.0) {
                         lin(dr, m, d, (a, ka), None);
                     } else {
@@ -274,24 +274,24 @@ impl Tape {
                     }
                 }
                 Instr::Call { d, f, a } => {
-                    let x = r[a as usize];
+                    let x = r[a];
                     let fx = f.apply(x);
-                    r[d as usize] = fx;
+                    r[d] = fx;
                     lin(dr, m, d, (a, f.derivative(x, fx)), None);
                 }
                 Instr::Device { d, f, a } => {
                     let p = &self.diodes[f.diode as usize];
-                    let (v, slope) = p.eval_with_slope(f.part, f.order, r[a as usize]);
-                    r[d as usize] = v;
+                    let (v, slope) = p.eval_with_slope(f.part, f.order, r[a]);
+                    r[d] = v;
                     lin(dr, m, d, (a, slope), None);
                 }
                 Instr::Src { d, s, order } => {
-                    r[d as usize] = self.source(s, t, order);
-                    dr[d as usize * m..(d as usize + 1) * m].fill(0.0);
+                    r[d] = self.source(s, t, order);
+                    dr[d.idx() * m..(d.idx() + 1) * m].fill(0.0);
                 }
                 Instr::Time { d } => {
-                    r[d as usize] = t;
-                    dr[d as usize * m..(d as usize + 1) * m].fill(0.0);
+                    r[d] = t;
+                    dr[d.idx() * m..(d.idx() + 1) * m].fill(0.0);
                 }
                 Instr::Block { k } => {
                     // The value (Newton), the block's Jacobian factored once,
@@ -304,7 +304,7 @@ impl Tape {
                         if !(c.is_finite() && c != 0.0) {
                             return Err(b.singular(t));
                         }
-                        let target = ci.target as usize * m;
+                        let target = ci.target.idx() * m;
                         for j in 0..m {
                             let dq = dr[target + j];
                             dr[x * m + j] = dq / c;
@@ -328,14 +328,14 @@ impl Tape {
                             None
                         };
                         for &x in &b.tears {
-                            dr[x as usize * m..(x as usize + 1) * m].fill(0.0);
+                            dr[x.idx() * m..(x.idx() + 1) * m].fill(0.0);
                         }
                         self.run_tangents(&b.body, r, dr, m, t)?;
                         // Direction by direction; a tear's slot in direction
                         // j is not read by the other directions' solves.
                         for j in 0..m {
                             for (i, &res) in b.residuals.iter().enumerate() {
-                                w.step[i] = -dr[res as usize * m + j];
+                                w.step[i] = -dr[res.idx() * m + j];
                             }
                             match constant {
                                 Some(lu) => lu.solve_in_place(&mut w.step, &mut w.tmp),
@@ -348,7 +348,7 @@ impl Tape {
                                 ),
                             }
                             for (i, &x) in b.tears.iter().enumerate() {
-                                dr[x as usize * m + j] = w.step[i];
+                                dr[x.idx() * m + j] = w.step[i];
                             }
                         }
                         self.run_tangents(&b.body, r, dr, m, t)
@@ -377,8 +377,8 @@ impl Tape {
     ) -> Result<(), EvalError> {
         dregs.iter_mut().for_each(|x| *x = 0.0);
         for (k, &s) in self.state_regs.iter().enumerate() {
-            regs[s as usize] = y[k];
-            dregs[s as usize] = v[k];
+            regs[s] = y[k];
+            dregs[s] = v[k];
         }
         let mut cache = cache;
         let r = self.run_tangent(&self.code, regs, dregs, t, cache.as_deref_mut());
@@ -387,7 +387,7 @@ impl Tape {
         }
         r?;
         for (k, &d) in self.deriv_regs.iter().enumerate() {
-            jv[k] = dregs[d as usize];
+            jv[k] = dregs[d];
         }
         Ok(())
     }
@@ -410,15 +410,15 @@ impl Tape {
         dregs.clear();
         dregs.resize(self.n_regs * m, 0.0);
         for (k, &s) in self.state_regs.iter().enumerate() {
-            regs[s as usize] = y[k];
+            regs[s] = y[k];
         }
         for (j, &c) in cols.iter().enumerate() {
-            dregs[self.state_regs[c] as usize * m + j] = 1.0;
+            dregs[self.state_regs[c].idx() * m + j] = 1.0;
         }
         self.run_tangents(&self.code, regs, dregs, m, t)?;
         for (i, &d) in self.deriv_regs.iter().enumerate() {
-            jac[i * m..(i + 1) * m].copy_from_slice(&dregs[d as usize * m..(d as usize + 1) * m]);
-            dy[i] = regs[d as usize];
+            jac[i * m..(i + 1) * m].copy_from_slice(&dregs[d.idx() * m..(d.idx() + 1) * m]);
+            dy[i] = regs[d];
         }
         Ok(())
     }

@@ -254,8 +254,8 @@ fn evaluator_jacobian_matches_finite_differences() {
             t.rhs(&mut regs, time, &y, &mut f).unwrap();
             for b in &t.blocks {
                 if let Some(ci) = b.charge_inverse {
-                    let x = regs[b.tears[0] as usize];
-                    let q = regs[ci.target as usize];
+                    let x = regs[b.tears[0]];
+                    let q = regs[ci.target];
                     let [qx, c, _] = t.diodes[ci.diode as usize].charge(x);
                     assert!(
                         (qx - q).abs() <= 1e-12 * c * (1.0 + x.abs()),

@@ -387,8 +387,8 @@ where
     fn junction_voltage(&self, ci: ChargeInverse, q: f64) -> Option<(f64, f64)> {
         let x = self.ode.register(ci.memo);
         let (qm, c) = (
-            self.ode.register(ci.memo + 1),
-            self.ode.register(ci.memo + 2),
+            self.ode.register(ci.memo.offset(1)),
+            self.ode.register(ci.memo.offset(2)),
         );
         let v = x + (q - qm) / c;
         (v.is_finite() && c > 0.0).then_some((v, c))
@@ -754,8 +754,8 @@ where
             let ci = jn.ci;
             let (x, cap, cap2) = (
                 self.ode.register(ci.memo),
-                self.ode.register(ci.memo + 2),
-                self.ode.register(ci.memo + 3),
+                self.ode.register(ci.memo.offset(2)),
+                self.ode.register(ci.memo.offset(3)),
             );
             let [id, gd, gd2] = self.ode.tape.diodes[ci.diode as usize].current(x);
             (jn.cap_p, jn.gd_p, jn.id) = (cap, gd, id);
@@ -942,7 +942,7 @@ where
         // the charge's own scale alone their error would not shrink with
         // rtol.
         for jn in &self.junctions {
-            let cap = self.ode.register(jn.ci.memo + 2);
+            let cap = self.ode.register(jn.ci.memo.offset(2));
             let v = jn.v_peak * cap;
             self.jscale[jn.k] = if v.is_finite() && v > 0.0 {
                 v
