@@ -28,7 +28,8 @@
 //! Every stage reports problems as [`diag::Diagnostic`]s pointing at the
 //! netlist; [`diag::render`] draws them with file, line, column and a caret.
 //! [`pipeline`] strings the stages up to the schedule together for the CLI,
-//! the simulator and tests. The layers and their order are stated in
+//! the simulator and tests; [`Error`] holds any stage's error for a
+//! caller that runs several. The layers and their order are stated in
 //! `ARCHITECTURE.md` and checked by a test.
 
 pub mod analysis;
@@ -37,6 +38,7 @@ pub mod bench;
 pub mod build;
 pub mod diag;
 pub mod elab;
+pub mod error;
 pub mod front;
 pub mod generate;
 pub mod io;
@@ -46,3 +48,5 @@ pub mod pipeline;
 pub mod sim;
 pub mod tape;
 pub mod validate;
+
+pub use error::Error;

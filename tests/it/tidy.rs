@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 /// only modules listed before it.
 const LAYERS: &[&str] = &[
     "diag", "ir", "numeric", "front", "io", "elab", "build", "analysis", "back", "tape",
-    "pipeline", "sim", "validate", "generate", "bench",
+    "pipeline", "sim", "validate", "generate", "bench", "error",
 ];
 
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {

@@ -16,12 +16,10 @@ pub enum Error {
     /// The netlist has errors: its diagnostics are shown, then their count.
     #[error("{}", errors_found(&.0.0))]
     Netlist(NetlistErrors),
-    /// The simulation failed.
+    /// A stage stopped (the simulation, the comparison with ngspice): its
+    /// diagnostic is shown.
     #[error(transparent)]
-    Sim(Box<WithSources<kausal::sim::SimError>>),
-    /// The comparison with ngspice could not be made.
-    #[error(transparent)]
-    Validate(Box<WithSources<kausal::validate::ValidateError>>),
+    Stage(Box<WithSources<kausal::Error>>),
     #[error("cannot write `{}`: {source}", path.display())]
     Write {
         path: PathBuf,
@@ -84,12 +82,12 @@ impl Error {
         Error::Netlist(NetlistErrors(failed))
     }
 
-    pub fn sim(sources: SourceMap, error: kausal::sim::SimError) -> Self {
-        Error::Sim(Box::new(WithSources { sources, error }))
-    }
-
-    pub fn validate(sources: SourceMap, error: kausal::validate::ValidateError) -> Self {
-        Error::Validate(Box::new(WithSources { sources, error }))
+    /// A stage's error, with the sources its diagnostic points into.
+    pub fn stage(sources: SourceMap, error: impl Into<kausal::Error>) -> Self {
+        Error::Stage(Box::new(WithSources {
+            sources,
+            error: error.into(),
+        }))
     }
 
     /// A file `path` could not be written.
@@ -112,8 +110,7 @@ pub fn report(error: Error) -> ExitCode {
             print_diags(&failed.sources, &failed.diagnostics);
             eprintln!("error: {error}");
         }
-        Error::Sim(e) => print_diags(&e.sources, &[e.error.to_diagnostic()]),
-        Error::Validate(e) => print_diags(&e.sources, &[e.error.to_diagnostic()]),
+        Error::Stage(e) => print_diags(&e.sources, &[e.error.to_diagnostic()]),
         _ => eprintln!("error: {error}"),
     }
     ExitCode::FAILURE

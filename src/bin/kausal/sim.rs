@@ -80,7 +80,7 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
     };
     let (waves, csv) = match simulate(&sorted, &sim_opts, &args) {
         Ok(x) => x,
-        Err(e) => return Err(Error::sim(sorted.elaborated.sources, e)),
+        Err(e) => return Err(Error::stage(sorted.elaborated.sources, e)),
     };
     // The files first: a closed stderr cannot lose them.
     write_files(&sorted, &waves, csv, &args)?;

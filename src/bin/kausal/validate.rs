@@ -59,7 +59,7 @@ pub fn run(args: Args) -> Result<ExitCode, Error> {
     };
     let report = match validate::validate(&args.netlist, &sorted, &opts) {
         Ok(r) => r,
-        Err(e) => return Err(Error::validate(sorted.elaborated.sources, e)),
+        Err(e) => return Err(Error::stage(sorted.elaborated.sources, e)),
     };
     if let Some(dir) = &args.plot {
         plot(dir, &args.netlist, &report)?;
