@@ -29,7 +29,15 @@ impl Compiler<'_> {
         r
     }
 
-    /// Emit `e` into `out` (post-order, memoized); returns its register.
+    /// A register of its own for variable `v`, holding its value (a state,
+    /// a tear).
+    fn var_reg_new(&mut self, v: VarId) -> Reg {
+        let r = self.reg(0.0);
+        self.var_reg[v.0 as usize] = r;
+        self.reg_var[r] = Some(v);
+        r
+    }
+
     /// The register of a constant value, one per distinct value: a ladder
     /// of 10^5 equal resistors reads one `1/R`, which stays in cache.
     fn const_reg(&mut self, v: f64) -> Reg {
@@ -317,15 +325,7 @@ impl Compiler<'_> {
                 } else {
                     b.tears.clone()
                 };
-                let tears: Vec<Reg> = unknowns
-                    .iter()
-                    .map(|&v| {
-                        let r = self.reg(0.0);
-                        self.var_reg[v.0 as usize] = r;
-                        self.reg_var[r] = Some(v);
-                        r
-                    })
-                    .collect();
+                let tears: Vec<Reg> = unknowns.iter().map(|&v| self.var_reg_new(v)).collect();
                 let mut body = Vec::new();
                 if !whole {
                     for a in &b.inner {
@@ -398,15 +398,7 @@ pub fn compile(
         reg_var: Vec::new(),
         blocks: Vec::new(),
     };
-    let state_regs: Vec<Reg> = states
-        .iter()
-        .map(|&s| {
-            let r = c.reg(0.0);
-            c.var_reg[s.0 as usize] = r;
-            c.reg_var[r] = Some(s);
-            r
-        })
-        .collect();
+    let state_regs: Vec<Reg> = states.iter().map(|&s| c.var_reg_new(s)).collect();
     // Which steps the derivatives need: walk the schedule backwards.
     let ders: Vec<VarId> = states
         .iter()

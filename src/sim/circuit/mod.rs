@@ -580,6 +580,18 @@ where
         nw.factored
     }
 
+    /// `delta := (I - βJ)⁻¹ delta` with the factored iteration matrix.
+    fn solve_delta(&mut self) {
+        let nw = &self.newton;
+        lu_solve(
+            self.n,
+            &nw.lu,
+            &nw.perm,
+            &mut self.stage.delta,
+            &mut self.stage.scratch,
+        );
+    }
+
     /// One Newton correction of `y1` from `f1 = f(t1, y1)` with the factored
     /// iteration matrix; its size in the Newton weights.
     fn correct(&mut self, beta: f64) -> f64 {
@@ -587,14 +599,7 @@ where
         for i in 0..n {
             self.stage.delta[i] = self.stage.c[i] + beta * self.stage.f[i] - self.stage.x[i];
         }
-        let nw = &self.newton;
-        lu_solve(
-            n,
-            &nw.lu,
-            &nw.perm,
-            &mut self.stage.delta,
-            &mut self.stage.scratch,
-        );
+        self.solve_delta();
         let mut norm: f64 = 0.0;
         for i in 0..n {
             self.stage.x[i] += self.stage.delta[i];
@@ -924,16 +929,7 @@ where
             let dd1 = (self.stage.f[i] - self.gamma.f[i]) / (h - s);
             self.stage.delta[i] = 2.0 * ERROR_CONSTANT * h * h * (dd1 - dd0);
         }
-        {
-            let nw = &self.newton;
-            lu_solve(
-                n,
-                &nw.lu,
-                &nw.perm,
-                &mut self.stage.delta,
-                &mut self.stage.scratch,
-            );
-        }
+        self.solve_delta();
         // A junction charge's error is also a voltage error, `δq / Q′`, on
         // the scale of the largest junction voltage so far: a reverse-biased
         // junction's depletion charge is orders of magnitude below the
