@@ -106,11 +106,7 @@ where
     ode.eval(t0, &start.y, &mut dy0)
         .map_err(|error| SimError::Eval { error })?;
     *ode.y0.borrow_mut() = start.y;
-    let rtol = opts.rtol.unwrap_or_else(|| {
-        c.options
-            .reltol
-            .map_or(DEFAULT_RTOL, |r| r.min(DEFAULT_RTOL * 1e3))
-    });
+    let rtol = run_rtol(opts, c);
     let mut warnings = start.warnings;
     if method == Method::Bdf
         && let Some(d) = oscillation_at_loose_rtol(sys, &ode, tran, rtol, t0, &ode.y0.borrow())
@@ -118,36 +114,7 @@ where
         warnings.push(d);
     }
     let atol_own = atol.clone();
-    let problem = OdeBuilder::<M>::new()
-        .rtol(rtol)
-        .atol(atol)
-        .t0(t0)
-        .h0((tran.tstep / 100.0).min(tran.tstop * 1e-6).max(1e-15))
-        .build_from_eqn(ode)
-        .map_err(|e| solver_err(t0, e))?;
-    // diffsol's default minimum step (1e-13 s) is longer than a nanosecond
-    // circuit's steps: scale it to the run.
-    let mut problem = problem;
-    problem.ode_options.min_timestep = tran.tstop * 1e-16;
-    // diffsol counts Newton failures over the whole run, not per step: a
-    // long run of a switching circuit would hit any fixed limit. A step that
-    // cannot converge ends in step-size underflow instead.
-    problem.ode_options.max_nonlinear_solver_failures = usize::MAX / 2;
-    // Newton stops when its estimated remaining error is 0.1 of the error
-    // test's tolerance (CVODE's coefficient), not diffsol's 0.2: at rtol 1e-2
-    // a corrector iterate that stopped early across a diode's turn-on (a
-    // Jacobian from before it conducted) let the bridge rectifier's junction
-    // charges ring and charged its capacitor to 43 V from a 10 V source.
-    problem.ode_options.nonlinear_solver_tolerance = 0.1;
-    let times = match &opts.times {
-        Some(t) => Grid::Times(
-            t.iter()
-                .copied()
-                .filter(|&x| x >= 0.0 && x <= tran.tstop)
-                .collect(),
-        ),
-        None => Grid::of(tran),
-    };
+    let problem = problem(ode, tran, rtol, atol, t0)?;
     // Junction charges, the states that interpolation must not leave off
     // their slow manifold (see `Recorder::settle_charges`); small circuits only.
     let charges: Vec<usize> = if sparse {
@@ -162,7 +129,7 @@ where
     };
     let rec = Recorder {
         ode: &problem.eqn,
-        grid: times,
+        grid: output_grid(opts, tran),
         next: 0,
         rows: Rows::new(tape.out_regs.len(), sink),
         out: vec![0.0; tape.out_regs.len()],
@@ -234,6 +201,64 @@ where
     let mut w = rec.rows.into_waveforms(stats);
     w.warnings = warnings;
     Ok(w)
+}
+
+/// The run's relative tolerance: `--rtol`, else the netlist's RELTOL (at
+/// most a thousand times kausal's default), else the default.
+fn run_rtol(opts: &Options, c: &crate::elab::Circuit) -> f64 {
+    opts.rtol.unwrap_or_else(|| {
+        c.options
+            .reltol
+            .map_or(DEFAULT_RTOL, |r| r.min(DEFAULT_RTOL * 1e3))
+    })
+}
+
+/// diffsol's problem for `ode` on `tran`, with the options circuits need.
+fn problem<M>(
+    ode: CircuitOde<M>,
+    tran: &crate::elab::Tran,
+    rtol: f64,
+    atol: Vec<f64>,
+    t0: f64,
+) -> Result<OdeSolverProblem<CircuitOde<M>>, SimError>
+where
+    M: Matrix<T = f64> + diffsol::DefaultSolver,
+    M::V: HostVec,
+{
+    let mut problem = OdeBuilder::<M>::new()
+        .rtol(rtol)
+        .atol(atol)
+        .t0(t0)
+        .h0((tran.tstep / 100.0).min(tran.tstop * 1e-6).max(1e-15))
+        .build_from_eqn(ode)
+        .map_err(|e| solver_err(t0, e))?;
+    // diffsol's default minimum step (1e-13 s) is longer than a nanosecond
+    // circuit's steps: scale it to the run.
+    problem.ode_options.min_timestep = tran.tstop * 1e-16;
+    // diffsol counts Newton failures over the whole run, not per step: a
+    // long run of a switching circuit would hit any fixed limit. A step that
+    // cannot converge ends in step-size underflow instead.
+    problem.ode_options.max_nonlinear_solver_failures = usize::MAX / 2;
+    // Newton stops when its estimated remaining error is 0.1 of the error
+    // test's tolerance (CVODE's coefficient), not diffsol's 0.2: a corrector
+    // iterate that stops early across a diode's turn-on (on a Jacobian from
+    // before it conducted) lets a bridge rectifier's junction charges ring
+    // and overcharge its capacitor at rtol 1e-2.
+    problem.ode_options.nonlinear_solver_tolerance = 0.1;
+    Ok(problem)
+}
+
+/// Where the run reports: the requested times, else the `.tran` grid.
+fn output_grid(opts: &Options, tran: &crate::elab::Tran) -> Grid {
+    match &opts.times {
+        Some(t) => Grid::Times(
+            t.iter()
+                .copied()
+                .filter(|&x| x >= 0.0 && x <= tran.tstop)
+                .collect(),
+        ),
+        None => Grid::of(tran),
+    }
 }
 
 pub(super) fn solver_err(t: f64, e: diffsol::DiffsolError) -> SimError {

@@ -29,6 +29,33 @@ impl Compiler<'_> {
         r
     }
 
+    /// The register of output `o`, its code appended to `out`.
+    fn output(&mut self, o: OutputRef, out: &mut Vec<Instr>) -> Reg {
+        match o {
+            OutputRef::Expr(e) => self.emit(e, out),
+            OutputRef::Diff(a, b) => {
+                let (ra, rb) = (self.emit(a, out), self.emit(b, out));
+                let d = self.reg(0.0);
+                out.push(Instr::Sub { d, a: ra, b: rb });
+                d
+            }
+            OutputRef::Var(v) => self.var(v, out),
+        }
+    }
+
+    /// Mark the junction-charge blocks, each with its four memo registers.
+    fn set_charge_inverses(&mut self) {
+        for k in 0..self.blocks.len() {
+            self.blocks[k].charge_inverse = charge_inverse(&self.blocks[k]).map(|ci| {
+                let memo = self.reg(f64::NAN);
+                for _ in 1..4 {
+                    self.reg(f64::NAN);
+                }
+                ChargeInverse { memo, ..ci }
+            });
+        }
+    }
+
     /// A register of its own for variable `v`, holding its value (a state,
     /// a tear).
     fn var_reg_new(&mut self, v: VarId) -> Reg {
@@ -378,6 +405,81 @@ pub(super) fn step_vars(
     (writes, reads)
 }
 
+/// Which steps compute something `needed` marks, walking the schedule
+/// backwards; what those steps read is marked needed on the way.
+fn steps_needed(info: &[(Vec<VarId>, Vec<VarId>)], needed: &mut [bool]) -> Vec<bool> {
+    let mut steps = vec![false; info.len()];
+    for (k, (writes, reads)) in info.iter().enumerate().rev() {
+        if writes.iter().any(|w| needed[w.0 as usize]) {
+            steps[k] = true;
+            for r in reads {
+                needed[r.0 as usize] = true;
+            }
+        }
+    }
+    steps
+}
+
+/// The variables the outputs read: one pass over their expression DAG,
+/// through aliases (the loop formulation's node potentials share their tree
+/// paths, so a pass per output would be quadratic).
+fn output_vars(sys: &EquationSystem, outputs: &[OutputRef]) -> Vec<bool> {
+    let mut out_needed = vec![false; sys.vars.len()];
+    let mut seen: std::collections::HashSet<ExprId> = std::collections::HashSet::new();
+    let mut stack: Vec<ExprId> = Vec::new();
+    let mark = |v: VarId, out_needed: &mut [bool], stack: &mut Vec<ExprId>| {
+        if !std::mem::replace(&mut out_needed[v.0 as usize], true)
+            && let Some(a) = sys.vars[v].alias
+        {
+            stack.push(a);
+        }
+    };
+    for &o in outputs {
+        match o {
+            OutputRef::Expr(e) => stack.push(e),
+            OutputRef::Diff(a, b) => stack.extend([a, b]),
+            OutputRef::Var(v) => mark(v, &mut out_needed, &mut stack),
+        }
+        while let Some(e) = stack.pop() {
+            if !seen.insert(e) {
+                continue;
+            }
+            match sys.exprs.get(e) {
+                Expr::Var(v) => mark(v, &mut out_needed, &mut stack),
+                op => stack.extend(op.operands().into_iter().flatten()),
+            }
+        }
+    }
+    out_needed
+}
+
+/// The states the output program reads, as `(index in y, register)`.
+fn states_read(
+    blocks: &[TapeBlock],
+    out_code: &[Instr],
+    out_regs: &[Reg],
+    state_regs: &[Reg],
+) -> Vec<(usize, Reg)> {
+    let read: std::collections::HashSet<Reg> = out_code
+        .iter()
+        .flat_map(|i| match i {
+            Instr::Block { k } => blocks[*k as usize]
+                .body
+                .iter()
+                .flat_map(|b| b.operands())
+                .collect::<Vec<_>>(),
+            other => other.operands().into_iter().collect(),
+        })
+        .chain(out_regs.iter().copied())
+        .collect();
+    state_regs
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| read.contains(r))
+        .map(|(k, &r)| (k, r))
+        .collect()
+}
+
 /// Compile `sched` of `sys`. `outputs` are evaluated at output points only.
 pub fn compile(
     sys: &EquationSystem,
@@ -407,65 +509,19 @@ pub fn compile(
             _ => unreachable!("states have derivatives"),
         })
         .collect();
-    let mut needed = vec![false; sys.vars.len()];
-    for &d in &ders {
-        needed[d.0 as usize] = true;
-    }
     let info: Vec<(Vec<VarId>, Vec<VarId>)> = sched
         .steps
         .iter()
         .map(|s| step_vars(sys, graph, s))
         .collect();
-    let mut in_f = vec![false; sched.steps.len()];
-    for (k, (writes, reads)) in info.iter().enumerate().rev() {
-        if writes.iter().any(|w| needed[w.0 as usize]) {
-            in_f[k] = true;
-            for r in reads {
-                needed[r.0 as usize] = true;
-            }
-        }
+    let mut needed = vec![false; sys.vars.len()];
+    for &d in &ders {
+        needed[d.0 as usize] = true;
     }
-    // Which of the rest the outputs need: one pass over the outputs'
-    // expression DAG, through aliases (the loop formulation's node
-    // potentials share their tree paths, so a pass per output would be
-    // quadratic).
-    let mut out_needed = vec![false; sys.vars.len()];
-    let mut seen: std::collections::HashSet<ExprId> = std::collections::HashSet::new();
-    let mut stack: Vec<ExprId> = Vec::new();
-    let mark = |v: VarId, out_needed: &mut [bool], stack: &mut Vec<ExprId>| {
-        if !std::mem::replace(&mut out_needed[v.0 as usize], true)
-            && let Some(a) = sys.vars[v].alias
-        {
-            stack.push(a);
-        }
-    };
-    for &o in outputs {
-        match o {
-            OutputRef::Expr(e) => stack.push(e),
-            OutputRef::Diff(a, b) => stack.extend([a, b]),
-            OutputRef::Var(v) => mark(v, &mut out_needed, &mut stack),
-        }
-        while let Some(e) = stack.pop() {
-            if !seen.insert(e) {
-                continue;
-            }
-            match sys.exprs.get(e) {
-                Expr::Var(v) => mark(v, &mut out_needed, &mut stack),
-                op => stack.extend(op.operands().into_iter().flatten()),
-            }
-        }
-    }
+    let in_f = steps_needed(&info, &mut needed);
     // Every step the outputs need, in f or not: the output program is
     // independent of `code`, so output points cost only what they read.
-    let mut for_out = vec![false; sched.steps.len()];
-    for (k, (writes, reads)) in info.iter().enumerate().rev() {
-        if writes.iter().any(|w| out_needed[w.0 as usize]) {
-            for_out[k] = true;
-            for r in reads {
-                out_needed[r.0 as usize] = true;
-            }
-        }
-    }
+    let for_out = steps_needed(&info, &mut output_vars(sys, outputs));
     let at_out: Vec<bool> = for_out.iter().zip(&in_f).map(|(o, f)| *o && !f).collect();
     let mut code = Vec::new();
     for (k, step) in sched.steps.iter().enumerate() {
@@ -490,16 +546,7 @@ pub fn compile(
     }
     let out_regs: Vec<Reg> = outputs
         .iter()
-        .map(|&o| match o {
-            OutputRef::Expr(e) => c.emit(e, &mut out_code),
-            OutputRef::Diff(a, b) => {
-                let (ra, rb) = (c.emit(a, &mut out_code), c.emit(b, &mut out_code));
-                let d = c.reg(0.0);
-                out_code.push(Instr::Sub { d, a: ra, b: rb });
-                d
-            }
-            OutputRef::Var(v) => c.var(v, &mut out_code),
-        })
+        .map(|&o| c.output(o, &mut out_code))
         .collect();
     let count = |flags: &[bool]| -> usize {
         sched
@@ -513,39 +560,14 @@ pub fn compile(
             })
             .sum()
     };
-    let read: std::collections::HashSet<Reg> = out_code
-        .iter()
-        .flat_map(|i| match i {
-            Instr::Block { k } => c.blocks[*k as usize]
-                .body
-                .iter()
-                .flat_map(|b| b.operands())
-                .collect::<Vec<_>>(),
-            other => other.operands().into_iter().collect(),
-        })
-        .chain(out_regs.iter().copied())
-        .collect();
-    let out_inputs: Vec<(usize, Reg)> = state_regs
-        .iter()
-        .enumerate()
-        .filter(|(_, r)| read.contains(r))
-        .map(|(k, &r)| (k, r))
-        .collect();
+    let out_inputs = states_read(&c.blocks, &out_code, &out_regs, &state_regs);
     set_private(
         &mut c.blocks,
         &[&code, &out_code],
         &[&deriv_regs, &out_regs],
     );
     set_constant_jacobians(&mut c.blocks, &[&code, &out_code], &state_regs);
-    for k in 0..c.blocks.len() {
-        c.blocks[k].charge_inverse = charge_inverse(&c.blocks[k]).map(|ci| {
-            let memo = c.reg(f64::NAN);
-            for _ in 1..4 {
-                c.reg(f64::NAN);
-            }
-            ChargeInverse { memo, ..ci }
-        });
-    }
+    c.set_charge_inverses();
     let memo_links = memo_links(&c.blocks, &code, &out_code);
     let n_in_f = count(&in_f);
     let n_at_outputs = count(&at_out);
