@@ -102,7 +102,7 @@ impl Compiler<'_> {
 
     /// [`Compiler::emit`] at recursion depth `depth`. Past 128 levels (the
     /// loop formulation's node potentials are tree-path sums 10^5 deep,
-    /// which overflowed the stack) the operands are emitted bottom-up with
+    /// which would overflow the stack) the operands are emitted bottom-up with
     /// an explicit stack, each then found memoized.
     fn emit_at(&mut self, e: ExprId, out: &mut Vec<Instr>, depth: usize) -> Reg {
         if let Some(&r) = self.memo.get(&e) {
