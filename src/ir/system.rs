@@ -219,7 +219,12 @@ impl Waveform {
                     return if order == 0 { v1 } else { 0.0 };
                 }
                 let mut tt = t - td;
-                if per > 0.0 && tt >= per {
+                // ngspice (vsrcload.c) starts the next period only past
+                // PER, so at t - TD = PER a pulse whose TR + PW + TF
+                // exceeds PER still holds its value. Derivatives are the
+                // right-sided ones the integrator steps on from a corner.
+                let next_period = if order == 0 { tt > per } else { tt >= per };
+                if per > 0.0 && next_period {
                     tt -= (tt / per).floor() * per;
                 }
                 let (value, slope) = if tt < tr {
@@ -641,6 +646,23 @@ mod tests {
         assert_eq!(p.eval(4.5, 0), 0.5);
         assert_eq!(p.eval(11.5, 0), 0.5);
         assert_eq!(p.breakpoints(12.0), vec![1.0, 2.0, 4.0, 5.0, 11.0, 12.0]);
+        // ngspice's boundaries: a pulse whose TR + PW + TF overruns its
+        // period (TR = TF = TSTEP by default) still holds V2 at TD + PER;
+        // the next period starts just past it, from V1, and at 2 PER.
+        let whole = Waveform::Pulse {
+            v1: 0.0,
+            v2: 10.0,
+            td: 0.0,
+            tr: 0.01,
+            tf: 0.01,
+            pw: 10.0,
+            per: 10.0,
+        };
+        assert_eq!(whole.eval(10.0, 0), 10.0);
+        assert!((whole.eval(10.005, 0) - 5.0).abs() < 1e-9);
+        assert_eq!(whole.eval(20.0, 0), 0.0);
+        // The integrator steps on from a corner with the right-sided slope.
+        assert!((whole.eval(10.0, 1) - 1000.0).abs() < 1e-9);
         let w = Waveform::Pwl {
             points: vec![(0.0, 0.0), (1.0, 2.0), (3.0, 0.0)],
             repeat: None,

@@ -390,3 +390,53 @@ fn an_interrupted_validation_leaves_no_scratch() {
         .collect();
     assert!(left.is_empty(), "left in $TMPDIR: {left:?}");
 }
+
+/// Every grounded voltage source of the suite has ngspice's value at each
+/// of ngspice's own time points, corners and period boundaries included
+/// (the waveform formulas of vsrcload.c; a PULSE whose TR + PW + TF overruns
+/// its period holds V2 at TD + PER, which the comparison's one-sided corners
+/// would not see).
+#[test]
+fn source_waveforms_match_ngspice_at_its_time_points() {
+    use kausal::elab::{ElementKind, GROUND};
+    require_ngspice();
+    let mut checked = 0;
+    for path in netlists() {
+        let name = stem(&path);
+        if NGSPICE_CANNOT.contains(&name.as_str()) {
+            continue;
+        }
+        let sorted = pipeline::sort(&path, &FsLoader, &SortOptions::default())
+            .ok()
+            .unwrap_or_else(|| panic!("{name} sorts"));
+        let c = &sorted.elaborated.circuit;
+        let sources: Vec<(String, kausal::ir::Waveform)> = c
+            .elements
+            .values()
+            .filter_map(|e| match &e.kind {
+                ElementKind::VSource { wave } if e.nodes[1] == GROUND && e.nodes[0] != GROUND => {
+                    Some((format!("v({})", c.nodes[e.nodes[0]].name), (**wave).clone()))
+                }
+                _ => None,
+            })
+            .collect();
+        if sources.is_empty() {
+            continue;
+        }
+        let raw = validate::run_ngspice(&path, None).unwrap_or_else(|e| panic!("{name}: {e}"));
+        for (vector, wave) in &sources {
+            let Some(k) = raw.names.iter().position(|n| n == vector) else {
+                continue;
+            };
+            for (&t, &v) in raw.time.iter().zip(&raw.data[k]) {
+                let ours = wave.eval(t, 0);
+                assert!(
+                    (ours - v).abs() <= 1e-9 * (1.0 + v.abs()),
+                    "{name} {vector} at t = {t:e}: kausal's source gives {ours}, ngspice {v}"
+                );
+            }
+            checked += 1;
+        }
+    }
+    assert!(checked >= 20, "only {checked} sources compared");
+}
