@@ -139,6 +139,15 @@ pub enum ElabError {
         gigabytes: f64,
     },
     #[error(
+        "TMAX {tmax:e} asks for more than {max_steps:.0e} steps over the run: kausal caps the step at {capped:e} instead"
+    )]
+    TinyTmax {
+        span: Span,
+        tmax: f64,
+        max_steps: f64,
+        capped: f64,
+    },
+    #[error(
         "model `{model}` has TT but no CJO: kausal gives its junctions a constant 1 pF capacitance"
     )]
     TransitTimeWithoutCapacitance { span: Span, model: String },
@@ -180,6 +189,7 @@ impl ElabError {
             | IgnoredOption { span, .. }
             | DanglingNode { span, .. }
             | ManyOutputPoints { span, .. }
+            | TinyTmax { span, .. }
             | PwlParamOnCurrent { span, .. }
             | TransitTimeWithoutCapacitance { span, .. } => *span,
         }
@@ -194,6 +204,7 @@ impl ElabError {
             | IgnoredOption { .. }
             | DanglingNode { .. }
             | ManyOutputPoints { .. }
+            | TinyTmax { .. }
             | PwlParamOnCurrent { .. }
             | TransitTimeWithoutCapacitance { .. } => Severity::Warning,
             _ => Severity::Error,
@@ -232,6 +243,7 @@ impl ToDiagnostic for ElabError {
             DanglingNode { .. } => (codes::DANGLING_NODE, "dangling node", "a node with one connection carries no current".into()),
             PwlParamOnCurrent { .. } => (codes::PWL_PARAM_ON_CURRENT, "not in ngspice", "kausal runs it; for ngspice (and `kausal validate`) write the repeated points out".into()),
             TransitTimeWithoutCapacitance { .. } => (codes::TRANSIT_TIME_WITHOUT_CAPACITANCE, "TT without CJO", "a junction's charge is kausal's state for it, and diffusion charge alone (TT·id) nearly vanishes in reverse bias: it could not fix the junction's voltage. ngspice has no such capacitance (`kausal validate` shows what it changes); give CJO to choose the capacitance".into()),
+            TinyTmax { .. } => (codes::TINY_TMAX, "TMAX", "TMAX is the longest step; a run of more steps than this would not end in reasonable time".into()),
             ManyOutputPoints { .. } => (codes::MANY_OUTPUT_POINTS, "TSTEP", "TSTEP is the output spacing, not the solver's step (which follows the tolerance): a larger TSTEP, `--times`, or `.save` of fewer vectors makes the file smaller".into()),
         };
         let mut d = Diagnostic::error(code, self.to_string())

@@ -24,6 +24,9 @@ use crate::front::ast::{self, Stmt, Value};
 /// Output points of a `.tran` above which it warns (K0295): a 10^8-row CSV
 /// is several gigabytes, most likely a TSTEP meant as a step limit.
 const MANY_OUTPUT_POINTS: f64 = 1e8;
+/// A `.tran` TMAX that asks for more steps than this over the run is raised
+/// to the run's length over this (a warning says so).
+const MAX_TMAX_STEPS: f64 = 1e7;
 
 /// Flatten a parsed netlist into a circuit. Errors and warnings are collected;
 /// the circuit holds everything that elaborated.
@@ -265,6 +268,19 @@ impl Elab {
                 gigabytes: points * 48.0 / 1e9,
             });
         }
+        // TMAX caps the step (ngspice); zero or less means none.
+        let tmax = tmax.filter(|&m| m > 0.0).map(|m| {
+            let least = (tstop - tstart) / MAX_TMAX_STEPS;
+            if m < least {
+                self.errors.push(ElabError::TinyTmax {
+                    span: t.tmax.as_ref().map_or(t.span, |v| v.span()),
+                    tmax: m,
+                    max_steps: MAX_TMAX_STEPS,
+                    capped: least,
+                });
+            }
+            m.max(least)
+        });
         self.tstep = tstep;
         self.tstop = tstop;
         self.circuit.tran = Some(Tran {

@@ -146,6 +146,7 @@ where
         hard: &hard,
         opts,
         method,
+        tmax: tran.tmax,
     };
     let mut stats = Stats::default();
     let rec = match method {
@@ -156,6 +157,7 @@ where
                 atol_current: atol_pair(opts, c).1,
                 y0: problem.eqn.y0.borrow().clone(),
                 h0: problem.h0,
+                h_cap: tran.tmax.unwrap_or(f64::INFINITY),
             };
             circuit::drive(&problem.eqn, setup, rec, &stops, &mut stats)?
         }
@@ -279,6 +281,8 @@ where
     pub(super) hard: &'p [f64],
     pub(super) opts: &'p Options,
     pub(super) method: Method,
+    /// The longest step (the `.tran` card's TMAX).
+    pub(super) tmax: Option<f64>,
 }
 
 /// Step `solver` to the end, stopping on every breakpoint (restarting after
@@ -302,6 +306,7 @@ where
         hard,
         opts,
         method,
+        tmax,
     } = *stops_at;
     let order = method.start_order();
     let t_end = rec.grid.last().unwrap_or(0.0);
@@ -320,7 +325,19 @@ where
         solver
             .set_stop_time(stop)
             .map_err(|e| solver_err(stop, e))?;
+        // The stop time set in the solver: `stop`, or a soft stop before it.
+        let mut set = stop;
         let reason = loop {
+            // TMAX caps the step: a soft stop at most TMAX ahead, which
+            // diffsol reaches by shortening its step (no restart there).
+            let soft = tmax.and_then(|m| soft_stop(solver.state().t, m, stop));
+            let target = soft.unwrap_or(stop);
+            if target != set {
+                solver
+                    .set_stop_time(target)
+                    .map_err(|e| solver_err(target, e))?;
+                set = target;
+            }
             let r = solver.step();
             // An evaluation that failed inside a step made diffsol retry
             // with a smaller step; it is reported only if the solver gives up.
@@ -347,6 +364,14 @@ where
                     {
                         p(t / t_end.max(1e-300));
                         last_report = Instant::now();
+                    }
+                }
+                Ok(OdeSolverStopReason::TstopReached) if soft.is_some() => {
+                    let t = solver.state().t;
+                    emit_grid(&solver, &mut rec, t, false)?;
+                    if opts.all_steps && t >= tstart {
+                        let y = solver.state().y.slice().to_vec();
+                        insert_step(&mut rec, t, &y)?;
                     }
                 }
                 Ok(OdeSolverStopReason::TstopReached) => break stop,
@@ -380,6 +405,7 @@ where
                     solver
                         .set_stop_time(stop)
                         .map_err(|e| solver_err(stop, e))?;
+                    set = stop;
                 }
             }
         };
@@ -401,6 +427,20 @@ where
         k += 1;
     }
     Ok(rec)
+}
+
+/// The soft stop that keeps a step from `t` within `tmax` on the way to the
+/// hard `stop`: none when `stop` itself is within reach, and halfway when a
+/// full `tmax` would leave a sliver before `stop`.
+fn soft_stop(t: f64, tmax: f64, stop: f64) -> Option<f64> {
+    let left = stop - t;
+    if left <= tmax * (1.0 + 1e-9) {
+        None
+    } else if left < tmax * 1.001 + tmax {
+        Some(t + 0.5 * left)
+    } else {
+        Some(t + tmax)
+    }
 }
 
 /// Add the counters of one solver's life (up to a restart or the end).

@@ -378,9 +378,9 @@ fn an_ic_that_cannot_be_held_is_reported() {
     assert!(w.warnings.is_empty(), "{:?}", w.warnings);
 }
 
-/// A `.tran` TMAX far below the run (here 1e-308 s) is no step cap to
-/// precompute: kausal has no step cap (error control), and one stop per
-/// TMAX would never fit in memory.
+/// A `.tran` TMAX far below the run (here 1e-308 s, 10^305 steps) is
+/// raised to the run's length over 10^7 (warning K0298), so the run ends;
+/// no stop per TMAX is precomputed either.
 #[test]
 fn a_tiny_tmax_runs() {
     let text = "tmax\nV1 a 0 SIN(0 1 1k)\nR1 a b 1k\nC1 b 0 1u\n.tran 10u 2m 0 1e-308\n.end\n";
@@ -693,4 +693,44 @@ fn nodeset_picks_the_operating_point() {
     let without = text.replace(".nodeset v(out)=6", "");
     let (_, free) = run(&without, "v(out)", None, 1e-7);
     assert!(free.iter().all(|v| v.abs() < 1e-9), "{free:?}");
+}
+
+/// The `.tran` card's TMAX caps every step of every method (ngspice's
+/// meaning of the fourth argument); without it the steps follow the error
+/// test and are far longer on this RC.
+#[test]
+fn tmax_caps_every_step() {
+    let card = |tmax: &str| {
+        format!(
+            "tmax\nV1 in 0 PULSE(0 1 0.1m 1u 1u 0.5m 1m)\nR1 in out 1k\nC1 out 0 100n\n.tran 10u 3m 0 {tmax}\n.end\n"
+        )
+    };
+    let capped = sort_text(&card("1u"));
+    let free = sort_text(&card(""));
+    for method in [
+        Method::Bdf,
+        Method::TrBdf2,
+        Method::Esdirk34,
+        Method::Tsit5,
+        Method::Circuit,
+    ] {
+        let opts = sim::Options {
+            method: Some(method),
+            all_steps: true,
+            ..Default::default()
+        };
+        let w = sim::simulate(&capped, &opts).expect("runs");
+        let longest = w.time.windows(2).map(|p| p[1] - p[0]).fold(0.0, f64::max);
+        assert!(
+            longest <= 1e-6 * (1.0 + 1e-6),
+            "{method:?}: a step of {longest:e} s with TMAX = 1 µs"
+        );
+        assert!(w.stats.steps >= 3000, "{method:?}: {} steps", w.stats.steps);
+        let w = sim::simulate(&free, &opts).expect("runs");
+        assert!(
+            w.stats.steps < 3000,
+            "{method:?} without TMAX: {} steps",
+            w.stats.steps
+        );
+    }
 }

@@ -246,8 +246,9 @@ where
     y_prev: Vec<f64>,
     /// `f` at the previous point (the step's cubic Hermite interpolant).
     f_prev: Vec<f64>,
-    /// The next step to try.
+    /// The next step to try, and the longest step allowed.
     h: f64,
+    h_cap: f64,
     h_min: f64,
     /// Each state's largest magnitude so far: the scale of its error.
     peak: Vec<f64>,
@@ -294,6 +295,7 @@ where
             atol_current: atol_i,
             y0,
             h0,
+            h_cap,
         } = setup;
         let n = y0.len();
         let mut f = vec![0.0; n];
@@ -336,7 +338,8 @@ where
             prev: None,
             y_prev: vec![0.0; n],
             f_prev: vec![0.0; n],
-            h: h0,
+            h: h0.min(h_cap),
+            h_cap,
             h_min,
             peak,
             newton: Newton {
@@ -489,7 +492,7 @@ where
     pub fn step(&mut self, h_max: f64, sys: &EquationSystem) -> Result<(), SimError> {
         let mut failures = 0usize;
         loop {
-            let mut h = self.h.min(h_max);
+            let mut h = self.h.min(self.h_cap).min(h_max);
             // No sliver before the stop: two even steps instead.
             if h < h_max && h > 0.5 * h_max {
                 h = 0.5 * h_max;
@@ -1067,6 +1070,8 @@ pub struct Setup {
     pub atol_current: f64,
     pub y0: Vec<f64>,
     pub h0: f64,
+    /// The longest step (the `.tran` card's TMAX; infinite without).
+    pub h_cap: f64,
 }
 
 /// Integrate to the end of `rec`'s grid with kausal's TR-BDF2, stopping on
