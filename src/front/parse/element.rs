@@ -338,7 +338,7 @@ fn behavioural<'a>(
 fn tran_kind(t: &Token<'_>) -> Option<TranFnKind> {
     if t.is_word("pulse") {
         Some(TranFnKind::Pulse)
-    } else if t.is_word("sin") {
+    } else if t.is_word("sin") || t.is_word("sine") {
         Some(TranFnKind::Sin)
     } else if t.is_word("exp") {
         Some(TranFnKind::Exp)
@@ -364,9 +364,37 @@ impl<'a> Parser<'a> {
         while let Some(t) = c.peek() {
             if t.is_word("dc") {
                 c.next();
+                // `DC value` or ngspice's `dc=value`.
+                c.eat(TokKind::Eq);
                 if c.peek().is_some_and(|t| t.kind != TokKind::Eq) {
                     dc = Some(self.value_tok(c, name.text, "DC value")?);
                 }
+                continue;
+            }
+            // `(PULSE 0 1 …)`: ngspice reads parentheses on a source line
+            // as separators, so a function may stand inside them.
+            if t.kind == TokKind::LParen && c.peek_at(1).is_some_and(|f| tran_kind(f).is_some()) {
+                c.next();
+                let f = c.peek().expect("the function word");
+                let (kind, start) = (tran_kind(f).expect("a function"), f.span);
+                c.next();
+                let (args, _) = self.tran_args(c, name, span, kind, start)?;
+                let Some(close) = c.peek().filter(|t| t.kind == TokKind::RParen) else {
+                    self.errors.push(ParseError::Expected {
+                        span: c.here(span),
+                        expected: format!("`)` closing `({}`", kind.name()),
+                    });
+                    return None;
+                };
+                c.next();
+                self.second_tran(&tran, start);
+                tran = Some(TranFn {
+                    kind,
+                    args,
+                    repeat: None,
+                    delay: None,
+                    span: start.to(close.span),
+                });
                 continue;
             }
             if t.is_word("ac") {
@@ -385,12 +413,7 @@ impl<'a> Parser<'a> {
                 let start = t.span;
                 c.next();
                 let (args, end) = self.tran_args(c, name, span, kind, start)?;
-                if tran.is_some() {
-                    self.errors.push(ParseError::Unexpected {
-                        span: start,
-                        what: "second transient function".into(),
-                    });
-                }
+                self.second_tran(&tran, start);
                 let (repeat, delay, end) = self.pwl_options(c, name, kind, end)?;
                 tran = Some(TranFn {
                     kind,
@@ -424,6 +447,17 @@ impl<'a> Parser<'a> {
             return None;
         }
         Some(ElementBody::Source { dc, tran, ac })
+    }
+
+    /// An error at the keyword `at` of a transient function where the
+    /// source has one already.
+    fn second_tran(&mut self, tran: &Option<TranFn<'a>>, at: Span) {
+        if tran.is_some() {
+            self.errors.push(ParseError::Unexpected {
+                span: at,
+                what: "second transient function".into(),
+            });
+        }
     }
 
     /// The arguments of a transient function whose keyword (at `start`) was
