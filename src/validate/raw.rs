@@ -11,9 +11,32 @@ pub struct RawData {
     pub data: Vec<Vec<f64>>,
 }
 
-/// Parse a raw file; the error says what is wrong with it.
+/// Parse a raw file; the error says what is wrong with it. A file of
+/// several plots (an `.op` before the `.tran`) gives its transient one.
 pub fn parse(bytes: &[u8]) -> Result<RawData, String> {
     let mut pos = 0;
+    let mut first = None;
+    while pos < bytes.len() {
+        let (plot, transient, end) = parse_plot(bytes, pos)?;
+        if transient {
+            return Ok(plot);
+        }
+        first.get_or_insert(plot);
+        if end <= pos {
+            break;
+        }
+        pos = end;
+        // Blank lines between plots.
+        while pos < bytes.len() && bytes[pos].is_ascii_whitespace() {
+            pos += 1;
+        }
+    }
+    first.ok_or_else(|| "no `Values:` or `Binary:` section".into())
+}
+
+/// The plot whose header starts at `pos`: its data, whether it is a
+/// transient analysis, and where it ends.
+fn parse_plot(bytes: &[u8], mut pos: usize) -> Result<(RawData, bool, usize), String> {
     let mut header = Vec::new();
     let mut binary = None;
     // Header lines up to `Values:` or `Binary:`.
@@ -43,6 +66,8 @@ pub fn parse(bytes: &[u8]) -> Result<RawData, String> {
             .find_map(|l| l.strip_prefix(key).map(|v| v.trim().to_string()))
     };
     let title = field("Title:").unwrap_or_default();
+    let transient =
+        field("Plotname:").is_some_and(|p| p.to_ascii_lowercase().contains("transient"));
     if let Some(flags) = field("Flags:")
         && flags.contains("complex")
     {
@@ -90,9 +115,9 @@ pub fn parse(bytes: &[u8]) -> Result<RawData, String> {
                 col.push(f64::from_le_bytes(b));
             }
         }
+        pos += need;
     } else {
-        let text = String::from_utf8_lossy(&bytes[pos..]);
-        let mut nums = text.split_whitespace();
+        let mut nums = Tokens { bytes, pos };
         for p in 0..n_points {
             let idx = nums.next().ok_or(format!("point {p} is missing"))?;
             if idx.parse::<usize>().ok() != Some(p) {
@@ -106,18 +131,41 @@ pub fn parse(bytes: &[u8]) -> Result<RawData, String> {
                 );
             }
         }
+        pos = nums.pos;
     }
     let time = cols.remove(0);
     names.remove(0);
-    if time.windows(2).any(|w| w[1] < w[0]) {
+    if transient && time.windows(2).any(|w| w[1] < w[0]) {
         return Err("time is not increasing".into());
     }
-    Ok(RawData {
+    let plot = RawData {
         title,
         names,
         time,
         data: cols,
-    })
+    };
+    Ok((plot, transient, pos))
+}
+
+/// Whitespace-separated tokens of `bytes` from `pos`, which follows them.
+struct Tokens<'b> {
+    bytes: &'b [u8],
+    pos: usize,
+}
+
+impl<'b> Iterator for Tokens<'b> {
+    type Item = std::borrow::Cow<'b, str>;
+    fn next(&mut self) -> Option<Self::Item> {
+        let b = self.bytes;
+        while self.pos < b.len() && b[self.pos].is_ascii_whitespace() {
+            self.pos += 1;
+        }
+        let start = self.pos;
+        while self.pos < b.len() && !b[self.pos].is_ascii_whitespace() {
+            self.pos += 1;
+        }
+        (self.pos > start).then(|| String::from_utf8_lossy(&b[start..self.pos]))
+    }
 }
 
 #[cfg(test)]
@@ -137,6 +185,16 @@ mod tests {
             bin.extend_from_slice(&v.to_le_bytes());
         }
         assert_eq!(parse(&bin).unwrap(), a);
+        // An operating point before the transient: the transient is read.
+        let op = "Title: t\nPlotname: Operating Point\nFlags: real\nNo. Variables: 1\nNo. Points: 1\nVariables:\n\t0\tv(a)\tvoltage\nBinary:\n";
+        let mut both = op.as_bytes().to_vec();
+        both.extend_from_slice(&7.0f64.to_le_bytes());
+        both.extend_from_slice(&bin);
+        assert_eq!(parse(&both).unwrap(), a);
+        let mut both = op.replace("Binary:", "Values:").into_bytes();
+        both.extend_from_slice(b" 0\t7.0\n");
+        both.extend_from_slice(ascii.as_bytes());
+        assert_eq!(parse(&both).unwrap(), a);
         assert!(parse(b"Title: x\n").is_err());
         assert!(
             parse(&bin[..bin.len() - 3])
