@@ -17,16 +17,38 @@ struct Run {
     stderr: String,
 }
 
+/// Address space a run may take: a reader without bound (of `/dev/zero`)
+/// fails on it instead of exhausting the machine that runs the tests.
+const MEMORY: u64 = 4 << 30;
+
 /// Run `kausal args`, killed if it is still running after [`LIMIT`] (which
-/// fails the test).
+/// fails the test), with at most [`MEMORY`] of address space.
 fn kausal_bounded(args: &[&str]) -> Run {
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_kausal"));
+    command
         .args(args)
         .stdin(std::process::Stdio::null())
         .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("the kausal binary runs");
+        .stderr(std::process::Stdio::piped());
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::CommandExt;
+        // SAFETY: setrlimit(2) is async-signal-safe; it only lowers a limit
+        // of the child about to exec.
+        unsafe {
+            command.pre_exec(|| {
+                let limit = libc::rlimit {
+                    rlim_cur: MEMORY as libc::rlim_t,
+                    rlim_max: MEMORY as libc::rlim_t,
+                };
+                if libc::setrlimit(libc::RLIMIT_AS, &limit) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+    }
+    let mut child = command.spawn().expect("the kausal binary runs");
     let mut pipe = child.stderr.take().unwrap();
     let reader = std::thread::spawn(move || {
         let mut buf = Vec::new();
@@ -170,4 +192,134 @@ fn a_diagnostic_naming_20000_nodes_stays_small() {
     assert!(run.stderr.contains("K0311"), "{}", run.stderr);
     assert!(run.stderr.contains("and 19977 more"), "{}", run.stderr);
     assert!(run.stderr.len() < 8_000, "{} bytes", run.stderr.len());
+}
+
+/// A netlist in a fresh directory whose line 5 is `line`.
+fn with_line_5(dir: &Path, name: &str, line: &str) -> std::path::PathBuf {
+    let path = dir.join(name);
+    std::fs::write(
+        &path,
+        format!("t\nV1 a 0 PULSE(0 1 0 1u 1u 10u 20u)\nR1 a b 1k\nC1 b 0 1n\n{line}\n.tran 100n 50u\n.end\n"),
+    )
+    .unwrap();
+    path
+}
+
+/// `.include` and `.lib` of a device that never ends, a FIFO that would
+/// block for ever, a directory and a file above the size bound end at once
+/// with an error at the include's path.
+#[cfg(unix)]
+#[test]
+fn includes_of_what_is_not_a_bounded_file_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("fifo");
+    let c_path = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    // SAFETY: mkfifo(3) reads a NUL-terminated path and creates a node.
+    assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0);
+    let big = dir.path().join("big.lib");
+    // Sparse: no disk space, but its length is above the bound.
+    std::fs::File::create(&big)
+        .unwrap()
+        .set_len(kausal::io::MAX_NETLIST_BYTES + 1)
+        .unwrap();
+    let cases = [
+        (".include /dev/zero", "K0002", "a character device"),
+        (".lib /dev/zero models", "K0002", "a character device"),
+        (".include fifo", "K0002", "a FIFO"),
+        (".include \"fifo\"", "K0002", "a FIFO"),
+        (".include /", "K0002", "a directory"),
+        (".include big.lib", "K0003", "larger than 64 MiB"),
+    ];
+    for (k, (line, code, what)) in cases.into_iter().enumerate() {
+        let path = with_line_5(dir.path(), &format!("inc{k}.cir"), line);
+        let run = check(&path);
+        assert_eq!(run.code, 1, "{line}: {}", run.stderr);
+        assert!(run.stderr.contains(code), "{line}: {}", run.stderr);
+        assert!(run.stderr.contains(what), "{line}: {}", run.stderr);
+        let col = line.find(' ').unwrap() + 2;
+        assert!(
+            run.stderr.contains(&format!("inc{k}.cir:5:{col}]")),
+            "{line}: {}",
+            run.stderr
+        );
+        assert!(run.stderr.len() < 2_000, "{line}: {}", run.stderr);
+    }
+    // The same, named on the command line.
+    for (path, code, what) in [
+        (Path::new("/dev/zero"), "K0002", "a character device"),
+        (fifo.as_path(), "K0002", "a FIFO"),
+        (dir.path(), "K0002", "a directory"),
+        (big.as_path(), "K0003", "larger than 64 MiB"),
+    ] {
+        let run = check(path);
+        assert_eq!(run.code, 1, "{}: {}", path.display(), run.stderr);
+        assert!(
+            run.stderr.contains(code),
+            "{}: {}",
+            path.display(),
+            run.stderr
+        );
+        assert!(
+            run.stderr.contains(what),
+            "{}: {}",
+            path.display(),
+            run.stderr
+        );
+    }
+}
+
+/// A byte that is not UTF-8 in a statement is an error at its line and
+/// column, with the line shown; in comments and the title it is accepted,
+/// as ngspice (which reads bytes) accepts it.
+#[test]
+fn bytes_that_are_not_utf8_are_located() {
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, bytes: &[u8]| {
+        let p = dir.path().join(name);
+        std::fs::write(&p, bytes).unwrap();
+        p
+    };
+    let body = b"V1 a 0 1\n.tran 1u 1m\n.end\n";
+    // Latin-1 in the title, a comment line and end-of-line comments.
+    let ok = write(
+        "latin1.cir",
+        &[
+            &b"Titel \xe9t\xe9\n* R = 10 k\xb5\nR1 a 0 1k ; \xff\n"[..],
+            body,
+        ]
+        .concat(),
+    );
+    let run = check(&ok);
+    assert_eq!(run.code, 0, "{}", run.stderr);
+    assert!(!run.stderr.contains("K0004"), "{}", run.stderr);
+
+    let bad = write(
+        "value.cir",
+        &[&b"t\n* \xff is fine here\nR1 a 0 1k\xff\n"[..], body].concat(),
+    );
+    let run = check(&bad);
+    assert_eq!(run.code, 1, "{}", run.stderr);
+    assert!(run.stderr.contains("K0004"), "{}", run.stderr);
+    assert!(run.stderr.contains("0xFF"), "{}", run.stderr);
+    assert!(run.stderr.contains("value.cir:3:10]"), "{}", run.stderr);
+    assert!(
+        run.stderr.contains("3 │ R1 a 0 1k\u{fffd}"),
+        "{}",
+        run.stderr
+    );
+    // One mistake, one message: the number it spoils is not reported again.
+    assert!(!run.stderr.contains("K0108"), "{}", run.stderr);
+
+    let name = write("name.cir", &[&b"t\nR\xe91 a 0 1k\n"[..], body].concat());
+    let run = check(&name);
+    assert_eq!(run.code, 1, "{}", run.stderr);
+    assert!(run.stderr.contains("0xE9"), "{}", run.stderr);
+    assert!(run.stderr.contains("name.cir:2:2]"), "{}", run.stderr);
+
+    // In an included file, the error points into it.
+    write("sub.inc", b"* \xb5\nR2 a 0 2k\xb5\n");
+    let top = with_line_5(dir.path(), "top.cir", ".include sub.inc");
+    let run = check(&top);
+    assert_eq!(run.code, 1, "{}", run.stderr);
+    assert!(run.stderr.contains("sub.inc:2:10]"), "{}", run.stderr);
 }
