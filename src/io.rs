@@ -1,11 +1,12 @@
-//! File-system access of the library: reading netlists and writing outputs
-//! atomically; the process's memory setup. Stages never touch the file
+//! File-system access of the library: reading netlists (regular files of
+//! bounded size only) and writing outputs atomically; the process's memory
+//! setup. Stages never touch the file
 //! system themselves.
 
 use std::io::Write;
 use std::path::Path;
 
-use crate::front::Loader;
+use crate::front::{FileKind, LoadError, Loader};
 
 /// Opt this process out of transparent huge pages (Linux).
 ///
@@ -27,14 +28,83 @@ pub fn no_huge_pages() {
     }
 }
 
-/// Reads include files from disk.
+/// The largest netlist or include file read, in bytes: far above any real
+/// netlist, far below what would exhaust memory.
+pub const MAX_NETLIST_BYTES: u64 = 64 << 20;
+
+/// Reads netlist and include files from disk with [`read_netlist`].
 #[derive(Clone, Copy, Debug, Default)]
 pub struct FsLoader;
 
 impl Loader for FsLoader {
-    fn load(&self, path: &Path) -> std::io::Result<String> {
-        std::fs::read_to_string(path)
+    fn load(&self, path: &Path) -> Result<Vec<u8>, LoadError> {
+        read_netlist(path)
     }
+}
+
+/// The bytes of the regular file at `path`, at most [`MAX_NETLIST_BYTES`]
+/// of them. Anything else is refused before it is read: a FIFO would block
+/// for ever, `/dev/zero` never ends, a directory has no text.
+pub fn read_netlist(path: &Path) -> Result<Vec<u8>, LoadError> {
+    use std::io::Read;
+    let limit = MAX_NETLIST_BYTES;
+    // Checked before opening, as opening a FIFO waits for a writer (and a
+    // device may act on being opened) ...
+    let meta = std::fs::metadata(path)?;
+    if !meta.is_file() {
+        return Err(LoadError::NotAFile {
+            kind: kind_of(meta.file_type()),
+        });
+    }
+    let mut options = std::fs::OpenOptions::new();
+    options.read(true);
+    // ... and again on what was opened, which may have been replaced since:
+    // without blocking, so that a FIFO put there cannot hang the open.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.custom_flags(libc::O_NONBLOCK);
+    }
+    let file = options.open(path)?;
+    let meta = file.metadata()?;
+    if !meta.is_file() {
+        return Err(LoadError::NotAFile {
+            kind: kind_of(meta.file_type()),
+        });
+    }
+    if meta.len() > limit {
+        return Err(LoadError::TooLarge { limit });
+    }
+    // A file growing while it is read stops at the bound too.
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    file.take(limit + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > limit {
+        return Err(LoadError::TooLarge { limit });
+    }
+    Ok(bytes)
+}
+
+fn kind_of(t: std::fs::FileType) -> FileKind {
+    if t.is_dir() {
+        return FileKind::Directory;
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return FileKind::Fifo;
+        }
+        if t.is_char_device() {
+            return FileKind::CharDevice;
+        }
+        if t.is_block_device() {
+            return FileKind::BlockDevice;
+        }
+        if t.is_socket() {
+            return FileKind::Socket;
+        }
+    }
+    FileKind::Other
 }
 
 /// Write `bytes` to `path` through a temporary file in the same directory and

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use crate::analysis::IndexReduction;
 use crate::build::{self, Built};
-use crate::diag::{Diagnostic, SourceMap, ToDiagnostic};
+use crate::diag::{Diagnostic, SourceMap, Span, ToDiagnostic};
 use crate::elab::topology::{self, Fault, TopologyError};
 use crate::elab::{self, Circuit};
 use crate::front::{self, Loader};
@@ -41,10 +41,31 @@ pub fn elaborate_text(
     loader: &dyn Loader,
 ) -> Result<Elaborated, Box<Failed>> {
     let (sources, load_errors) = front::load(name, path, text, loader);
+    elaborate_loaded(sources, load_errors)
+}
+
+/// Parse and elaborate the files `front::load` gave, with its errors.
+fn elaborate_loaded(
+    sources: SourceMap,
+    load_errors: Vec<front::ParseError>,
+) -> Result<Elaborated, Box<Failed>> {
     let mut diags: Vec<Diagnostic> = load_errors.iter().map(|e| e.to_diagnostic()).collect();
+    // A byte that is not text has been reported: what the parser makes of
+    // the U+FFFD standing for it (`1k\u{fffd}` is not a number) is not.
+    let not_text: Vec<Span> = load_errors
+        .iter()
+        .filter(|e| matches!(e, front::ParseError::NotUtf8 { .. }))
+        .map(|e| e.span())
+        .collect();
+    let overlaps = |a: Span, b: Span| a.file == b.file && a.start < b.end && b.start < a.end;
     let circuit = {
         let (ast, parse_errors) = front::parse(&sources);
-        diags.extend(parse_errors.iter().map(|e| e.to_diagnostic()));
+        diags.extend(
+            parse_errors
+                .iter()
+                .filter(|e| !not_text.iter().any(|&s| overlaps(s, e.span())))
+                .map(|e| e.to_diagnostic()),
+        );
         if diags.iter().any(Diagnostic::is_error) {
             None
         } else {
@@ -70,13 +91,13 @@ pub fn elaborate_text(
 pub fn elaborate_file(path: &Path, loader: &dyn Loader) -> Result<Elaborated, Box<Failed>> {
     let name = path.display().to_string();
     match loader.load(path) {
-        Ok(text) => elaborate_text(&name, path, text, loader),
-        Err(e) => Err(Box::new(Failed {
+        Ok(bytes) => {
+            let (sources, load_errors) = front::load_bytes(&name, path, bytes, loader);
+            elaborate_loaded(sources, load_errors)
+        }
+        Err(error) => Err(Box::new(Failed {
             sources: SourceMap::default(),
-            diagnostics: vec![
-                Diagnostic::error(codes::READ_FAILED, format!("cannot read `{name}`: {e}"))
-                    .with_help("check the path"),
-            ],
+            diagnostics: vec![front::ReadError { path: name, error }.to_diagnostic()],
         })),
     }
 }

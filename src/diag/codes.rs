@@ -39,6 +39,9 @@ macro_rules! codes {
 
 codes! {
     READ_FAILED = "K0001", "A netlist or include file could not be read.";
+    NOT_A_FILE = "K0002", "A netlist or include path names a directory, FIFO or device, not a file.";
+    FILE_TOO_LARGE = "K0003", "A netlist or include file is larger than kausal reads.";
+    NOT_UTF8 = "K0004", "A statement holds bytes that are not UTF-8 text.";
     EMPTY = "K0100", "The netlist is empty.";
     STRAY_CONTINUATION = "K0101", "`+` continuation line with nothing to continue.";
     UNTERMINATED = "K0102", "Unterminated expression: missing `…`.";

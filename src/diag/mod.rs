@@ -6,11 +6,13 @@
 //! circuits or equations.
 
 pub mod codes;
+mod render;
 
 pub use codes::Code;
+pub use render::{RenderOptions, render, render_short};
 
-use std::fmt;
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 /// Index of a file in a [`SourceMap`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
@@ -58,6 +60,47 @@ pub struct SourceFile {
     /// The path used to resolve `.include` lines relative to this file.
     pub path: PathBuf,
     pub text: String,
+    /// Byte offset of each line's start, computed on first use.
+    line_starts: OnceLock<Vec<u32>>,
+}
+
+impl SourceFile {
+    /// Byte offset of each line's start (lines end at `\n`); never empty.
+    pub fn line_starts(&self) -> &[u32] {
+        self.line_starts.get_or_init(|| {
+            std::iter::once(0)
+                .chain(
+                    self.text
+                        .bytes()
+                        .enumerate()
+                        .filter(|&(_, b)| b == b'\n')
+                        .map(|(i, _)| i as u32 + 1),
+                )
+                .collect()
+        })
+    }
+
+    /// 0-based index of the line holding byte `offset` (offsets past the end
+    /// are on the last line).
+    pub fn line_of(&self, offset: usize) -> usize {
+        let starts = self.line_starts();
+        starts.partition_point(|&s| s as usize <= offset).max(1) - 1
+    }
+
+    /// Byte range of 0-based line `line`, without its line break.
+    pub fn line_range(&self, line: usize) -> std::ops::Range<usize> {
+        let starts = self.line_starts();
+        let start = starts[line] as usize;
+        let end = starts
+            .get(line + 1)
+            .map_or(self.text.len(), |&s| s as usize - 1);
+        let end = if self.text[start..end].ends_with('\r') {
+            end - 1
+        } else {
+            end
+        };
+        start..end
+    }
 }
 
 /// All files of one netlist: the root first, then its includes in load order.
@@ -78,6 +121,7 @@ impl SourceMap {
             name: name.into(),
             path: path.into(),
             text,
+            line_starts: OnceLock::new(),
         });
         id
     }
@@ -114,13 +158,16 @@ impl SourceMap {
 
     /// 1-based line and column (in characters) of a byte offset.
     pub fn line_col(&self, file: FileId, offset: u32) -> (usize, usize) {
-        let text = &self.file(file).text;
-        let offset = (offset as usize).min(text.len());
-        let before = &text[..offset];
-        let line = before.bytes().filter(|&b| b == b'\n').count() + 1;
-        let line_start = before.rfind('\n').map_or(0, |i| i + 1);
-        let col = before[line_start..].chars().count() + 1;
-        (line, col)
+        let f = self.file(file);
+        let offset = (offset as usize).min(f.text.len());
+        let line = f.line_of(offset);
+        let line_start = f.line_starts()[line] as usize;
+        let col = f
+            .text
+            .get(line_start..offset)
+            .map_or(0, |s| s.chars().count())
+            + 1;
+        (line + 1, col)
     }
 
     /// `file:line:col` of a span's start.
@@ -208,185 +255,4 @@ impl Diagnostic {
 /// Types that can be shown as a [`Diagnostic`] (every stage's error enum).
 pub trait ToDiagnostic {
     fn to_diagnostic(&self) -> Diagnostic;
-}
-
-/// Rendering options: colour on a terminal, none in tests and pipes.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct RenderOptions {
-    pub color: bool,
-}
-
-/// Render a diagnostic with file, line, column, the source line and a caret
-/// under the offending text.
-pub fn render(sources: &SourceMap, diag: &Diagnostic, opts: RenderOptions) -> String {
-    use miette::{GraphicalReportHandler, GraphicalTheme, ThemeCharacters, ThemeStyles};
-    let mut characters = ThemeCharacters::unicode();
-    characters.underline = '^';
-    characters.underbar = '^';
-    let styles = if opts.color {
-        ThemeStyles::ansi()
-    } else {
-        ThemeStyles::none()
-    };
-    let handler = GraphicalReportHandler::new_themed(GraphicalTheme { characters, styles })
-        .with_width(100)
-        .with_links(false);
-    let report = MietteDiag::new(sources, diag);
-    let mut out = String::new();
-    if handler.render_report(&mut out, &report).is_err() {
-        out = format!("{}: {}", diag.code, diag.message);
-    }
-    out
-}
-
-/// One line per diagnostic: `file:line:col: error[K0102]: message`. For logs and tests.
-pub fn render_short(sources: &SourceMap, diag: &Diagnostic) -> String {
-    let sev = match diag.severity {
-        Severity::Error => "error",
-        Severity::Warning => "warning",
-    };
-    match diag.span() {
-        Some(span) => format!(
-            "{}: {sev}[{}]: {}",
-            sources.location(span),
-            diag.code,
-            diag.message
-        ),
-        None => format!("{sev}[{}]: {}", diag.code, diag.message),
-    }
-}
-
-/// Adapter from our [`Diagnostic`] to miette's trait. Labels in the file of the
-/// primary label are drawn on it; labels in other files become related reports.
-struct MietteDiag {
-    severity: Severity,
-    code: Code,
-    message: String,
-    help: Option<String>,
-    source: Option<miette::NamedSource<String>>,
-    labels: Vec<miette::LabeledSpan>,
-    related: Vec<MietteDiag>,
-}
-
-impl MietteDiag {
-    fn new(sources: &SourceMap, diag: &Diagnostic) -> MietteDiag {
-        let mut help = diag.help.clone();
-        for note in &diag.notes {
-            let h = help.get_or_insert_with(String::new);
-            if !h.is_empty() {
-                h.push('\n');
-            }
-            h.push_str("note: ");
-            h.push_str(note);
-        }
-        let Some(primary) = diag.span() else {
-            return MietteDiag {
-                severity: diag.severity,
-                code: diag.code,
-                message: diag.message.clone(),
-                help,
-                source: None,
-                labels: Vec::new(),
-                related: Vec::new(),
-            };
-        };
-        let mut by_file: Vec<(FileId, Vec<&Label>)> = Vec::new();
-        for label in &diag.labels {
-            match by_file.iter_mut().find(|(f, _)| *f == label.span.file) {
-                Some((_, v)) => v.push(label),
-                None => by_file.push((label.span.file, vec![label])),
-            }
-        }
-        let make = |file: FileId, labels: &[&Label], message: String| {
-            let f = sources.file(file);
-            MietteDiag {
-                severity: diag.severity,
-                code: diag.code,
-                message,
-                help: None,
-                source: Some(miette::NamedSource::new(f.name.clone(), f.text.clone())),
-                labels: labels
-                    .iter()
-                    .enumerate()
-                    .map(|(k, l)| {
-                        let len = l.span.end.saturating_sub(l.span.start).max(1) as usize;
-                        let start = (l.span.start as usize).min(f.text.len());
-                        let len = len.min(f.text.len().saturating_sub(start));
-                        let msg = (!l.message.is_empty()).then(|| l.message.clone());
-                        if k == 0 {
-                            miette::LabeledSpan::new_primary_with_span(msg, (start, len))
-                        } else {
-                            miette::LabeledSpan::new(msg, start, len)
-                        }
-                    })
-                    .collect(),
-                related: Vec::new(),
-            }
-        };
-        let mut main = make(primary.file, &by_file[0].1, diag.message.clone());
-        main.help = help;
-        for (file, labels) in &by_file[1..] {
-            main.related.push(make(
-                *file,
-                labels,
-                format!("see also `{}`", sources.file(*file).name),
-            ));
-        }
-        main
-    }
-}
-
-impl fmt::Debug for MietteDiag {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.message)
-    }
-}
-
-impl fmt::Display for MietteDiag {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.message)
-    }
-}
-
-impl std::error::Error for MietteDiag {}
-
-impl miette::Diagnostic for MietteDiag {
-    fn code<'a>(&'a self) -> Option<Box<dyn fmt::Display + 'a>> {
-        Some(Box::new(self.code))
-    }
-
-    fn severity(&self) -> Option<miette::Severity> {
-        Some(match self.severity {
-            Severity::Error => miette::Severity::Error,
-            Severity::Warning => miette::Severity::Warning,
-        })
-    }
-
-    fn help<'a>(&'a self) -> Option<Box<dyn fmt::Display + 'a>> {
-        self.help
-            .as_ref()
-            .map(|h| Box::new(h) as Box<dyn fmt::Display>)
-    }
-
-    fn source_code(&self) -> Option<&dyn miette::SourceCode> {
-        self.source.as_ref().map(|s| s as &dyn miette::SourceCode)
-    }
-
-    fn labels(&self) -> Option<Box<dyn Iterator<Item = miette::LabeledSpan> + '_>> {
-        if self.labels.is_empty() {
-            None
-        } else {
-            Some(Box::new(self.labels.iter().cloned()))
-        }
-    }
-
-    fn related<'a>(&'a self) -> Option<Box<dyn Iterator<Item = &'a dyn miette::Diagnostic> + 'a>> {
-        if self.related.is_empty() {
-            None
-        } else {
-            Some(Box::new(
-                self.related.iter().map(|r| r as &dyn miette::Diagnostic),
-            ))
-        }
-    }
 }

@@ -543,7 +543,7 @@ impl TopologyError {
     }
 
     /// The labelled spans: the element that loses its state first, then
-    /// the others (the first [`SHOWN`] of each list), then nodes.
+    /// the others, then nodes (the first [`SHOWN`] of each list).
     fn labels(&self) -> Vec<(Span, String)> {
         match &self.fault {
             Fault::CapacitorLoop { elements, fixed }
@@ -571,6 +571,7 @@ impl TopologyError {
                 labels.extend(
                     nodes
                         .iter()
+                        .take(SHOWN)
                         .map(|n| (self.nodes[n].1, node_label.to_string())),
                 );
                 labels

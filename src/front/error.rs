@@ -1,5 +1,6 @@
 //! Errors and warnings of the front end (loading, lexing, parsing).
 
+use super::load::{FileKind, LoadError, mib};
 use crate::diag::codes;
 use crate::diag::{Diagnostic, Severity, Span, ToDiagnostic};
 
@@ -64,6 +65,20 @@ pub enum ParseError {
         path: String,
         reason: String,
     },
+    #[error("cannot include `{path}`: it is {kind}, not a file")]
+    IncludeNotAFile {
+        span: Span,
+        path: String,
+        kind: FileKind,
+    },
+    #[error("cannot include `{path}`: it is larger than {}", mib(*limit))]
+    IncludeTooLarge {
+        span: Span,
+        path: String,
+        limit: u64,
+    },
+    #[error("byte 0x{byte:02X} is not UTF-8 text")]
+    NotUtf8 { span: Span, byte: u8 },
     #[error("`{path}` includes itself")]
     IncludeCycle { span: Span, path: String },
     #[error("{what} nested more than {limit} deep")]
@@ -115,6 +130,9 @@ impl ParseError {
             | UnsupportedSource { span, .. }
             | BehavioralSource { span, .. }
             | IncludeNotFound { span, .. }
+            | IncludeNotAFile { span, .. }
+            | IncludeTooLarge { span, .. }
+            | NotUtf8 { span, .. }
             | IncludeCycle { span, .. }
             | TooDeep { span, .. }
             | LibSectionNotFound { span, .. }
@@ -161,6 +179,9 @@ impl ParseError {
             UnsupportedSource { .. } => (codes::UNSUPPORTED_SOURCE, "not supported", "use DC, PULSE, SIN, PWL or EXP".into()),
             BehavioralSource { .. } => (codes::BEHAVIORAL_SOURCE, "not supported", "write it linear: `E1 out 0 in 0 GAIN` (VCVS), `G1 out 0 in 0 GM` (VCCS), or F/H sensing a V source's current".into()),
             IncludeNotFound { .. } => (codes::INCLUDE_NOT_FOUND, "included here", "include paths are relative to the including file".into()),
+            IncludeNotAFile { .. } => (codes::NOT_A_FILE, "included here", "`.include` and `.lib` read regular files only".into()),
+            IncludeTooLarge { limit, .. } => (codes::FILE_TOO_LARGE, "included here", format!("kausal reads netlist files of up to {}", mib(*limit))),
+            NotUtf8 { .. } => (codes::NOT_UTF8, "not UTF-8", "save the file as UTF-8 (or ASCII); other bytes are accepted in comments only".into()),
             IncludeCycle { .. } => (codes::INCLUDE_CYCLE, "included again here", "remove the circular `.include` or `.lib`".into()),
             LibSectionNotFound { .. } => (codes::LIB_SECTION_NOT_FOUND, "no such section", "sections are opened by `.lib NAME` and closed by `.endl` in the library file".into()),
             UnclosedLib { .. } => (codes::UNCLOSED_LIB, "opened here", "close the section with `.endl`".into()),
@@ -172,6 +193,47 @@ impl ParseError {
                 _ => "it does not affect the transient run as kausal performs it".into(),
             }),
         }
+    }
+}
+
+impl ParseError {
+    /// `.include` or `.lib` of `path` (written at `span`) whose loader failed.
+    pub fn include_failed(span: Span, path: String, error: LoadError) -> ParseError {
+        match error {
+            LoadError::Io(e) => ParseError::IncludeNotFound {
+                span,
+                path,
+                reason: e.to_string(),
+            },
+            LoadError::NotAFile { kind } => ParseError::IncludeNotAFile { span, path, kind },
+            LoadError::TooLarge { limit } => ParseError::IncludeTooLarge { span, path, limit },
+        }
+    }
+}
+
+/// The netlist file named on the command line could not be read; it has no
+/// span (an include's failure is a [`ParseError`] at its `.include` line).
+#[derive(Debug, thiserror::Error)]
+#[error("cannot read `{path}`: {error}")]
+pub struct ReadError {
+    pub path: String,
+    pub error: LoadError,
+}
+
+impl ToDiagnostic for ReadError {
+    fn to_diagnostic(&self) -> Diagnostic {
+        let (code, help) = match &self.error {
+            LoadError::Io(_) => (codes::READ_FAILED, "check the path".to_string()),
+            LoadError::NotAFile { .. } => (
+                codes::NOT_A_FILE,
+                "give the path of a netlist file".to_string(),
+            ),
+            LoadError::TooLarge { limit } => (
+                codes::FILE_TOO_LARGE,
+                format!("kausal reads netlist files of up to {}", mib(*limit)),
+            ),
+        };
+        Diagnostic::error(code, self.to_string()).with_help(help)
     }
 }
 

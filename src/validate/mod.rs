@@ -175,7 +175,10 @@ pub fn exec_within(
     extra: Option<&str>,
     limit: std::time::Duration,
 ) -> Result<Execution, ValidateError> {
-    let text = std::fs::read_to_string(path)
+    // Bytes that are not UTF-8 can only be in comments of a netlist that
+    // kausal read; ngspice gets them as U+FFFD.
+    let text = crate::io::read_netlist(path)
+        .map(|b| String::from_utf8_lossy(&b).into_owned())
         .map_err(|e| ValidateError::Io(format!("{}: {e}", path.display())))?;
     let dir = crate::io::ScratchDir::new().map_err(|e| ValidateError::Io(e.to_string()))?;
     let net = dir.path().join("netlist.cir");
@@ -406,9 +409,9 @@ fn reference_run(path: &Path, reltol: f64) -> Result<(RawData, f64), ValidateErr
 
 /// Validate a sorted netlist read from `path` against ngspice.
 pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, ValidateError> {
-    let asked = std::fs::read_to_string(path)
+    let asked = crate::io::read_netlist(path)
         .ok()
-        .and_then(|t| netlist_ref_tol(&t))
+        .and_then(|b| netlist_ref_tol(&String::from_utf8_lossy(&b)))
         .unwrap_or(opts.ref_reltol);
     let (reference, ref_reltol) = reference_run(path, asked)?;
     let names: Vec<String> = sim::outputs(sorted, &opts.sim.probes)?

@@ -6,6 +6,7 @@ mod equations;
 pub mod errors;
 mod front;
 mod hard;
+mod hostile;
 mod simulate;
 mod singular;
 mod sort;
