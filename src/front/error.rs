@@ -103,6 +103,12 @@ pub enum ParseError {
     SkippedControl { span: Span },
     #[error("`.{name}` is ignored by kausal")]
     IgnoredDirective { span: Span, name: String },
+    #[error("`{item}` on `.{directive}` is not a vector kausal writes: it is left out")]
+    IgnoredOutput {
+        span: Span,
+        directive: String,
+        item: String,
+    },
     #[error("`.func {name}`'s arguments are not separated by commas")]
     FuncArgsWithoutComma { span: Span, name: String },
 }
@@ -141,6 +147,7 @@ impl ParseError {
             | SkippedAnalysis { span, .. }
             | SkippedControl { span }
             | IgnoredDirective { span, .. }
+            | IgnoredOutput { span, .. }
             | FuncArgsWithoutComma { span, .. } => *span,
         }
     }
@@ -150,6 +157,7 @@ impl ParseError {
             ParseError::SkippedAnalysis { .. }
             | ParseError::SkippedControl { .. }
             | ParseError::IgnoredDirective { .. }
+            | ParseError::IgnoredOutput { .. }
             | ParseError::FuncArgsWithoutComma { .. } => Severity::Warning,
             _ => Severity::Error,
         }
@@ -187,6 +195,7 @@ impl ParseError {
             UnclosedLib { .. } => (codes::UNCLOSED_LIB, "opened here", "close the section with `.endl`".into()),
             Expected { .. } => (codes::EXPECTED, "here", "see the ngspice manual for the statement's syntax".into()),
             SkippedAnalysis { .. } => (codes::SKIPPED_ANALYSIS, "skipped", "only `.tran` analyses are run".into()),
+            IgnoredOutput { .. } => (codes::IGNORED_OUTPUT, "left out", "kausal writes node voltages `v(node)`, `v(node1,node2)` and currents `i(source)`; ngspice also skips what it cannot print".into()),
             SkippedControl { .. } => (codes::SKIPPED_CONTROL, "skipped", "use `.tran`, `.print` and `.options` instead of a control script".into()),
             IgnoredDirective { name, .. } => (codes::IGNORED_DIRECTIVE, "ignored", match name.as_str() {
                 "temp" => "kausal's devices are at 27 °C (ngspice's default): at another .temp ngspice's diodes conduct differently".into(),

@@ -362,3 +362,24 @@ fn deep_nesting_is_refused_at_its_bounds() {
         );
     }
 }
+
+/// `.print`/`.probe` items kausal does not write are left out with a
+/// located warning each (ngspice skips them too); the vectors it writes are
+/// kept, in order.
+#[test]
+fn unknown_print_items_are_warnings() {
+    let path = crate::root().join("netlists/print_lenient.cir");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let (sources, _) = front::load("print_lenient.cir", &path, text, &FsLoader);
+    let (ast, errors) = front::parse(&sources);
+    let warned: Vec<String> = errors
+        .iter()
+        .map(|e| {
+            assert_eq!(e.severity(), kausal::diag::Severity::Warning, "{e}");
+            sources.text(e.span()).to_string()
+        })
+        .collect();
+    assert_eq!(warned, ["vdb(2)", "@r1[i]", "par('v(1)*2')"]);
+    let printed = print::netlist(&ast);
+    assert!(printed.contains(".print tran v(1) v(2) i(v1)"), "{printed}");
+}

@@ -260,10 +260,33 @@ impl<'a> Parser<'a> {
                 c.next();
                 continue;
             }
-            match self.out_vec(c) {
-                Some(v) => vectors.push(v),
-                None => break,
+            // `v(…)`, `i(…)` and node names are vectors; any other item
+            // (`vdb(2)`, `@r1[i]`, `par('…')`) is left out with a warning,
+            // as ngspice leaves out what it cannot print.
+            let plain = t.kind == TokKind::Word
+                && !t.text.starts_with('@')
+                && (t.is_word("v")
+                    || t.is_word("i")
+                    || c.peek_at(1)
+                        .is_none_or(|n| n.kind != TokKind::LParen || n.span.start != t.span.end));
+            let start = c.pos;
+            let errors = self.errors.len();
+            if plain
+                && let Some(v) = self.out_vec(c)
+                && item_end(c.toks, start) <= c.pos
+            {
+                vectors.push(v);
+                continue;
             }
+            self.errors.truncate(errors);
+            c.pos = item_end(c.toks, start);
+            let (first, last) = (c.toks[start].span, c.toks[c.pos - 1].span);
+            let span = first.to(last);
+            self.errors.push(ParseError::IgnoredOutput {
+                span,
+                directive: directive.text.trim_start_matches('.').to_ascii_lowercase(),
+                item: self.sources.text(span).to_string(),
+            });
         }
         Some(Stmt::Output {
             directive,
@@ -437,4 +460,27 @@ impl<'a> Parser<'a> {
             span,
         })
     }
+}
+
+/// Where the output item that starts at token `start` ends: tokens written
+/// without a space between them, and everything inside parentheses or
+/// brackets, are one item.
+fn item_end(toks: &[Token<'_>], start: usize) -> usize {
+    let mut depth = 0usize;
+    let mut k = start;
+    while k < toks.len() {
+        match toks[k].kind {
+            TokKind::LParen => depth += 1,
+            TokKind::RParen => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+        k += 1;
+        let joined = toks
+            .get(k)
+            .is_some_and(|n| n.span.start == toks[k - 1].span.end);
+        if depth == 0 && !joined {
+            break;
+        }
+    }
+    k
 }
