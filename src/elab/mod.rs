@@ -413,6 +413,41 @@ impl Elab {
                 _ => {}
             }
         }
+        // A subcircuit's own `.ic` and `.nodeset` lines name its nodes: its
+        // ports, and internal nodes of this instance (the top level's are
+        // read with the outputs).
+        if !scope.prefix.is_empty() {
+            for s in stmts {
+                let (ics, into_ic) = match s {
+                    Stmt::Ic(ics, _) => (ics, true),
+                    Stmt::Nodeset(ics, _) => (ics, false),
+                    _ => continue,
+                };
+                let directive = if into_ic { ".ic" } else { ".nodeset" };
+                let values = self.node_values(ics, scope, directive);
+                match into_ic {
+                    true => self.circuit.ics.extend(values),
+                    false => self.circuit.nodesets.extend(values),
+                }
+            }
+        }
+    }
+
+    /// The node `name` means in `scope` (a port, a global, or a node of
+    /// this instance), if the circuit has it.
+    fn scoped_node(&self, name: &str, scope: &Scope<'_, '_>) -> Option<NodeId> {
+        let lower = name.to_ascii_lowercase();
+        if lower == "0" || lower == "gnd" {
+            return Some(GROUND);
+        }
+        if let Some(&n) = scope.ports.get(lower.as_str()) {
+            return Some(n);
+        }
+        if scope.prefix.is_empty() || self.globals.contains(lower.as_str()) {
+            return self.node_map.get(lower.as_str()).copied();
+        }
+        let key = format!("{}{lower}", scope.prefix).to_ascii_lowercase();
+        self.node_map.get(key.as_str()).copied()
     }
 
     fn instance<'s, 'a>(
@@ -601,7 +636,7 @@ impl Elab {
                 });
                 continue;
             }
-            match self.circuit.find_node(v.args[0].text) {
+            match self.scoped_node(v.args[0].text, scope) {
                 Some(node) => out.push(NodeIc {
                     node,
                     value,
