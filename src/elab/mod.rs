@@ -511,8 +511,11 @@ impl Elab {
                 inner.params.insert(d.name.key(), v);
             }
         }
+        // `m=` is the instance multiplier unless the subcircuit declares a
+        // parameter `m`, which it then sets (ngspice).
+        let m_is_param = def.params.iter().any(|d| d.name.is("m"));
         for p in params {
-            if p.name.is("m") {
+            if p.name.is("m") && !m_is_param {
                 // `m` instances in parallel: every R, C, L and D inside scaled.
                 if let Some(m) = self.multiplier(p, name, scope) {
                     inner.m = Some((m, p.name.span));
