@@ -430,13 +430,13 @@ where
 }
 
 /// The soft stop that keeps a step from `t` within `tmax` on the way to the
-/// hard `stop`: none when `stop` itself is within reach, and halfway when a
-/// full `tmax` would leave a sliver before `stop`.
+/// hard `stop`: none when `stop` itself is within reach, halfway when a full
+/// `tmax` would leave less than `tmax` (never a sliver before `stop`).
 fn soft_stop(t: f64, tmax: f64, stop: f64) -> Option<f64> {
     let left = stop - t;
     if left <= tmax * (1.0 + 1e-9) {
         None
-    } else if left < tmax * 1.001 + tmax {
+    } else if left < 2.0 * tmax {
         Some(t + 0.5 * left)
     } else {
         Some(t + tmax)
