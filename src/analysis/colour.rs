@@ -101,6 +101,10 @@ pub struct Colouring<'g> {
     pub orphans: Vec<VarId>,
     pass: u32,
     undo: Option<Vec<Undo>>,
+    /// The undo log's buffer, kept between trials: a trial in a block of
+    /// 10^6 equations logs millions of changes, and a fresh log would be
+    /// regrown (copied) every time.
+    undo_spare: Vec<Undo>,
     trial_count: usize,
     /// Edges along which solving needs a nonlinear inversion (filled by
     /// tearing for the equations of the block at hand; false elsewhere).
@@ -170,6 +174,7 @@ impl<'g> Colouring<'g> {
             orphans: Vec::new(),
             pass: 0,
             undo: None,
+            undo_spare: Vec::new(),
             trial_count: 0,
             nonlinear: vec![false; g.n_edges()],
             trial_inversions: 0,
@@ -413,7 +418,9 @@ impl<'g> Colouring<'g> {
     /// without changing anything.
     pub fn trial_tear(&mut self, e: EqId, v: VarId) -> (usize, usize) {
         debug_assert!(self.eq_queue.is_empty() && self.var_queue.is_empty());
-        self.undo = Some(Vec::new());
+        let mut log = std::mem::take(&mut self.undo_spare);
+        log.clear();
+        self.undo = Some(log);
         self.trial_count = 0;
         self.trial_inversions = 0;
         let k = self
@@ -426,8 +433,8 @@ impl<'g> Colouring<'g> {
         self.propagate();
         self.pass = pass;
         let count = self.trial_count;
-        let log = self.undo.take().unwrap_or_default();
-        for u in log.into_iter().rev() {
+        let mut log = self.undo.take().unwrap_or_default();
+        for u in log.drain(..).rev() {
             match u {
                 Undo::Colour(k, c) => self.colour[k as usize] = c,
                 Undo::EqBlack(e, n) => self.eq_black[e as usize] = n,
@@ -436,6 +443,7 @@ impl<'g> Colouring<'g> {
                 Undo::VarEq(v, x) => self.var_eq[v as usize] = x,
             }
         }
+        self.undo_spare = log;
         self.eq_queue.clear();
         self.var_queue.clear();
         (count, self.trial_inversions)

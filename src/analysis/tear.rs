@@ -131,24 +131,26 @@ impl BlockTearer {
         if c.eq_black[first.0 as usize] == 0 {
             return None;
         }
-        let mut candidates: Vec<(EqId, VarId)> = Vec::new();
-        for &e in &widest {
-            let vars: Vec<VarId> = c.black_vars(e).collect();
-            let most = vars
-                .iter()
+        // The first MAX_TRIED unknowns of the widest equations that occur in
+        // the most unused equations. Gathering stops there: each unknown is
+        // checked against those gathered, which over all the tied terms of a
+        // KCL of 10^6 currents would be quadratic.
+        let mut candidates: Vec<(EqId, VarId)> = Vec::with_capacity(2 * MAX_TRIED);
+        'eqs: for &e in &widest {
+            let most = c
+                .black_vars(e)
                 .map(|v| c.var_black[v.0 as usize])
                 .max()
                 .unwrap_or(0);
-            for v in vars {
+            for v in c.black_vars(e) {
+                if candidates.len() >= MAX_TRIED {
+                    break 'eqs;
+                }
                 if c.var_black[v.0 as usize] == most && !candidates.iter().any(|&(_, w)| w == v) {
                     candidates.push((e, v));
                 }
             }
-            if candidates.len() >= MAX_TRIED {
-                break;
-            }
         }
-        candidates.truncate(MAX_TRIED);
         // Arguments of nonlinear functions, each paired with an equation it
         // occurs in linearly (so that the nonlinear law is evaluated forward).
         while self.nl_cursor < self.nonlinear_edges.len()

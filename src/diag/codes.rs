@@ -91,6 +91,7 @@ codes! {
     UNSCALABLE_ELEMENT = "K0217", "`…` is inside a subcircuit instance with `m=`, which kausal applies to R, C, L and D only.";
     BAD_OPTION = "K0218", "Option `…` is …; it must be ….";
     DEEP_HIERARCHY = "K0219", "Instantiating `…` nests subcircuits more than … deep.";
+    TOO_MANY_ELEMENTS = "K0220", "The circuit has more than … elements once its subcircuits are expanded.";
     UNKNOWN_MODEL_PARAM = "K0290", "Unknown parameter `…` on model `…`.";
     IGNORED_MODEL_PARAM = "K0291", "Model parameter `…` is ignored by kausal.";
     IGNORED_ELEMENT_PARAM = "K0292", "Parameter `…` of `…` is ignored by kausal.";

@@ -17,10 +17,23 @@ impl Elab {
         let mut name = String::with_capacity(scope.prefix.len() + el.name.text.len());
         name.push_str(&scope.prefix);
         name.push_str(el.name.text);
+        if stack.is_empty() {
+            self.top_line = el.name.span;
+        }
         if let ElementBody::Instance { subckt, params } = &el.body {
             self.instance(el, &name, subckt, params, scope, stack);
             return;
         }
+        if self.n_flattened >= super::MAX_ELEMENTS {
+            self.errors.push(ElabError::TooManyElements {
+                span: self.top_line,
+                element: name,
+                limit: super::MAX_ELEMENTS,
+            });
+            self.too_many = true;
+            return;
+        }
+        self.n_flattened += 1;
         let key = name.to_ascii_lowercase();
         if let Some(&(_, first)) = self.elem_map.get(&key) {
             self.errors.push(ElabError::DuplicateElement {

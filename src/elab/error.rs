@@ -37,6 +37,15 @@ pub enum ElabError {
         name: String,
         limit: usize,
     },
+    /// Flattening reached `limit` elements; `span` is the top-level line
+    /// being expanded then (the instance, or the element itself), `element`
+    /// the hierarchical name of the element past the limit.
+    #[error("the circuit expands to more than {limit} elements (`{element}` is past the limit)")]
+    TooManyElements {
+        span: Span,
+        element: String,
+        limit: usize,
+    },
     #[error("`{instance}` connects {found} nodes, but subcircuit `{name}` has {expected} ports")]
     PortMismatch {
         span: Span,
@@ -171,6 +180,7 @@ impl ElabError {
             | UndefinedSubckt { span, .. }
             | RecursiveSubckt { span, .. }
             | DeepHierarchy { span, .. }
+            | TooManyElements { span, .. }
             | PortMismatch { span, .. }
             | DuplicateElement { span, .. }
             | SingleNode { span, .. }
@@ -223,6 +233,7 @@ impl ToDiagnostic for ElabError {
             UndefinedSubckt { .. } => (codes::UNDEFINED_SUBCKT, "no such subcircuit", "define it with `.subckt NAME ports ... .ends`".into()),
             RecursiveSubckt { .. } => (codes::RECURSIVE_SUBCKT, "recursive instance", "a subcircuit may not contain itself, directly or indirectly".into()),
             DeepHierarchy { .. } => (codes::DEEP_HIERARCHY, "too deep", "flatten some levels of the hierarchy".into()),
+            TooManyElements { .. } => (codes::TOO_MANY_ELEMENTS, "expands past the limit here", "each instance copies its subcircuit, so a tree of instances grows exponentially with its depth; reduce its fan-out or depth".into()),
             PortMismatch { expected, .. } => (codes::PORT_MISMATCH, "wrong node count", format!("connect exactly {expected} nodes")),
             DuplicateElement { .. } => (codes::DUPLICATE_ELEMENT, "second definition", "rename one of them".into()),
             SingleNode { .. } => (codes::SINGLE_NODE, "both terminals here", "an element must connect two different nodes".into()),

@@ -50,6 +50,9 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         tstep: 1.0,
         tstop: 1.0,
         globals: FxHashSet::default(),
+        n_flattened: 0,
+        top_line: Span::default(),
+        too_many: false,
     };
     e.circuit.nodes.push(Node {
         name: "0".into(),
@@ -147,6 +150,14 @@ struct Elab {
     tstop: f64,
     /// `.global` node names (case-folded): top-level nodes in every scope.
     globals: FxHashSet<String>,
+    /// Element lines flattened so far (instances not counted), at most
+    /// [`MAX_ELEMENTS`]: the count is checked before each one is built.
+    n_flattened: usize,
+    /// The name of the top-level line being flattened (an instance expands
+    /// below it): where the element limit is reported.
+    top_line: Span,
+    /// Set once the limit is reached: nothing more is flattened.
+    too_many: bool,
 }
 
 impl Elab {
@@ -407,6 +418,9 @@ impl Elab {
         stack: &mut Vec<String>,
     ) {
         for s in stmts {
+            if self.too_many {
+                return;
+            }
             match s {
                 Stmt::Element(el) => self.element(el, scope, stack),
                 Stmt::Include { body, .. } => self.walk(body, scope, stack),
@@ -805,6 +819,14 @@ fn call_func(
 /// Subcircuit instances nested deeper than this are refused (flattening
 /// recurses: unbounded, 2·10^4 levels overflow the stack).
 const MAX_HIERARCHY: usize = 100;
+
+/// A circuit with more elements than this once flattened is refused, when
+/// flattening reaches it (before anything past it is built). Checking and
+/// sorting take about 2 KB an element, so this bounds them near 4 GB; a
+/// 20-level binary tree of instances is 10^6 elements in 1.3 KB of
+/// netlist. The largest generated benchmark (an RC ladder of 1.7·10^5
+/// sections) has 3.4·10^5.
+pub(crate) const MAX_ELEMENTS: usize = 2_000_000;
 
 /// `.func` calls nested deeper than this are refused (evaluation recurses).
 const MAX_CALL_DEPTH: usize = 64;

@@ -323,3 +323,59 @@ fn bytes_that_are_not_utf8_are_located() {
     assert_eq!(run.code, 1, "{}", run.stderr);
     assert!(run.stderr.contains("sub.inc:2:10]"), "{}", run.stderr);
 }
+
+/// A binary tree of subcircuits: `s0` is one resistor, `s{k}` two instances
+/// of `s{k-1}` (2^k resistors in parallel), then one top-level instance of
+/// each level in `tops` after a small driven circuit (2 elements).
+fn subckt_tree(tops: &[u32]) -> String {
+    let depth = tops.iter().copied().max().unwrap_or(0);
+    let mut t = String::from("subcircuit tree\n.subckt s0 a b\nR1 a b 1k\n.ends\n");
+    for k in 1..=depth {
+        t.push_str(&format!(
+            ".subckt s{k} a b\nX1 a b s{0}\nX2 a b s{0}\n.ends\n",
+            k - 1
+        ));
+    }
+    t.push_str("V1 in 0 1\nR1 in 0 1k\n");
+    for (i, k) in tops.iter().enumerate() {
+        t.push_str(&format!("XT{i} b 0 s{k}\n"));
+    }
+    t + ".tran 1u 10u\n.end\n"
+}
+
+/// Levels 20, 19, 18 and 17 expand to 1,966,080 resistors, 2 elements
+/// besides: under the 2·10^6 limit (K0220) by 33,918. A level-16 instance
+/// more crosses it; flattening stops there with the error at that
+/// instance's line, before the circuit is built.
+#[test]
+fn a_subcircuit_tree_past_the_element_limit_is_refused_at_its_instance() {
+    let dir = tempfile::tempdir().unwrap();
+    let under = subckt_tree(&[20, 19, 18, 17]);
+    let el = kausal::pipeline::elaborate_text(
+        "under.cir",
+        &dir.path().join("under.cir"),
+        under,
+        &kausal::io::FsLoader,
+    )
+    .unwrap_or_else(|f| panic!("{:?}", f.errors().map(|d| &d.message).collect::<Vec<_>>()));
+    assert_eq!(el.circuit.elements.len(), 1_966_082);
+
+    let over = subckt_tree(&[20, 19, 18, 17, 16]);
+    let line = over.lines().position(|l| l.starts_with("XT4 ")).unwrap() + 1;
+    let path = dir.path().join("over.cir");
+    std::fs::write(&path, over).unwrap();
+    let started = Instant::now();
+    let run = check(&path);
+    assert_eq!(run.code, 1, "{}", run.stderr);
+    assert!(run.stderr.contains("K0220"), "{}", run.stderr);
+    assert!(
+        run.stderr.contains(&format!("over.cir:{line}:1]")),
+        "not at line {line}:\n{}",
+        run.stderr
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(10),
+        "{:?}",
+        started.elapsed()
+    );
+}
