@@ -281,7 +281,8 @@ impl Elab {
         }
         // TMAX caps the step (ngspice); zero or less means none.
         let tmax = tmax.filter(|&m| m > 0.0).map(|m| {
-            let least = (tstop - tstart) / MAX_TMAX_STEPS;
+            // The run integrates from 0 whatever TSTART is.
+            let least = tstop / MAX_TMAX_STEPS;
             if m < least {
                 self.errors.push(ElabError::TinyTmax {
                     span: t.tmax.as_ref().map_or(t.span, |v| v.span()),
