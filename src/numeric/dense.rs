@@ -67,17 +67,6 @@ pub fn lu_solve(n: usize, lu: &[f64], perm: &[usize], b: &mut [f64], tmp: &mut [
     b[..n].copy_from_slice(tmp);
 }
 
-/// Solve a small dense system `a x = b` in place; false if `a` is singular.
-pub fn solve_dense(n: usize, a: &mut [f64], b: &mut [f64]) -> bool {
-    let mut perm = vec![0; n];
-    if !lu_factor(n, a, &mut perm) {
-        return false;
-    }
-    let mut tmp = vec![0.0; n];
-    lu_solve(n, a, &perm, b, &mut tmp);
-    true
-}
-
 /// A factored dense matrix that owns its factors.
 #[derive(Clone, Debug, Default)]
 pub struct DenseLu {
@@ -124,7 +113,8 @@ mod tests {
         let a = vec![0.0, 2.0, 1.0, 1.0, 1.0, 0.0, 3.0, 0.0, 4.0];
         let x = [1.0, -2.0, 0.5];
         let mut b = mul(&a, &x);
-        assert!(solve_dense(3, &mut a.clone(), &mut b));
+        let lu = DenseLu::new(3, a.clone()).expect("regular");
+        lu.solve_in_place(&mut b, &mut [0.0; 3]);
         for (got, want) in b.iter().zip(x) {
             assert!((got - want).abs() < 1e-14, "{got} vs {want}");
         }
