@@ -149,18 +149,29 @@ pub fn run(
                         converged = true;
                         break;
                     }
-                    for (j, &v) in tears.iter().enumerate() {
-                        let x0 = vals[v.0 as usize];
-                        let h = 1e-7 * (1.0 + x0.abs());
-                        vals[v.0 as usize] = x0 + h;
-                        let r1 = resid(vals)?;
-                        vals[v.0 as usize] = x0;
-                        for i in 0..n {
-                            jac[i * n + j] = (r1[i] - r[i]) / h;
+                    // A tear far from its solution (a capacitor's der(u) of
+                    // 1e11 V/s from a guess of 0) moves residuals of that size
+                    // by less than their rounding at a relative step of 1e-7:
+                    // the difference is zero and the matrix looks singular.
+                    // Longer steps are tried then (exact on a linear block).
+                    let mut lu = None;
+                    for widen in [1.0, 1e4, 1e8, 1e12] {
+                        for (j, &v) in tears.iter().enumerate() {
+                            let x0 = vals[v.0 as usize];
+                            let h = widen * 1e-7 * (1.0 + x0.abs());
+                            vals[v.0 as usize] = x0 + h;
+                            let r1 = resid(vals)?;
+                            vals[v.0 as usize] = x0;
+                            for i in 0..n {
+                                jac[i * n + j] = (r1[i] - r[i]) / h;
+                            }
+                        }
+                        lu = DenseLu::new(n, jac.clone());
+                        if lu.is_some() {
+                            break;
                         }
                     }
-                    let lu = DenseLu::new(n, jac.clone())
-                        .ok_or(InterpError::Singular { block: b.index })?;
+                    let lu = lu.ok_or(InterpError::Singular { block: b.index })?;
                     let mut scratch = vec![0.0; n];
                     let mut dx = r.clone();
                     lu.solve_in_place(&mut dx, &mut scratch);

@@ -122,6 +122,8 @@ codes! {
     RINGING = "K0409", "A lightly damped mode keeps the steps short.";
     BDF_ON_LIGHT_DAMPING = "K0410", "BDF at a loose tolerance on a lightly damped mode.";
     BAD_TOLERANCE = "K0411", "A tolerance out of range.";
+    BDF_STALLED = "K0412", "BDF's steps stalled at a stability limit; ESDIRK34 took over.";
+    NO_PROGRESS = "K0413", "The run stopped making progress within its step budget.";
     VALIDATE_FAILED = "K0500", "Validation against ngspice failed.";
 }
 

@@ -149,6 +149,8 @@ where
         tmax: tran.tmax,
     };
     let mut stats = Stats::default();
+    // The steps a stalled BDF took before ESDIRK34 took over.
+    let mut stalled_steps = 0;
     let rec = match method {
         Method::Circuit => {
             let setup = circuit::Setup {
@@ -163,7 +165,41 @@ where
         }
         Method::Bdf => {
             let s = problem.bdf::<LS>().map_err(|e| solver_err(t0, e))?;
-            drive(&stops, s, |p, st| p.bdf_solver::<LS>(st), rec, &mut stats)?
+            match drive(&stops, s, |p, st| p.bdf_solver::<LS>(st), rec, &mut stats)? {
+                Driven::Done(rec) => rec,
+                Driven::Stalled(rec, bdf, h) => {
+                    // BDF's orders 3 to 5 are not A-stable: a lightly damped
+                    // mode near the imaginary axis holds its step at a
+                    // stability limit far below what accuracy needs. The rest
+                    // of the run goes to ESDIRK34 (L-stable, 4th order).
+                    let t = bdf.state().t;
+                    let order = Method::Esdirk34.start_order();
+                    let s = restart(
+                        &problem,
+                        bdf,
+                        &|p, st| p.esdirk34_solver::<LS>(st),
+                        t,
+                        &mut stats,
+                        order,
+                    )?;
+                    warnings.push(stalled_note(t, h, stats.steps, tran));
+                    stalled_steps = stats.steps;
+                    let stops = Stops {
+                        method: Method::Esdirk34,
+                        ..stops
+                    };
+                    stats.switched_at = Some(t);
+                    match drive(
+                        &stops,
+                        s,
+                        |p, st| p.esdirk34_solver::<LS>(st),
+                        rec,
+                        &mut stats,
+                    )? {
+                        Driven::Done(rec) | Driven::Stalled(rec, ..) => rec,
+                    }
+                }
+            }
         }
         Method::TrBdf2 => {
             let s = problem.tr_bdf2::<LS>().map_err(|e| solver_err(t0, e))?;
@@ -174,6 +210,7 @@ where
                 rec,
                 &mut stats,
             )?
+            .recorder()
         }
         Method::Esdirk34 => {
             let s = problem.esdirk34::<LS>().map_err(|e| solver_err(t0, e))?;
@@ -184,10 +221,11 @@ where
                 rec,
                 &mut stats,
             )?
+            .recorder()
         }
         Method::Tsit5 => {
             let s = problem.tsit45().map_err(|e| solver_err(t0, e))?;
-            drive(&stops, s, |p, st| p.tsit45_solver(st), rec, &mut stats)?
+            drive(&stops, s, |p, st| p.tsit45_solver(st), rec, &mut stats)?.recorder()
         }
     };
     if method != Method::Circuit {
@@ -197,7 +235,8 @@ where
         stats.jacobians = counts.jacobians;
     }
     let points = rec.grid.len();
-    if let Some(d) = ringing(sys, &problem.eqn, tran, stats.steps, points, &rec.last) {
+    let steps = stats.steps - stalled_steps;
+    if let Some(d) = ringing(sys, &problem.eqn, tran, steps, points, &rec.last) {
         warnings.push(d);
     }
     let mut w = rec.rows.into_waveforms(stats);
@@ -285,16 +324,95 @@ where
     pub(super) tmax: Option<f64>,
 }
 
+/// How [`drive`] ended: at the end of the run, or (BDF only) stalled, with
+/// the solver where it stalled and its last step.
+pub(super) enum Driven<'p, 's, M: Matrix<T = f64>, S>
+where
+    M::V: HostVec,
+{
+    Done(Recorder<'p, 's, M>),
+    Stalled(Recorder<'p, 's, M>, S, f64),
+}
+
+impl<'p, 's, M: Matrix<T = f64>, S> Driven<'p, 's, M, S>
+where
+    M::V: HostVec,
+{
+    /// The recorder of a method that never stalls.
+    fn recorder(self) -> Recorder<'p, 's, M> {
+        match self {
+            Driven::Done(rec) | Driven::Stalled(rec, ..) => rec,
+        }
+    }
+}
+
+/// Steps are counted in windows of this many; BDF has stalled when, after at
+/// least [`STALL_MIN_STEPS`], a window's pace would take more than
+/// [`STALL_PROJECTED`] steps to cover the run.
+const STALL_WINDOW: usize = 1_000;
+const STALL_MIN_STEPS: usize = 2_000;
+const STALL_PROJECTED: f64 = 1e6;
+
+/// A window of consecutive steps, for the stall test.
+struct Window {
+    /// Where it starts.
+    t: f64,
+    steps: usize,
+    h_min: f64,
+    h_max: f64,
+    order_min: usize,
+}
+
+impl Window {
+    fn new(t: f64) -> Window {
+        Window {
+            t,
+            steps: 0,
+            h_min: f64::INFINITY,
+            h_max: 0.0,
+            order_min: usize::MAX,
+        }
+    }
+
+    fn add(&mut self, h: f64, order: usize) {
+        self.steps += 1;
+        self.h_min = self.h_min.min(h);
+        self.h_max = self.h_max.max(h);
+        self.order_min = self.order_min.min(order);
+    }
+
+    /// Held at a stability limit: order 3 or above throughout, at a step
+    /// that varied less than 4-fold. Steps short for accuracy (a diode
+    /// turning on) vary widely and drop BDF to order 1 or 2.
+    fn held(&self) -> bool {
+        self.order_min >= 3 && self.h_max < 4.0 * self.h_min
+    }
+}
+
+/// The note that says BDF stalled and what took over.
+fn stalled_note(t: f64, h: f64, steps: usize, tran: &crate::elab::Tran) -> crate::diag::Diagnostic {
+    crate::diag::Diagnostic::warning(
+        crate::diag::codes::BDF_STALLED,
+        format!(
+            "BDF's steps stalled near {h:.2e} s at t = {t:.4e} s after {steps} steps (at that pace the run to {:.4e} s would take more than {STALL_PROJECTED:.0e}): a lightly damped mode holds BDF's orders 3 to 5, which are not A-stable, at their stability limit; the run went on with ESDIRK34 (L-stable)",
+            tran.tstop
+        ),
+    )
+    .with_help("--method esdirk34 or --method tr-bdf2 runs the whole circuit with an L-stable method")
+}
+
 /// Step `solver` to the end, stopping on every breakpoint (restarting after
 /// the hard ones, with `make` building the new solver) and recording the
-/// grid points (and every step with `--all-steps`).
+/// grid points (and every step with `--all-steps`). A solver that starts
+/// past 0 resumes a run: the stops before it are passed. BDF stops early
+/// when its steps stall (see [`STALL_WINDOW`]).
 pub(super) fn drive<'p, 's, M, S>(
     stops_at: &Stops<'p, M>,
     mut solver: S,
     make: impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, S::State) -> Result<S, diffsol::DiffsolError>,
     mut rec: Recorder<'p, 's, M>,
     stats: &mut Stats,
-) -> Result<Recorder<'p, 's, M>, SimError>
+) -> Result<Driven<'p, 's, M, S>, SimError>
 where
     M: Matrix<T = f64>,
     M::V: HostVec,
@@ -314,9 +432,19 @@ where
     // Stop points in order: the breakpoints, then the end.
     let mut stops: Vec<f64> = hard.to_vec();
     stops.push(t_end);
-    let mut k = 0;
     let st = solver.state();
-    rec.record_start(st.t, st.y.slice())?;
+    let resumed = st.t > 0.0;
+    let mut k = if resumed {
+        stops.partition_point(|&s| s <= st.t).min(stops.len() - 1)
+    } else {
+        rec.record_start(st.t, st.y.slice())?;
+        0
+    };
+    let span = t_end - st.t;
+    let mut window = Window::new(st.t);
+    let max_steps = opts.max_steps.unwrap_or(DEFAULT_MAX_STEPS);
+    let mut budget = budget::Budget::new(max_steps, stats.steps, st.t, t_end);
+    let mut taken = 0usize;
     let mut last_report = Instant::now();
     // Restarts after too many error-test failures: (time, how many there).
     let mut rescues: Option<(f64, usize)> = None;
@@ -359,6 +487,20 @@ where
                         let y = solver.state().y.slice().to_vec();
                         insert_step(&mut rec, t, &y)?;
                     }
+                    taken += 1;
+                    budget.step(t, h)?;
+                    window.add(h, solver.order());
+                    if window.steps == STALL_WINDOW {
+                        let pace = (t - window.t) / STALL_WINDOW as f64;
+                        if method == Method::Bdf
+                            && taken >= STALL_MIN_STEPS
+                            && span > STALL_PROJECTED * pace
+                            && window.held()
+                        {
+                            return Ok(Driven::Stalled(rec, solver, pace));
+                        }
+                        window = Window::new(t);
+                    }
                     if let Some(p) = opts.progress
                         && last_report.elapsed() > Duration::from_millis(100)
                     {
@@ -368,6 +510,7 @@ where
                 }
                 Ok(OdeSolverStopReason::TstopReached) if soft.is_some() => {
                     let t = solver.state().t;
+                    budget.step(t, solver.state().h.abs())?;
                     emit_grid(&solver, &mut rec, t, false)?;
                     if opts.all_steps && t >= tstart {
                         let y = solver.state().y.slice().to_vec();
@@ -426,7 +569,7 @@ where
         solver = restart(problem, solver, &make, reason, stats, order)?;
         k += 1;
     }
-    Ok(rec)
+    Ok(Driven::Done(rec))
 }
 
 /// The soft stop that keeps a step from `t` within `tmax` on the way to the
@@ -458,18 +601,19 @@ where
 
 /// A new solver from `solver`'s state at `t`: fresh history (order 1),
 /// recomputed slope and initial step. Its statistics go into `stats`.
-pub(super) fn restart<'p, M, S>(
+pub(super) fn restart<'p, M, S, T>(
     problem: &'p OdeSolverProblem<CircuitOde<M>>,
     solver: S,
-    make: &impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, S::State) -> Result<S, diffsol::DiffsolError>,
+    make: &impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, T::State) -> Result<T, diffsol::DiffsolError>,
     t: f64,
     stats: &mut Stats,
     order: usize,
-) -> Result<S, SimError>
+) -> Result<T, SimError>
 where
     M: Matrix<T = f64>,
     M::V: HostVec,
     S: OdeSolverMethod<'p, CircuitOde<M>>,
+    T: OdeSolverMethod<'p, CircuitOde<M>>,
 {
     add_solver_stats(stats, &solver);
     let mut common = solver.into_state().into_common();
@@ -481,7 +625,7 @@ where
         .eval(t, &y, &mut dy)
         .map_err(|error| SimError::Eval { error })?;
     common.dy.slice_mut().copy_from_slice(&dy);
-    let mut state = S::State::new_from_common(common);
+    let mut state = T::State::new_from_common(common);
     state
         .as_mut()
         .set_step_size(problem.h0, &problem.atol, problem.rtol, &problem.eqn, order);

@@ -7,6 +7,7 @@
 //! schedule and diffsol; it does no IO.
 
 use crate::diag::codes;
+mod budget;
 mod circuit;
 mod dc;
 mod driver;
@@ -44,6 +45,7 @@ use grid::*;
 use modes::*;
 use record::*;
 
+pub use budget::DEFAULT_MAX_STEPS;
 pub use grid::RowSink;
 use probe::output_ref;
 pub use probe::{output_list, outputs};
@@ -93,6 +95,8 @@ pub struct Options {
     pub progress: Option<fn(f64)>,
     /// Output at these times instead of the `.tran` grid.
     pub times: Option<Vec<f64>>,
+    /// The most steps a run may take (default [`DEFAULT_MAX_STEPS`]).
+    pub max_steps: Option<usize>,
 }
 
 /// Solver statistics of a run.
@@ -109,6 +113,8 @@ pub struct Stats {
     pub restarts: usize,
     /// Restarts after repeated error-test failures (a kink in the history).
     pub rescues: usize,
+    /// Where a stalled BDF run went on with ESDIRK34.
+    pub switched_at: Option<f64>,
     pub wall: Duration,
     /// Assignments computed in `f` / at output points only / never.
     pub in_f: usize,
@@ -159,6 +165,20 @@ pub enum SimError {
         "--method circuit integrates circuits of at most {max} states (this one has {n}): use --method bdf"
     )]
     TooManyStates { n: usize, max: usize },
+    #[error(
+        "the run stopped making progress: {steps} steps reached t = {t:.4e} s of {tstop:.4e} s, with steps of {h:.2e} s{}",
+        too_many_text(*max, *projected)
+    )]
+    TooManySteps {
+        steps: usize,
+        max: usize,
+        t: f64,
+        h: f64,
+        tstop: f64,
+        /// The steps the whole run would take at its recent pace, when
+        /// that is what stopped it.
+        projected: Option<f64>,
+    },
     #[error("no DC operating point: {reason}")]
     DcFailed { reason: DcFailure },
     #[error(
@@ -177,6 +197,15 @@ pub enum SimError {
         value: f64,
         range: &'static str,
     },
+}
+
+fn too_many_text(max: usize, projected: Option<f64>) -> String {
+    match projected {
+        Some(p) => format!(
+            "; at that pace the run would take {p:.1e} steps, more than its budget of {max}"
+        ),
+        None => format!(", the whole of its budget of {max} steps"),
+    }
 }
 
 /// Why no DC operating point was found.
@@ -249,6 +278,10 @@ impl crate::diag::ToDiagnostic for SimError {
             SimError::StepUnderflow { .. } => (
                 codes::STEP_UNDERFLOW,
                 "the circuit may be ill-posed there, or change faster than steps of TSTOP·1e-16 can follow (shorten TSTOP); try another --method or a looser --rtol",
+            ),
+            SimError::TooManySteps { .. } => (
+                codes::NO_PROGRESS,
+                "the circuit changes faster than the run can follow (a fast oscillation over a long TSTOP, or a lightly damped mode the steps must resolve: a shorter run names it in a K0409 warning); try --method esdirk34 or tr-bdf2, a looser --rtol, a shorter TSTOP, or raise --max-steps",
             ),
             SimError::Solver { .. } | SimError::TooManyStates { .. } => {
                 (codes::SOLVER_FAILED, "try another --method")

@@ -21,6 +21,13 @@ fn sort_text(text: &str) -> Sorted {
         .expect("sorts")
 }
 
+fn sort_file(name: &str) -> Sorted {
+    let path = root().join("netlists").join(name);
+    pipeline::sort(&path, &FsLoader, &SortOptions::default())
+        .ok()
+        .expect("sorts")
+}
+
 fn run(text: &str, probe: &str, method: Option<Method>, rtol: f64) -> (Vec<f64>, Vec<f64>) {
     let s = sort_text(text);
     let opts = sim::Options {
@@ -733,4 +740,57 @@ fn tmax_caps_every_step() {
             w.stats.steps
         );
     }
+}
+
+/// A lightly damped network under a slow drive (issue 22, class 1): BDF's
+/// orders 3 to 5 are not A-stable near the imaginary axis, so its step was
+/// held at the modes' stability limit (1e-10 s over 300 ms: the default run
+/// did not finish in 10 minutes). The stall is detected from the held step
+/// and order, and ESDIRK34 finishes the run in a few thousand steps.
+#[test]
+fn a_stalled_bdf_run_goes_on_with_an_l_stable_method() {
+    let s = sort_file("coupled_tline.cir");
+    let w = sim::simulate(&s, &sim::Options::default()).expect("runs");
+    let at = w
+        .stats
+        .switched_at
+        .expect("BDF stalled and ESDIRK34 took over");
+    assert!(at > 1e-3 && at < 2e-3, "switched at {at:e}");
+    assert!(w.stats.steps < 20_000, "{} steps", w.stats.steps);
+    assert!(
+        w.warnings
+            .iter()
+            .any(|d| d.code == kausal::diag::codes::BDF_STALLED),
+        "the switch is reported"
+    );
+    assert_eq!(*w.time.last().unwrap(), 0.3);
+}
+
+/// A run whose pace can never reach TSTOP (a 1 GHz sine over a second)
+/// ends after one pace window with a diagnostic that says where it got to,
+/// instead of running for ever.
+#[test]
+fn a_run_that_cannot_finish_ends_with_a_diagnostic() {
+    let s = sort_text("fast\nV1 a 0 SIN(0 1 1G)\nR1 a b 1k\nC1 b 0 1p\n.tran 1m 1\n.end\n");
+    for method in [Method::Bdf, Method::TrBdf2, Method::Circuit] {
+        let opts = sim::Options {
+            method: Some(method),
+            ..Default::default()
+        };
+        match sim::simulate(&s, &opts) {
+            Err(e @ SimError::TooManySteps { projected, .. }) => {
+                assert!(projected.is_some_and(|p| p > 1e9), "{method:?}: {e}");
+            }
+            other => panic!("{method:?}: expected TooManySteps, got {other:?}"),
+        }
+    }
+    let opts = sim::Options {
+        max_steps: Some(100),
+        ..Default::default()
+    };
+    let s = sort_file("rc_lowpass_step.cir");
+    assert!(matches!(
+        sim::simulate(&s, &opts),
+        Err(SimError::TooManySteps { steps: 101, .. })
+    ));
 }

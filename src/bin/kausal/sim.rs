@@ -44,6 +44,10 @@ pub struct Args {
     /// Also output every accepted step.
     #[arg(long)]
     all_steps: bool,
+    /// The most steps the run may take; a run whose pace would need more
+    /// stops early with a diagnostic (default 5e7).
+    #[arg(long, value_name = "N")]
+    max_steps: Option<usize>,
     /// Keep this capacitor's or inductor's state under index reduction.
     #[arg(long, value_name = "ELEMENT")]
     prefer_state: Vec<String>,
@@ -77,6 +81,7 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
             .is_terminal()
             .then_some(progress as fn(f64)),
         times: None,
+        max_steps: args.max_steps,
     };
     let (waves, csv) = match simulate(&sorted, &sim_opts, &args) {
         Ok(x) => x,
@@ -129,9 +134,11 @@ fn write_files(sorted: &Sorted, waves: &Waveforms, csv: Csv, args: &Args) -> Res
 /// The solver's work and the assignments' placement, on standard error.
 fn print_stats(s: &sim::Stats) {
     eprintln!(
-        "{} states, {:?}: {} steps ({} rejected), {} f-evaluations, {} J·v, {} Jacobians, {} LU factorizations, {} restarts{}; {:.3} s",
+        "{} states, {:?}{}: {} steps ({} rejected), {} f-evaluations, {} J·v, {} Jacobians, {} LU factorizations, {} restarts{}; {:.3} s",
         s.states,
         s.method.unwrap_or(sim::Method::Bdf),
+        s.switched_at
+            .map_or_else(String::new, |t| format!(" then Esdirk34 from t = {t:.4e}")),
         s.steps,
         s.rejected,
         s.rhs_evals,

@@ -674,6 +674,8 @@ where
     let mut y = vec![0.0; s.n];
     let mut k = 0;
     let mut last_report = std::time::Instant::now();
+    let max_steps = opts.max_steps.unwrap_or(super::DEFAULT_MAX_STEPS);
+    let mut budget = super::budget::Budget::new(max_steps, 0, t0, t_end);
     while s.t < t_end {
         while k < hard.len() && hard[k] <= s.t {
             k += 1;
@@ -689,6 +691,7 @@ where
         // source corner) is reached without a step.
         if stop - s.t > 1e-12 * t_end.abs() {
             s.step(stop - s.t, sys)?;
+            budget.step(s.t, s.h)?;
         }
         // `t + (stop - t)` may miss `stop` by an ulp.
         if s.t >= stop - 1e-12 * t_end.abs() {
