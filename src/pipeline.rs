@@ -144,6 +144,28 @@ impl Sorted {
     }
 }
 
+/// What was done to a group of coupled inductors whose inductance matrix
+/// is singular (see [`crate::build::coupling`]).
+fn coupling_note(c: &crate::elab::Circuit, g: &crate::build::coupling::Reduced) -> Diagnostic {
+    let name = |k: usize| c.elements[g.members[k]].name.as_str();
+    let list = |ks: &mut dyn Iterator<Item = usize>| ks.map(name).collect::<Vec<_>>().join(", ");
+    let pivots = list(&mut g.pivots.iter().copied());
+    let rest = list(&mut g.ratio.iter().map(|(q, _)| *q));
+    let mut d = Diagnostic::warning(
+        codes::PERFECT_COUPLING,
+        format!(
+            "the inductance matrix of {} is singular (rank {} of {}): their fluxes are not independent. The states are the fluxes of {pivots}, as magnetizing currents `im_…` (flux / self inductance); the voltage of {rest} follows from theirs by fixed ratios, as in an ideal transformer",
+            list(&mut (0..g.members.len())),
+            g.pivots.len(),
+            g.members.len(),
+        ),
+    );
+    for &k in &g.couplings {
+        d = d.with_label(c.elements[k].span, "coupling");
+    }
+    d.with_help("this is what ngspice simulates too; a coupling below 1 (k = 0.999) keeps one state per inductor, with a leakage inductance")
+}
+
 fn fail(el: Elaborated, extra: Vec<Diagnostic>) -> Box<Failed> {
     let mut diagnostics = el.warnings;
     diagnostics.extend(extra);
@@ -170,7 +192,14 @@ pub fn sort_text(name: &str, text: String, opts: &SortOptions) -> Result<Sorted,
 }
 
 /// [`sort`] from an elaborated circuit and its equations.
-pub fn sort_built(el: Elaborated, built: Built, opts: &SortOptions) -> Result<Sorted, Box<Failed>> {
+pub fn sort_built(
+    mut el: Elaborated,
+    built: Built,
+    opts: &SortOptions,
+) -> Result<Sorted, Box<Failed>> {
+    for g in &built.reduced {
+        el.warnings.push(coupling_note(&el.circuit, g));
+    }
     let c = &el.circuit;
     let mut keep = Vec::new();
     for name in &opts.prefer_state {

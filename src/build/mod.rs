@@ -11,6 +11,7 @@
 //! It knows the circuit and the IR, nothing of sorting or simulation.
 
 mod alias;
+pub mod coupling;
 mod tree;
 
 use std::collections::HashMap;
@@ -56,6 +57,12 @@ pub struct Built {
     pub elem_vars: Vec<Option<ElemVars>>,
     /// Expression of each node's potential (ground: the constant 0).
     pub node_pot: Vec<ExprId>,
+    /// Coupled inductors with a singular inductance matrix, written with
+    /// fluxes as states (see [`coupling`]).
+    pub reduced: Vec<coupling::Reduced>,
+    /// The state of each pivot of `reduced`: `fluxes[g][k]` is the
+    /// magnetizing current `im` of pivot `k` of group `g`.
+    pub fluxes: Vec<Vec<VarId>>,
 }
 
 /// Build the equations of `circuit`.
@@ -76,6 +83,8 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
             .values()
             .map(|e| Name::from(e.name.as_str()))
             .collect(),
+        reduced: coupling::singular_groups(circuit),
+        fluxes: Vec::new(),
     };
     let elem_vars = b.element_vars();
     let node_pot = match opts.kvl {
@@ -92,6 +101,8 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
         system: b.sys,
         elem_vars,
         node_pot,
+        reduced: b.reduced,
+        fluxes: b.fluxes,
     };
     if opts.alias {
         alias::eliminate(&mut built, circuit);
@@ -104,6 +115,8 @@ struct Builder<'c> {
     sys: EquationSystem,
     /// Element names, shared by every origin that mentions them.
     names: Vec<Name>,
+    reduced: Vec<coupling::Reduced>,
+    fluxes: Vec<Vec<VarId>>,
 }
 
 impl Builder<'_> {
@@ -138,14 +151,90 @@ impl Builder<'_> {
                 ElementKind::Capacitor { .. } => {
                     self.sys.add_state(u);
                 }
-                ElementKind::Inductor { .. } => {
+                ElementKind::Inductor { .. } if !self.in_reduced(id) => {
                     self.sys.add_state(i);
                 }
                 _ => {}
             }
             out.push(Some(ElemVars { u, i }));
         }
+        // A reduced group's states: its pivots' magnetizing currents.
+        for g in 0..self.reduced.len() {
+            let pivots = self.reduced[g].pivots.clone();
+            let vars = pivots
+                .iter()
+                .map(|&p| {
+                    let e = self.reduced[g].members[p];
+                    let im = self.sys.add_var(
+                        joined(&["im_", &self.c.elements[e].name]),
+                        VarKind::BranchCurrent,
+                        self.elem_origin(e),
+                    );
+                    self.sys.add_state(im);
+                    im
+                })
+                .collect();
+            self.fluxes.push(vars);
+        }
         out
+    }
+
+    fn in_reduced(&self, id: ElemId) -> bool {
+        self.reduced.iter().any(|g| g.members.contains(&id))
+    }
+
+    /// The equations of the reduced groups (see [`coupling`]).
+    fn reduced_equations(&mut self, vars: &[Option<ElemVars>]) {
+        let reduced = std::mem::take(&mut self.reduced);
+        for (g, group) in reduced.iter().enumerate() {
+            let ev = |k: usize| vars[group.members[k].0 as usize].expect("an inductor has vars");
+            let name = |k: usize| self.c.elements[group.members[k]].name.clone();
+            for (j, &p) in group.pivots.iter().enumerate() {
+                let im = self.fluxes[g][j];
+                // u_p = L_pp·der(im_p)
+                let l = self.value_param(&name(p), group.l_pivot[j]);
+                let der = self.der_of(im);
+                let x = &mut self.sys.exprs;
+                let (u, rhs) = (x.var(ev(p).u), x.mul(l, der));
+                let origin = self.elem_origin(group.members[p]);
+                self.sys.add_eq(u, rhs, origin.clone());
+                // im_p = Σ_j (L_pj/L_pp)·i_j
+                let mut terms = Vec::new();
+                for (k, &a) in group.flux[j].iter().enumerate() {
+                    if a == 0.0 {
+                        continue;
+                    }
+                    let i = self.sys.exprs.var(ev(k).i);
+                    terms.push(if k == p {
+                        i
+                    } else {
+                        let c = self.value_param(&format!("n_{}_{}", name(p), name(k)), a);
+                        self.sys.exprs.mul(c, i)
+                    });
+                }
+                let x = &mut self.sys.exprs;
+                let (lhs, rhs) = (x.var(im), x.sum(terms));
+                self.sys.add_eq(lhs, rhs, origin);
+            }
+            // u_q = Σ_p C_qp·u_p
+            for (q, row) in &group.ratio {
+                let mut terms = Vec::new();
+                for (j, &c) in row.iter().enumerate() {
+                    let p = group.pivots[j];
+                    if c == 0.0 {
+                        continue;
+                    }
+                    let c = self.value_param(&format!("c_{}_{}", name(*q), name(p)), c);
+                    let u = self.sys.exprs.var(ev(p).u);
+                    terms.push(self.sys.exprs.mul(c, u));
+                }
+                let x = &mut self.sys.exprs;
+                let (lhs, rhs) = (x.var(ev(*q).u), x.sum(terms));
+                let origin = self.elem_origin(group.members[*q]);
+                self.sys.add_eq(lhs, rhs, origin);
+            }
+        }
+        self.reduced = reduced;
     }
 
     fn node_potentials(&mut self) -> Vec<ExprId> {
@@ -195,7 +284,9 @@ impl Builder<'_> {
         // Mutual inductances seen by each inductor: (other inductor, M param).
         let mut mutual: HashMap<ElemId, Vec<(ElemId, ExprId)>> = HashMap::new();
         for (_, e) in self.c.elements.iter() {
-            if let ElementKind::Coupling { l1, l2, k } = e.kind {
+            if let ElementKind::Coupling { l1, l2, k } = e.kind
+                && !self.in_reduced(l1)
+            {
                 let (ElementKind::Inductor { l: la, .. }, ElementKind::Inductor { l: lb, .. }) =
                     (&self.c.elements[l1].kind, &self.c.elements[l2].kind)
                 else {
@@ -228,6 +319,7 @@ impl Builder<'_> {
                     let rhs = self.sys.exprs.mul(p, der);
                     (i, rhs)
                 }
+                ElementKind::Inductor { .. } if self.in_reduced(id) => continue,
                 ElementKind::Inductor { l, .. } => {
                     let p = self.value_param(&e.name, *l);
                     let der = self.der_of(ev.i);
@@ -272,6 +364,7 @@ impl Builder<'_> {
             };
             self.sys.add_eq(lhs, rhs, self.elem_origin(id));
         }
+        self.reduced_equations(vars);
     }
 
     fn der_of(&mut self, state: VarId) -> ExprId {

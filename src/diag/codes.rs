@@ -110,6 +110,7 @@ codes! {
     CONFLICTING_TOPOLOGY = "K0311", "A voltage-source loop, current-source cutset or floating node.";
     PREFER_STATE_UNKNOWN = "K0320", "--prefer-state names no element.";
     PREFER_STATE_NOT_STORAGE = "K0321", "--prefer-state names an element without a state.";
+    PERFECT_COUPLING = "K0330", "Coupled inductors with a singular inductance matrix: fluxes are the states.";
     NO_TRAN = "K0400", "The netlist has no .tran line.";
     UNKNOWN_PROBE = "K0401", "An output vector names no node or element.";
     EVAL_FAILED = "K0402", "An algebraic loop has no solution at some time.";

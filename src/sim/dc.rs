@@ -94,6 +94,23 @@ where
                 _ => {}
             }
         }
+        // A perfectly coupled group's fluxes from its inductors' IC= currents.
+        let built = &sorted.built;
+        for (g, vars) in built.reduced.iter().zip(&built.fluxes) {
+            for (row, var) in g.flux.iter().zip(vars) {
+                let Some(k) = tape.states.iter().position(|s| s == var) else {
+                    continue;
+                };
+                y[k] = row
+                    .iter()
+                    .zip(&g.members)
+                    .map(|(a, &e)| match c.elements[e].kind {
+                        ElementKind::Inductor { ic: Some(i), .. } => a * i,
+                        _ => 0.0,
+                    })
+                    .sum();
+            }
+        }
         return Ok(Start {
             y,
             warnings,
