@@ -204,7 +204,14 @@ pub struct Circuit {
     /// `.nodeset` guesses for the operating point.
     pub nodesets: Vec<NodeIc>,
     pub options: SimOptions,
+    /// The vectors `.save` (and `.probe`) store: with none and no `.save
+    /// all`, every node voltage and voltage source current is stored.
     pub outputs: Vec<Output>,
+    /// `.save all`: the default vectors as well as `outputs`.
+    pub save_all: bool,
+    /// `.print` (and `.plot`) vectors: stored in addition to the default
+    /// vectors when no `.save` selects.
+    pub prints: Vec<Output>,
 }
 
 impl Circuit {

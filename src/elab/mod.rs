@@ -683,12 +683,28 @@ impl Elab {
                     let values = self.node_values(ics, scope, ".nodeset");
                     self.circuit.nodesets.extend(values);
                 }
-                Stmt::Output { vectors, .. } => {
+                Stmt::Output {
+                    directive,
+                    vectors,
+                    all,
+                    ..
+                } => {
+                    // ngspice stores what `.save` names; `.print` only prints.
+                    let save = ["save", "probe"]
+                        .iter()
+                        .any(|d| directive.text[1..].eq_ignore_ascii_case(d));
+                    self.circuit.save_all |= save && *all;
                     for v in vectors {
-                        if let Some(o) = self.output(v)
-                            && !self.circuit.outputs.contains(&o)
-                        {
-                            self.circuit.outputs.push(o);
+                        let Some(o) = self.output(v) else {
+                            continue;
+                        };
+                        let list = if save {
+                            &mut self.circuit.outputs
+                        } else {
+                            &mut self.circuit.prints
+                        };
+                        if !list.contains(&o) {
+                            list.push(o);
                         }
                     }
                 }

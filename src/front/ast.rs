@@ -310,6 +310,8 @@ pub enum Stmt<'a> {
         directive: Name<'a>,
         analysis: Option<Name<'a>>,
         vectors: Vec<OutVec<'a>>,
+        /// The keyword `all` (every node voltage and source current).
+        all: bool,
         span: Span,
     },
     /// `.include "path"`, with the included file's statements; or

@@ -129,11 +129,15 @@ fn stmt(s: &Stmt<'_>, out: &mut String) {
             directive,
             analysis,
             vectors,
+            all,
             ..
         } => {
             out.push_str(directive.text);
             if let Some(a) = analysis {
                 let _ = write!(out, " {}", a.text);
+            }
+            if *all {
+                out.push_str(" all");
             }
             for v in vectors {
                 let _ = write!(out, " {}", out_vec(v));

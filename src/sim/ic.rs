@@ -118,7 +118,7 @@ fn dc_image(
         ics: Vec::new(),
         nodesets: Vec::new(),
         options: c.options.clone(),
-        outputs: Vec::new(),
+        ..Default::default()
     };
     (image, map)
 }

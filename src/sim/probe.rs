@@ -51,15 +51,46 @@ pub(super) fn output_ref(b: &Built, out: &Output) -> OutputRef {
     }
 }
 
-/// The outputs of a run: `--probe`s, else `.print`/`.save`, else every node
-/// voltage and every voltage source's current (ngspice's default vectors).
+/// The outputs of a run, as ngspice stores them: `--probe`s if given, else
+/// the `.save` vectors if any, else every node voltage and every voltage
+/// source's current (ngspice's default vectors) followed by the `.print`
+/// vectors that are not among them. The probe or `.save` item `all` adds
+/// the default vectors.
 pub fn output_list(c: &Circuit, probes: &[String]) -> Result<Vec<Output>, SimError> {
+    let mut list = Vec::new();
+    let add = |list: &mut Vec<Output>, o: Output| {
+        if !list.contains(&o) {
+            list.push(o);
+        }
+    };
     if !probes.is_empty() {
-        return probes.iter().map(|p| resolve_probe(c, p)).collect();
+        if probes.iter().any(|p| p.trim().eq_ignore_ascii_case("all")) {
+            list = default_vectors(c);
+        }
+        for p in probes
+            .iter()
+            .filter(|p| !p.trim().eq_ignore_ascii_case("all"))
+        {
+            add(&mut list, resolve_probe(c, p)?);
+        }
+        return Ok(list);
     }
-    if !c.outputs.is_empty() {
-        return Ok(c.outputs.clone());
+    if c.save_all || c.outputs.is_empty() {
+        list = default_vectors(c);
     }
+    let extra = if c.save_all || !c.outputs.is_empty() {
+        &c.outputs
+    } else {
+        &c.prints
+    };
+    for o in extra {
+        add(&mut list, o.clone());
+    }
+    Ok(list)
+}
+
+/// Every node voltage and every voltage source's current.
+fn default_vectors(c: &Circuit) -> Vec<Output> {
     let mut v: Vec<Output> = c
         .nodes
         .ids()
@@ -75,7 +106,7 @@ pub fn output_list(c: &Circuit, probes: &[String]) -> Result<Vec<Output>, SimErr
             .filter(|(_, e)| matches!(e.kind, ElementKind::VSource { .. }))
             .map(|(id, _)| Output::Current { elem: id }),
     );
-    Ok(v)
+    v
 }
 
 /// [`output_list`] with each output's name and what computes it.

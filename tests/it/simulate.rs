@@ -215,8 +215,9 @@ fn csv_and_raw_output_follow_ngspice_names() {
     let s = pipeline::sort(&path, &FsLoader, &SortOptions::default())
         .ok()
         .unwrap();
+    // `.print v(in) v(mid) v(out)` prints; ngspice stores every vector.
     let opts = sim::Options {
-        probes: vec![],
+        probes: vec!["v(in)".into(), "v(mid)".into(), "v(out)".into()],
         ..Default::default()
     };
     let w = sim::simulate(&s, &opts).unwrap();
@@ -793,4 +794,39 @@ fn a_run_that_cannot_finish_ends_with_a_diagnostic() {
         sim::simulate(&s, &opts),
         Err(SimError::TooManySteps { steps: 101, .. })
     ));
+}
+
+/// What is stored follows ngspice: `.print` selects nothing (every node
+/// voltage and source current is stored, and the printed vectors that are
+/// not among them); `.save` selects; `.save … all` and the probe `all`
+/// (`kausal sim --save all`) add every default vector.
+#[test]
+fn save_selects_what_is_stored_and_print_does_not() {
+    let card = |cards: &str| {
+        format!(
+            "t\nV1 a 0 SIN(0 1 1k)\nR1 a b 1k\nC1 b 0 1u\nR2 b c 1k\nC2 c 0 1u\n.tran 10u 1m\n{cards}.end\n"
+        )
+    };
+    let names = |cards: &str, probes: &[&str]| {
+        let s = sort_text(&card(cards));
+        let opts = sim::Options {
+            probes: probes.iter().map(|p| p.to_string()).collect(),
+            ..Default::default()
+        };
+        sim::simulate(&s, &opts).unwrap().names
+    };
+    let all = ["v(a)", "v(b)", "v(c)", "i(v1)"];
+    assert_eq!(names("", &[]), all);
+    assert_eq!(names(".print tran v(c)\n", &[]), all);
+    assert_eq!(
+        names(".print tran v(b,c)\n", &[]),
+        ["v(a)", "v(b)", "v(c)", "i(v1)", "v(b,c)"]
+    );
+    assert_eq!(names(".save v(b)\n.print tran v(c)\n", &[]), ["v(b)"]);
+    assert_eq!(
+        names(".save i(r1) all\n", &[]),
+        ["v(a)", "v(b)", "v(c)", "i(v1)", "i(r1)"]
+    );
+    assert_eq!(names(".save v(b)\n", &["all"]), all);
+    assert_eq!(names(".save v(b)\n", &["v(c)"]), ["v(c)"]);
 }

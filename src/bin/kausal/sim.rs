@@ -27,9 +27,16 @@ pub struct Args {
     /// Also write an ngspice ASCII raw file.
     #[arg(long)]
     raw: Option<PathBuf>,
-    /// An output vector, e.g. `v(out)`, `v(a,b)`, `i(v1)` (repeatable).
+    /// An output vector, e.g. `v(out)`, `v(a,b)`, `i(v1)` (repeatable);
+    /// `all` is every node voltage and voltage source current. Without
+    /// it, the netlist's `.save` vectors, else all of those and the
+    /// `.print` vectors (as ngspice stores them).
     #[arg(long = "probe", value_name = "VECTOR")]
     probes: Vec<String>,
+    /// `--save all`: store every node voltage and voltage source current,
+    /// whatever the netlist's `.save` says (as well as any `--probe`).
+    #[arg(long, value_enum, value_name = "all")]
+    save: Option<Save>,
     /// Integration method (default: bdf).
     #[arg(long, visible_alias = "solver", value_enum)]
     method: Option<Method>,
@@ -53,6 +60,12 @@ pub struct Args {
     prefer_state: Vec<String>,
 }
 
+/// What `--save` stores.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum Save {
+    All,
+}
+
 /// Where the CSV went.
 enum Csv {
     /// Streamed into a temporary file, renamed over `-o` by committing it.
@@ -64,6 +77,9 @@ enum Csv {
 }
 
 pub fn run(mut args: Args) -> Result<ExitCode, Error> {
+    if let Some(Save::All) = args.save {
+        args.probes.push("all".into());
+    }
     let opts = pipeline::SortOptions {
         build: args.build.options(),
         prefer_state: std::mem::take(&mut args.prefer_state),

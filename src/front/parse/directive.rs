@@ -242,7 +242,7 @@ impl<'a> Parser<'a> {
     }
 
     /// `.print`, `.save`, `.probe`, `.plot`: an optional analysis name, then
-    /// output vectors; `all` is skipped.
+    /// output vectors and the keyword `all`.
     fn output(&mut self, c: &mut Cursor<'_, 'a>, span: Span) -> Option<Stmt<'a>> {
         let directive = name_of(&c.toks[0]);
         let mut analysis = None;
@@ -255,8 +255,10 @@ impl<'a> Parser<'a> {
             c.next();
         }
         let mut vectors = Vec::new();
+        let mut all = false;
         while let Some(t) = c.peek() {
             if t.is_word("all") {
+                all = true;
                 c.next();
                 continue;
             }
@@ -292,6 +294,7 @@ impl<'a> Parser<'a> {
             directive,
             analysis,
             vectors,
+            all,
             span,
         })
     }
