@@ -113,8 +113,22 @@ where
     {
         warnings.push(d);
     }
+    let nl_tol = if sparse {
+        NEWTON_TOL
+    } else {
+        // Junction charges are left out: their gain into a diode's current
+        // (1/(C·RS)) is the junction's own, which the charge settling at
+        // output points handles (see `Recorder::settle_charges`).
+        let charge: Vec<bool> = tape
+            .states
+            .iter()
+            .map(|&s| sys.vars[s].kind == crate::ir::VarKind::Charge)
+            .collect();
+        let y0 = ode.y0.borrow().clone();
+        newton_tolerance(&ode, &y0, &atol, &charge, outputs, atol_pair(opts, c).0)
+    };
     let atol_own = atol.clone();
-    let problem = problem(ode, tran, rtol, atol, t0)?;
+    let problem = problem(ode, tran, rtol, atol, t0, nl_tol)?;
     // Junction charges, the states that interpolation must not leave off
     // their slow manifold (see `Recorder::settle_charges`); small circuits only.
     let charges: Vec<usize> = if sparse {
@@ -254,13 +268,85 @@ fn run_rtol(opts: &Options, c: &crate::elab::Circuit) -> f64 {
     })
 }
 
-/// diffsol's problem for `ode` on `tran`, with the options circuits need.
+/// Newton stops when its estimated remaining error is this fraction of the
+/// error test's tolerance (CVODE's coefficient, not diffsol's 0.2): a
+/// corrector iterate that stops early across a diode's turn-on (on a
+/// Jacobian from before it conducted) lets a bridge rectifier's junction
+/// charges ring and overcharge its capacitor at rtol 1e-2.
+const NEWTON_TOL: f64 = 0.1;
+/// The tightest Newton tolerance [`newton_tolerance`] asks for.
+const NEWTON_TOL_MIN: f64 = 1e-5;
+
+/// The Newton tolerance that keeps the outputs within their own
+/// tolerances, not only the states: an output that amplifies a state by a
+/// large gain (a node voltage `v = v1 − Rp·(iL1 − iL2)` behind a 1 MΩ
+/// resistor, two 0.1 A inductor currents that differ by a microampere)
+/// sees each state's Newton error multiplied by it. The gain of output o
+/// from state j, in units of their absolute tolerances, is
+/// `|∂o/∂y_j|·atol_j/atol_o` (by finite differences at the start, small
+/// circuits, over the node-voltage outputs and the states not marked
+/// `skip`); [`NEWTON_TOL`] is divided by the largest, down to
+/// [`NEWTON_TOL_MIN`].
+fn newton_tolerance<M>(
+    ode: &CircuitOde<M>,
+    y0: &[f64],
+    atol: &[f64],
+    skip: &[bool],
+    outputs: &[Output],
+    atol_v: f64,
+) -> f64
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+{
+    let n_out = outputs.len();
+    let mut base = vec![0.0; n_out];
+    if n_out == 0 || ode.outputs(0.0, y0, &mut base).is_err() {
+        return NEWTON_TOL;
+    }
+    // Node voltages only: a current output through a resistor below
+    // atol_v/atol_i (1 kΩ) would count as a gain at any conductance, though
+    // its relative tolerance is what bounds its error there.
+    let atol_out: Vec<Option<f64>> = outputs
+        .iter()
+        .map(|o| match o {
+            Output::Current { .. } => None,
+            Output::Voltage { .. } => Some(atol_v),
+        })
+        .collect();
+    let mut y = y0.to_vec();
+    let mut out = vec![0.0; n_out];
+    let mut gain: f64 = 1.0;
+    for j in (0..y.len()).filter(|&j| !skip[j]) {
+        let d = 1e-6 * y0[j].abs().max(1e3 * atol[j]);
+        y[j] = y0[j] + d;
+        let ok = ode.outputs(0.0, &y, &mut out).is_ok();
+        y[j] = y0[j];
+        if !ok {
+            continue;
+        }
+        for k in 0..n_out {
+            let Some(atol_o) = atol_out[k] else {
+                continue;
+            };
+            let g = ((out[k] - base[k]) / d).abs() * atol[j] / atol_o;
+            if g.is_finite() {
+                gain = gain.max(g);
+            }
+        }
+    }
+    (NEWTON_TOL / gain).max(NEWTON_TOL_MIN)
+}
+
+/// diffsol's problem for `ode` on `tran`, with the options circuits need;
+/// `nl_tol` is the Newton tolerance (see [`newton_tolerance`]).
 fn problem<M>(
     ode: CircuitOde<M>,
     tran: &crate::elab::Tran,
     rtol: f64,
     atol: Vec<f64>,
     t0: f64,
+    nl_tol: f64,
 ) -> Result<OdeSolverProblem<CircuitOde<M>>, SimError>
 where
     M: Matrix<T = f64> + diffsol::DefaultSolver,
@@ -280,12 +366,7 @@ where
     // long run of a switching circuit would hit any fixed limit. A step that
     // cannot converge ends in step-size underflow instead.
     problem.ode_options.max_nonlinear_solver_failures = usize::MAX / 2;
-    // Newton stops when its estimated remaining error is 0.1 of the error
-    // test's tolerance (CVODE's coefficient), not diffsol's 0.2: a corrector
-    // iterate that stops early across a diode's turn-on (on a Jacobian from
-    // before it conducted) lets a bridge rectifier's junction charges ring
-    // and overcharge its capacitor at rtol 1e-2.
-    problem.ode_options.nonlinear_solver_tolerance = 0.1;
+    problem.ode_options.nonlinear_solver_tolerance = nl_tol;
     Ok(problem)
 }
 
