@@ -440,3 +440,34 @@ fn source_waveforms_match_ngspice_at_its_time_points() {
     }
     assert!(checked >= 20, "only {checked} sources compared");
 }
+
+/// Where ngspice's trapezoidal rule gives up at every reference tolerance
+/// ("timestep too small"), the reference is Gear's method, and the report
+/// says so (a stand-in ngspice refuses any run without `method=gear`).
+#[test]
+fn the_reference_falls_back_to_gear() {
+    require_ngspice();
+    let dir = tempfile::tempdir().unwrap();
+    let picky = fake(
+        dir.path(),
+        "trap-fails",
+        "for a; do net=\"$a\"; done\nif grep -q 'method=gear' \"$net\"; then exec ngspice \"$@\"; fi\necho 'doAnalyses: TRAN:  Timestep too small; time = 1e-9' >&2\nexit 1",
+    );
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+        .args(["validate", "netlists/rc_lowpass_step.cir"])
+        .current_dir(root())
+        .env("KAUSAL_NGSPICE", &picky)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("at reltol=1e-8 with method=gear"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("verdict: pass"), "{stdout}");
+}
