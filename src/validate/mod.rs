@@ -149,6 +149,76 @@ pub fn run_ngspice(path: &Path, tol: Option<RefTol>) -> Result<RawData, Validate
     run_program(&ngspice_program(), path, tol)
 }
 
+/// [`run_ngspice`], with `saves` (a `.save` line, or empty) before `.end`.
+fn run_ngspice_saving(
+    path: &Path,
+    tol: Option<RefTol>,
+    saves: &str,
+) -> Result<RawData, ValidateError> {
+    let extra = format!("{}{saves}", tol.map(tight_options).unwrap_or_default());
+    let extra = (!extra.is_empty()).then_some(extra);
+    exec(&ngspice_program(), path, extra.as_deref()).map(|r| r.raw)
+}
+
+/// The `.save` line that makes ngspice store the device currents among
+/// `names` that are not in its default vectors (`i(r1)` is `@r1[i]`): with
+/// `all`, so that nothing else is lost. Empty when there are none.
+fn device_saves(names: &[String]) -> String {
+    let extra: Vec<String> = names.iter().filter_map(|n| device_vector(n)).collect();
+    if extra.is_empty() {
+        String::new()
+    } else {
+        format!(".save all {}\n", extra.join(" "))
+    }
+}
+
+/// ngspice's device-parameter vector for the current `i(x)` of an element
+/// that has no branch of its own (R, C, D, I, G, F); `None` for the others.
+fn device_vector(name: &str) -> Option<String> {
+    let x = name.strip_prefix("i(")?.strip_suffix(')')?;
+    // A flattened subcircuit element (`r.x1.r1`) starts with its letter too.
+    let param = match x.chars().next()? {
+        'r' | 'c' | 'g' | 'f' => "i",
+        'd' => "id",
+        'i' => "current",
+        _ => return None,
+    };
+    Some(format!("@{x}[{param}]"))
+}
+
+/// The reference's values of the vector kausal calls `name`: its own
+/// column, ngspice's device vector for a branchless element's current, or
+/// the difference of two node voltages for `v(a,b)`.
+fn reference_column(raw: &RawData, name: &str) -> Option<Vec<f64>> {
+    let col = |n: &str| {
+        raw.names
+            .iter()
+            .position(|m| m == n)
+            .map(|k| raw.data[k].clone())
+    };
+    if let Some(c) = col(name) {
+        return Some(c);
+    }
+    if let Some(d) = device_vector(name) {
+        // ngspice writes it as `i(@r1[i])` (older versions: `@r1[i]`).
+        return col(&format!("i({d})")).or_else(|| col(&d));
+    }
+    let (a, b) = name
+        .strip_prefix("v(")?
+        .strip_suffix(')')?
+        .split_once(',')?;
+    let node = |n: &str| {
+        let n = n.trim();
+        if n == "0" || n.eq_ignore_ascii_case("gnd") {
+            Some(vec![0.0; raw.time.len()])
+        } else {
+            col(&format!("v({n})"))
+        }
+    };
+    let (va, vb) = (node(a)?, node(b)?);
+    Some(va.iter().zip(&vb).map(|(x, y)| x - y).collect())
+}
+
 /// [`run_ngspice`] with a given program (tests use stand-ins).
 pub fn run_program(
     program: &str,
@@ -397,7 +467,11 @@ pub fn netlist_ref_tol(text: &str) -> Option<f64> {
 /// "timestep too small") at ten and a hundred times looser; then the same
 /// with Gear's method, whose damping gets through where the trapezoidal
 /// rule's ringing keeps cutting the step.
-fn reference_run(path: &Path, reltol: f64) -> Result<(RawData, RefTol), ValidateError> {
+fn reference_run(
+    path: &Path,
+    reltol: f64,
+    saves: &str,
+) -> Result<(RawData, RefTol), ValidateError> {
     let mut last = None;
     for (gear, k) in [false, true]
         .into_iter()
@@ -407,7 +481,7 @@ fn reference_run(path: &Path, reltol: f64) -> Result<(RawData, RefTol), Validate
             reltol: reltol * 10f64.powi(k),
             gear,
         };
-        match run_ngspice(path, Some(tol)) {
+        match run_ngspice_saving(path, Some(tol), saves) {
             Ok(r) => return Ok((r, tol)),
             Err(
                 e @ (ValidateError::Failed { .. }
@@ -426,12 +500,13 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
         .ok()
         .and_then(|b| netlist_ref_tol(&String::from_utf8_lossy(&b)))
         .unwrap_or(opts.ref_reltol);
-    let (reference, ref_tol) = reference_run(path, asked)?;
-    let ref_reltol = ref_tol.reltol;
     let names: Vec<String> = sim::outputs(sorted, &opts.sim.probes)?
         .into_iter()
         .map(|o| o.0)
         .collect();
+    let saves = device_saves(&names);
+    let (reference, ref_tol) = reference_run(path, asked, &saves)?;
+    let ref_reltol = ref_tol.reltol;
     // kausal at ngspice's own time points, and just before each source
     // corner the reference steps on: a signal that jumps there (an inductor
     // voltage under a current ramp) is compared with either one-sided value.
@@ -481,18 +556,14 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
     so.times = Some(times);
     let w = sim::simulate(sorted, &so)?;
     let default_run = if opts.ngspice_default {
-        run_ngspice(path, None).ok()
+        run_ngspice_saving(path, None, &saves).ok()
     } else {
         None
     };
     let mut signals = Vec::new();
     for (k, name) in names.iter().enumerate() {
-        let col = reference
-            .names
-            .iter()
-            .position(|n| n == name)
+        let r = &reference_column(&reference, name)
             .ok_or_else(|| ValidateError::NoVector(name.clone()))?;
-        let r = &reference.data[col];
         // Both on the reference's points (kausal evaluated there); at a
         // corner, the closer of kausal's two one-sided values.
         let test: Vec<f64> = reference
@@ -517,14 +588,14 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
             rep.shift = edge_shift(&w.time, &w.data[k], rep.worst_time, r[i]);
         }
         if let Some(d) = &default_run
-            && let Some(dc) = d.names.iter().position(|n| n == name)
+            && let Some(dcol) = reference_column(d, name)
         {
             // ngspice's default run, linearly interpolated onto the reference.
             let vals: Vec<(f64, f64)> = reference
                 .time
                 .iter()
                 .zip(r)
-                .filter_map(|(&t, &rv)| interp(&d.time, &d.data[dc], t).map(|v| (rv, v)))
+                .filter_map(|(&t, &rv)| interp(&d.time, &dcol, t).map(|v| (rv, v)))
                 .collect();
             let (rr, dd): (Vec<f64>, Vec<f64>) = vals.into_iter().unzip();
             let c = compare(name, &rr, &dd, &reference.time, opts.tol);
