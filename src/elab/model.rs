@@ -16,7 +16,7 @@ pub const JUNCTION_CAPACITANCE_FLOOR: f64 = 1e-12;
 
 /// Level-1 diode parameters kausal models, with their aliases.
 const DIODE_PARAMS: &[&str] = &[
-    "is", "n", "rs", "cjo", "cj0", "cj", "vj", "pb", "m", "mj", "fc", "tt", "bv", "ibv",
+    "is", "js", "n", "rs", "cjo", "cj0", "cj", "vj", "pb", "m", "mj", "fc", "tt", "bv", "ibv",
 ];
 /// ngspice diode parameters that do not change kausal's transient result at
 /// the nominal temperature.
@@ -25,7 +25,8 @@ const DIODE_IGNORED: &[&str] = &[
     "nbvl", "tbv1", "tbv2", "trs", "trs1", "trs2", "tt1", "tt2", "tm1", "tm2", "cta", "ctp", "tpb",
     "tphp", "jsw", "cjsw", "cjp", "php", "mjsw", "fcs", "area", "pj", "vp", "lm", "lp", "wm", "wp",
     "xom", "xoi", "xm", "xp", "d", "bvj", "iave", "vrev", "version", "bv_max", "fv_max", "id_max",
-    "pd_max", "te_max", "rth0", "cth0", "kms",
+    "pd_max", "te_max", "rth0", "cth0", "kms", "tref", "ctc", "tvj", "isw", "ns", "rsw", "ikp",
+    "gap1", "gap2", "tlev", "tlevc", "jtun", "jtunsw", "ntun", "xtitun", "keg",
 ];
 
 impl Elab {
@@ -85,7 +86,7 @@ impl Elab {
             }
             let v = self.value(&p.value, scope)?;
             match key.as_str() {
-                "is" => m.is = v,
+                "is" | "js" => m.is = v,
                 "n" => m.n = v,
                 "rs" => m.rs = v,
                 "cjo" | "cj0" | "cj" => m.cjo = v,
