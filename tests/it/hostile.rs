@@ -373,8 +373,11 @@ fn a_subcircuit_tree_past_the_element_limit_is_refused_at_its_instance() {
         "not at line {line}:\n{}",
         run.stderr
     );
+    // A bound against the old behaviour (over 100 s and 3 GB before the
+    // refusal), not a speed target: 3-4 s alone, 13 s measured with the
+    // suite's other tests and another job on two cores.
     assert!(
-        started.elapsed() < Duration::from_secs(10),
+        started.elapsed() < Duration::from_secs(40),
         "{:?}",
         started.elapsed()
     );
