@@ -619,7 +619,12 @@ where
                         insert_step(&mut rec, t, &y)?;
                     }
                 }
-                Ok(OdeSolverStopReason::TstopReached) => break stop,
+                Ok(OdeSolverStopReason::TstopReached) => {
+                    // A step onto a breakpoint counts too: a PULSE of
+                    // femtosecond period is nothing but breakpoints.
+                    budget.step(stop, solver.state().h.abs())?;
+                    break stop;
+                }
                 Ok(OdeSolverStopReason::RootFound(t, _)) => break t,
                 Err(e) => {
                     if let Some(error) = problem.eqn.error.borrow_mut().take() {

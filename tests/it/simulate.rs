@@ -830,3 +830,20 @@ fn save_selects_what_is_stored_and_print_does_not() {
     assert_eq!(names(".save v(b)\n", &["all"]), all);
     assert_eq!(names(".save v(b)\n", &["v(c)"]), ["v(c)"]);
 }
+
+/// Steps that land on breakpoints count against the budget: a PULSE of
+/// 70 fs period over 4 ms is 4·10^6 corners (it took 4·10^6 steps under a
+/// budget of 2·10^4 before).
+#[test]
+fn breakpoint_steps_count_against_the_budget() {
+    let s =
+        sort_text("t\nV1 a 0 PULSE(0 1 0 1u 1u 1u 70f)\nR1 a b 1k\nC1 b 0 1n\n.tran 2u 4m\n.end\n");
+    let opts = sim::Options {
+        max_steps: Some(20_000),
+        ..Default::default()
+    };
+    match sim::simulate(&s, &opts) {
+        Err(SimError::TooManySteps { steps, .. }) => assert!(steps <= 20_001, "{steps}"),
+        other => panic!("expected TooManySteps, got {other:?}"),
+    }
+}
