@@ -865,6 +865,15 @@ def read_manifest(path):
     return entries
 
 
+def was_accepted(dest):
+    """Whether the record at `dest` is of a netlist `kausal check` accepted."""
+    try:
+        with open(dest, encoding="utf-8") as f:
+            return json.load(f).get("check", {}).get("verdict") == "accepted"
+    except (OSError, ValueError):
+        return False
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("command", choices=["run", "summary"])
@@ -874,6 +883,9 @@ def main():
     ap.add_argument("--out", required=True)
     ap.add_argument("--only", help="only entries whose repo:path contains this")
     ap.add_argument("--resume", action="store_true", help="keep entries already run")
+    ap.add_argument("--accepted", action="store_true",
+                    help="run again only the entries kausal accepted last time (after a change to "
+                         "the simulator or validate; refusals and ngspice's runs are kept)")
     ap.add_argument("--write", help="replace the generated section of this file")
     ap.add_argument("--cmdline", default="scripts/corpus.sh --write")
     args = ap.parse_args()
@@ -882,7 +894,7 @@ def main():
     os.makedirs(os.path.join(args.out, "entries"), exist_ok=True)
     os.makedirs(os.path.join(args.out, "logs"), exist_ok=True)
     if args.command == "run":
-        if not (args.only or args.resume):
+        if not (args.only or args.resume or args.accepted):
             for name in os.listdir(os.path.join(args.out, "entries")):
                 os.remove(os.path.join(args.out, "entries", name))
         todo = [(r, p) for r, p in entries if not args.only or args.only in "%s:%s" % (r, p)]
@@ -897,6 +909,8 @@ def main():
         for n, (repo, path) in enumerate(todo, 1):
             dest = os.path.join(args.out, "entries", key_of(repo, path) + ".json")
             if args.resume and os.path.exists(dest):
+                continue
+            if args.accepted and not was_accepted(dest):
                 continue
             t0 = time.monotonic()
             rec = process(repo, path, args.corpus, args.kausal, args.out)

@@ -14,7 +14,7 @@
 # target/corpus/logs/ and one JSON record per netlist under target/corpus/entries/; with
 # --write, replaces the generated section of VALIDATION.md (its explanation column is kept).
 #
-# Usage: scripts/corpus.sh [--write] [--summary-only] [--resume] [--only TEXT]
+# Usage: scripts/corpus.sh [--write] [--summary-only] [--resume] [--accepted] [--only TEXT]
 #                          [CORPUS_DIR [MANIFEST [KAUSAL_BIN]]]
 #   CORPUS_DIR  default $KAUSAL_CORPUS, else ../corpus next to the repository root
 #               (laid out by scripts/corpus-fetch.sh: CORPUS_DIR/<owner>+<name>/<path>)
@@ -23,6 +23,8 @@
 #               (built with `cargo build --release` when missing)
 #   --summary-only  rebuild results.tsv and the summary from target/corpus/entries/ without running
 #   --resume        keep the entries already run (after an interruption)
+#   --accepted      run again only the netlists kausal accepted last time (after a change to
+#                   the simulator or validate; refusals and ngspice's own runs are kept)
 #   --only TEXT     run only the netlists whose `repo:path` contains TEXT (the summary still covers
 #                   every entry run so far)
 # Limits (seconds): CORPUS_NGSPICE_TIMEOUT=60 CORPUS_CHECK_TIMEOUT=60 CORPUS_SIM_TIMEOUT=120
@@ -43,6 +45,7 @@ while [[ $# -gt 0 ]]; do
         --write) write=1 ;;
         --summary-only) mode=summary ;;
         --resume) extra+=(--resume) ;;
+        --accepted) extra+=(--accepted) ;;
         --only) extra+=(--only "$2"); shift ;;
         -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
         --) shift; pos+=("$@"); break ;;
