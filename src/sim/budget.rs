@@ -33,6 +33,11 @@ impl Budget {
         }
     }
 
+    /// The steps counted so far (with those before the budget began).
+    pub(super) fn taken(&self) -> usize {
+        self.taken
+    }
+
     /// Count a step that ended at `t` with size `h`: an error when the run
     /// has used its budget, or when the pace of its last
     /// [`PACE_WINDOW`] steps would need more than twice what is left.

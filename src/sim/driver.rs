@@ -124,8 +124,14 @@ where
             .iter()
             .map(|&s| sys.vars[s].kind == crate::ir::VarKind::Charge)
             .collect();
-        let y0 = ode.y0.borrow().clone();
-        newton_tolerance(&ode, &y0, &atol, &charge, outputs, atol_pair(opts, c).0)
+        newton_tolerance(
+            &ode,
+            &ode.y0.borrow(),
+            &atol,
+            &charge,
+            outputs,
+            atol_pair(opts, c).0,
+        )
     };
     let atol_own = atol.clone();
     let problem = problem(ode, tran, rtol, atol, t0, nl_tol)?;
@@ -207,15 +213,14 @@ where
                         ..stops
                     };
                     stats.switched_at = Some(t);
-                    match drive(
+                    drive(
                         &stops,
                         s,
                         |p, st| p.esdirk34_solver::<LS>(st),
                         rec,
                         &mut stats,
-                    )? {
-                        Driven::Done(rec) | Driven::Stalled(rec, ..) => rec,
-                    }
+                    )?
+                    .recorder()
                 }
             }
         }
@@ -546,7 +551,6 @@ where
     let mut window = Window::new(st.t);
     let max_steps = opts.max_steps.unwrap_or(DEFAULT_MAX_STEPS);
     let mut budget = budget::Budget::new(max_steps, stats.steps, st.t, t_end);
-    let mut taken = 0usize;
     let mut last_report = Instant::now();
     // Restarts after too many error-test failures: (time, how many there).
     let mut rescues: Option<(f64, usize)> = None;
@@ -589,13 +593,12 @@ where
                         let y = solver.state().y.slice().to_vec();
                         insert_step(&mut rec, t, &y)?;
                     }
-                    taken += 1;
                     budget.step(t, h)?;
                     window.add(h, solver.order());
                     if window.steps == STALL_WINDOW {
                         let pace = (t - window.t) / STALL_WINDOW as f64;
                         if method == Method::Bdf
-                            && taken >= STALL_MIN_STEPS
+                            && budget.taken() >= STALL_MIN_STEPS
                             && span > STALL_PROJECTED * pace
                             && window.held()
                         {
