@@ -92,6 +92,8 @@ codes! {
     BAD_OPTION = "K0218", "Option `…` is …; it must be ….";
     DEEP_HIERARCHY = "K0219", "Instantiating `…` nests subcircuits more than … deep.";
     TOO_MANY_ELEMENTS = "K0220", "The circuit has more than … elements once its subcircuits are expanded.";
+    COUPLING_SIGNS = "K0221", "`…` couples `…` and `…`, of opposite signs.";
+    TOO_MANY_OUTPUT_POINTS = "K0222", "`.tran` asks for … output points, more than kausal writes (…).";
     UNKNOWN_MODEL_PARAM = "K0290", "Unknown parameter `…` on model `…`.";
     IGNORED_MODEL_PARAM = "K0291", "Model parameter `…` is ignored by kausal.";
     IGNORED_ELEMENT_PARAM = "K0292", "Parameter `…` of `…` is ignored by kausal.";

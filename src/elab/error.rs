@@ -79,6 +79,17 @@ pub enum ElabError {
         element: String,
         name: String,
     },
+    #[error(
+        "`{element}` couples `{l1}` ({v1} H) and `{l2}` ({v2} H), of opposite signs: k·√(L1·L2) is not real"
+    )]
+    CouplingSigns {
+        span: Span,
+        element: String,
+        l1: String,
+        l2: String,
+        v1: f64,
+        v2: f64,
+    },
     #[error("coupling coefficient {k} of `{element}` is outside (0, 1]")]
     CouplingRange { span: Span, element: String, k: f64 },
     #[error("{kind} of `{element}` {problem}")]
@@ -148,6 +159,10 @@ pub enum ElabError {
         gigabytes: f64,
     },
     #[error(
+        "`.tran` asks for {points:.1e} output points (TSTOP/TSTEP), more than kausal writes ({limit:.0e})"
+    )]
+    TooManyOutputPoints { span: Span, points: f64, limit: f64 },
+    #[error(
         "TMAX {tmax:e} asks for more than {max_steps:.0e} steps over the run: kausal caps the step at {capped:e} instead"
     )]
     TinyTmax {
@@ -187,6 +202,7 @@ impl ElabError {
             | UnknownControl { span, .. }
             | BadCoupling { span, .. }
             | CouplingRange { span, .. }
+            | CouplingSigns { span, .. }
             | BadSourceArgs { span, .. }
             | BadElementValue { span, .. }
             | UnscalableElement { span, .. }
@@ -199,6 +215,7 @@ impl ElabError {
             | IgnoredOption { span, .. }
             | DanglingNode { span, .. }
             | ManyOutputPoints { span, .. }
+            | TooManyOutputPoints { span, .. }
             | TinyTmax { span, .. }
             | PwlParamOnCurrent { span, .. }
             | TransitTimeWithoutCapacitance { span, .. } => *span,
@@ -239,6 +256,7 @@ impl ToDiagnostic for ElabError {
             SingleNode { .. } => (codes::SINGLE_NODE, "both terminals here", "an element must connect two different nodes".into()),
             UnknownControl { .. } => (codes::UNKNOWN_CONTROL, "not a V source", "F and H elements sense the current of a voltage source (add a 0 V source to measure it)".into()),
             BadCoupling { .. } => (codes::BAD_COUPLING, "not an inductor", "K couples two inductors: `K1 L1 L2 0.99`".into()),
+            CouplingSigns { .. } => (codes::COUPLING_SIGNS, "this inductor", "an inductive system with a negative winding is not positive definite (ngspice says so too, then fails); give coupled inductors the same sign".into()),
             CouplingRange { .. } => (codes::COUPLING_RANGE, "out of range", "use 0 < k <= 1".into()),
             BadSourceArgs { .. } => (codes::BAD_SOURCE_ARGS, "here", "see the ngspice manual for the source function's arguments".into()),
             BadElementValue { .. } => (codes::BAD_ELEMENT_VALUE, "here", "use a nonzero, finite value".into()),
@@ -255,6 +273,7 @@ impl ToDiagnostic for ElabError {
             PwlParamOnCurrent { .. } => (codes::PWL_PARAM_ON_CURRENT, "not in ngspice", "kausal runs it; for ngspice (and `kausal validate`) write the repeated points out".into()),
             TransitTimeWithoutCapacitance { .. } => (codes::TRANSIT_TIME_WITHOUT_CAPACITANCE, "TT without CJO", "a junction's charge is kausal's state for it, and diffusion charge alone (TT·id) nearly vanishes in reverse bias: it could not fix the junction's voltage. ngspice has no such capacitance (`kausal validate` shows what it changes); give CJO to choose the capacitance".into()),
             TinyTmax { .. } => (codes::TINY_TMAX, "TMAX", "TMAX is the longest step; a run of more steps than this would not end in reasonable time".into()),
+            TooManyOutputPoints { .. } => (codes::TOO_MANY_OUTPUT_POINTS, "TSTEP", "TSTEP is the output spacing, not the solver's step: a larger TSTEP (or `--times` with a TSTEP that makes few points) keeps the output to what can be read".into()),
             ManyOutputPoints { .. } => (codes::MANY_OUTPUT_POINTS, "TSTEP", "TSTEP is the output spacing, not the solver's step (which follows the tolerance): a larger TSTEP, `--times`, or `.save` of fewer vectors makes the file smaller".into()),
         };
         let mut d = Diagnostic::error(code, self.to_string())

@@ -24,6 +24,9 @@ use crate::front::ast::{self, Stmt, Value};
 /// Output points of a `.tran` above which it warns (K0295): a 10^8-row CSV
 /// is several gigabytes, most likely a TSTEP meant as a step limit.
 const MANY_OUTPUT_POINTS: f64 = 1e8;
+/// Output points past which `.tran` is refused: 1e10 rows are half a
+/// terabyte of CSV, and hours of interpolation before the first byte is read.
+const TOO_MANY_OUTPUT_POINTS: f64 = 1e10;
 /// A `.tran` TMAX that asks for more steps than this over the run is raised
 /// to the run's length over this (a warning says so).
 const MAX_TMAX_STEPS: f64 = 1e7;
@@ -272,7 +275,13 @@ impl Elab {
         // Each point is a CSV row of ~24 bytes per column
         // (time and at least one vector).
         let points = (tstop - tstart) / tstep + 1.0;
-        if points > MANY_OUTPUT_POINTS {
+        if points > TOO_MANY_OUTPUT_POINTS {
+            self.errors.push(ElabError::TooManyOutputPoints {
+                span: t.tstep.span(),
+                points,
+                limit: TOO_MANY_OUTPUT_POINTS,
+            });
+        } else if points > MANY_OUTPUT_POINTS {
             self.errors.push(ElabError::ManyOutputPoints {
                 span: t.tstep.span(),
                 points,
@@ -586,6 +595,30 @@ impl Elab {
                                 });
                             }
                         }
+                    }
+                    let value = |id: ElemId| match self.circuit.elements[id].kind {
+                        ElementKind::Inductor { l, .. } => l,
+                        _ => f64::NAN,
+                    };
+                    let (v1, v2) = if ok {
+                        (value(ids[0]), value(ids[1]))
+                    } else {
+                        (0.0, 0.0)
+                    };
+                    if v1 * v2 < 0.0 {
+                        ok = false;
+                        let names: Vec<String> = ids
+                            .iter()
+                            .map(|&id| self.circuit.elements[id].name.clone())
+                            .collect();
+                        self.errors.push(ElabError::CouplingSigns {
+                            span: p.spans[if v1 < 0.0 { 0 } else { 1 }],
+                            element: elem_name.clone(),
+                            l1: names[0].clone(),
+                            l2: names[1].clone(),
+                            v1,
+                            v2,
+                        });
                     }
                     if ok
                         && let ElementKind::Coupling { l1, l2, .. } =

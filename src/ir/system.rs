@@ -227,14 +227,21 @@ impl Waveform {
                 if per > 0.0 && next_period {
                     tt -= (tt / per).floor() * per;
                 }
+                // An edge so short that its slope overflows (TR = 5e-324)
+                // is a jump: its value by the fraction of it gone, slope 0.
+                let edge = |from: f64, to: f64, dur: f64, x: f64| {
+                    let s = (to - from) / dur;
+                    (
+                        from + (to - from) * (x / dur),
+                        if s.is_finite() { s } else { 0.0 },
+                    )
+                };
                 let (value, slope) = if tt < tr {
-                    let s = (v2 - v1) / tr;
-                    (v1 + s * tt, s)
+                    edge(v1, v2, tr, tt)
                 } else if tt < tr + pw {
                     (v2, 0.0)
                 } else if tt < tr + pw + tf {
-                    let s = (v1 - v2) / tf;
-                    (v2 + s * (tt - tr - pw), s)
+                    edge(v2, v1, tf, tt - tr - pw)
                 } else {
                     (v1, 0.0)
                 };

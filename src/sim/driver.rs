@@ -389,8 +389,8 @@ where
     // circuit's steps: scale it to the run.
     problem.ode_options.min_timestep = tran.tstop * 1e-16;
     // diffsol counts Newton failures over the whole run, not per step: a
-    // long run of a switching circuit would hit any fixed limit. A step that
-    // cannot converge ends in step-size underflow instead.
+    // long run of a switching circuit would hit any fixed limit. `drive`
+    // moves the limit before every step instead (see [`NewtonFailLimit`]).
     problem.ode_options.max_nonlinear_solver_failures = usize::MAX / 2;
     problem.ode_options.nonlinear_solver_tolerance = nl_tol;
     Ok(problem)
@@ -524,6 +524,7 @@ where
     M: Matrix<T = f64>,
     M::V: HostVec,
     S: OdeSolverMethod<'p, CircuitOde<M>>,
+    S::Config: NewtonFailLimit,
 {
     let Stops {
         sys,
@@ -556,109 +557,149 @@ where
     let mut rescues: Option<(f64, usize)> = None;
     loop {
         let stop = stops[k];
-        solver
-            .set_stop_time(stop)
-            .map_err(|e| solver_err(stop, e))?;
+        // A stop within diffsol's roundoff of the current time (a PULSE whose
+        // corners lie 1e-20 s apart) is reached already.
+        let reached = match solver.set_stop_time(stop) {
+            Ok(()) => false,
+            Err(diffsol::DiffsolError::OdeSolverError(
+                diffsol::error::OdeSolverError::StopTimeAtCurrentTime,
+            )) => true,
+            Err(e) => return Err(solver_err(stop, e)),
+        };
         // The stop time set in the solver: `stop`, or a soft stop before it.
         let mut set = stop;
-        let reason = loop {
-            // TMAX caps the step: a soft stop at most TMAX ahead, which
-            // diffsol reaches by shortening its step (no restart there).
-            let soft = tmax.and_then(|m| soft_stop(solver.state().t, m, stop));
-            let target = soft.unwrap_or(stop);
-            if target != set {
+        let reason = if reached {
+            stop
+        } else {
+            loop {
+                // TMAX caps the step: a soft stop at most TMAX ahead, which
+                // diffsol reaches by shortening its step (no restart there).
+                let soft = tmax.and_then(|m| soft_stop(solver.state().t, m, stop));
+                let target = soft.unwrap_or(stop);
+                if target != set {
+                    solver
+                        .set_stop_time(target)
+                        .map_err(|e| solver_err(target, e))?;
+                    set = target;
+                }
+                // At most NEWTON_FAILS_PER_STEP Newton failures within this step:
+                // a NaN error estimate makes diffsol's step NaN, which its
+                // step-size floor never catches, and the step would retry for ever.
+                let fails = solver.get_statistics().number_of_nonlinear_solver_fails;
                 solver
-                    .set_stop_time(target)
-                    .map_err(|e| solver_err(target, e))?;
-                set = target;
-            }
-            let r = solver.step();
-            // An evaluation that failed inside a step made diffsol retry
-            // with a smaller step; it is reported only if the solver gives up.
-            if r.is_ok() {
-                problem.eqn.error.borrow_mut().take();
-            }
-            match r {
-                Ok(OdeSolverStopReason::InternalTimestep) => {
-                    let t = solver.state().t;
-                    // A remainder far below the step would be a sub-ulp
-                    // step: take the stop as reached (restarted from here).
-                    let h = solver.state().h.abs();
-                    if stop - t <= 1e-6 * h && stop > t {
+                    .config_mut()
+                    .set_newton_fail_limit(fails.saturating_add(NEWTON_FAILS_PER_STEP));
+                let t_before = solver.state().t;
+                let r = solver.step();
+                // A NaN error estimate can pass an explicit method's test and
+                // give a NaN step: stop there, naming what went non-finite.
+                if r.is_ok() && !(solver.state().t.is_finite() && solver.state().h.is_finite()) {
+                    let e = diffsol::DiffsolError::from(
+                        diffsol::error::OdeSolverError::StepSizeTooSmall { time: t_before },
+                    );
+                    return Err(match diagnose(sys, problem, &solver, e) {
+                        SimError::NonFinite {
+                            name, value, what, ..
+                        } => SimError::NonFinite {
+                            name,
+                            value,
+                            t: t_before,
+                            what,
+                        },
+                        _ => SimError::StepUnderflow {
+                            t: t_before,
+                            state: String::new(),
+                            value: f64::NAN,
+                        },
+                    });
+                }
+                // An evaluation that failed inside a step made diffsol retry
+                // with a smaller step; it is reported only if the solver gives up.
+                if r.is_ok() {
+                    problem.eqn.error.borrow_mut().take();
+                }
+                match r {
+                    Ok(OdeSolverStopReason::InternalTimestep) => {
+                        let t = solver.state().t;
+                        // A remainder far below the step would be a sub-ulp
+                        // step: take the stop as reached (restarted from here).
+                        let h = solver.state().h.abs();
+                        if stop - t <= 1e-6 * h && stop > t {
+                            emit_grid(&solver, &mut rec, t, false)?;
+                            break stop;
+                        }
                         emit_grid(&solver, &mut rec, t, false)?;
+                        if opts.all_steps && t >= tstart {
+                            let y = solver.state().y.slice().to_vec();
+                            insert_step(&mut rec, t, &y)?;
+                        }
+                        budget.step(t, h)?;
+                        window.add(h, solver.order());
+                        if window.steps == STALL_WINDOW {
+                            let pace = (t - window.t) / STALL_WINDOW as f64;
+                            if method == Method::Bdf
+                                && budget.taken() >= STALL_MIN_STEPS
+                                && span > STALL_PROJECTED * pace
+                                && window.held()
+                            {
+                                return Ok(Driven::Stalled(rec, solver, pace));
+                            }
+                            window = Window::new(t);
+                        }
+                        if let Some(p) = opts.progress
+                            && last_report.elapsed() > Duration::from_millis(100)
+                        {
+                            p(t / t_end.max(1e-300));
+                            last_report = Instant::now();
+                        }
+                    }
+                    Ok(OdeSolverStopReason::TstopReached) if soft.is_some() => {
+                        let t = solver.state().t;
+                        budget.step(t, solver.state().h.abs())?;
+                        emit_grid(&solver, &mut rec, t, false)?;
+                        if opts.all_steps && t >= tstart {
+                            let y = solver.state().y.slice().to_vec();
+                            insert_step(&mut rec, t, &y)?;
+                        }
+                    }
+                    Ok(OdeSolverStopReason::TstopReached) => {
+                        // A step onto a breakpoint counts too: a PULSE of
+                        // femtosecond period is nothing but breakpoints.
+                        budget.step(stop, solver.state().h.abs())?;
                         break stop;
                     }
-                    emit_grid(&solver, &mut rec, t, false)?;
-                    if opts.all_steps && t >= tstart {
-                        let y = solver.state().y.slice().to_vec();
-                        insert_step(&mut rec, t, &y)?;
-                    }
-                    budget.step(t, h)?;
-                    window.add(h, solver.order());
-                    if window.steps == STALL_WINDOW {
-                        let pace = (t - window.t) / STALL_WINDOW as f64;
-                        if method == Method::Bdf
-                            && budget.taken() >= STALL_MIN_STEPS
-                            && span > STALL_PROJECTED * pace
-                            && window.held()
-                        {
-                            return Ok(Driven::Stalled(rec, solver, pace));
+                    Ok(OdeSolverStopReason::RootFound(t, _)) => break t,
+                    Err(e) => {
+                        if let Some(error) = problem.eqn.error.borrow_mut().take() {
+                            return Err(SimError::Eval { error });
                         }
-                        window = Window::new(t);
+                        // diffsol's BDF keeps its order through repeated error-test
+                        // failures; when the history holds a kink (a diode that just
+                        // switched), the estimate then stops shrinking with the step.
+                        // Restart from the last accepted point at order 1, as CVODE
+                        // does after repeated failures, a few times at most.
+                        let t = solver.state().t;
+                        let too_many = matches!(
+                            e,
+                            diffsol::DiffsolError::OdeSolverError(
+                                diffsol::error::OdeSolverError::TooManyErrorTestFailures { .. }
+                            )
+                        );
+                        let here = match rescues {
+                            Some((at, n)) if at == t => n,
+                            _ => 0,
+                        };
+                        if !too_many || here >= 3 {
+                            return Err(diagnose(sys, problem, &solver, e));
+                        }
+                        rescues = Some((t, here + 1));
+                        stats.rescues += 1;
+                        solver = restart(problem, solver, &make, t, stats, order)?;
+                        solver
+                            .set_stop_time(stop)
+                            .map_err(|e| solver_err(stop, e))?;
+                        set = stop;
                     }
-                    if let Some(p) = opts.progress
-                        && last_report.elapsed() > Duration::from_millis(100)
-                    {
-                        p(t / t_end.max(1e-300));
-                        last_report = Instant::now();
-                    }
-                }
-                Ok(OdeSolverStopReason::TstopReached) if soft.is_some() => {
-                    let t = solver.state().t;
-                    budget.step(t, solver.state().h.abs())?;
-                    emit_grid(&solver, &mut rec, t, false)?;
-                    if opts.all_steps && t >= tstart {
-                        let y = solver.state().y.slice().to_vec();
-                        insert_step(&mut rec, t, &y)?;
-                    }
-                }
-                Ok(OdeSolverStopReason::TstopReached) => {
-                    // A step onto a breakpoint counts too: a PULSE of
-                    // femtosecond period is nothing but breakpoints.
-                    budget.step(stop, solver.state().h.abs())?;
-                    break stop;
-                }
-                Ok(OdeSolverStopReason::RootFound(t, _)) => break t,
-                Err(e) => {
-                    if let Some(error) = problem.eqn.error.borrow_mut().take() {
-                        return Err(SimError::Eval { error });
-                    }
-                    // diffsol's BDF keeps its order through repeated error-test
-                    // failures; when the history holds a kink (a diode that just
-                    // switched), the estimate then stops shrinking with the step.
-                    // Restart from the last accepted point at order 1, as CVODE
-                    // does after repeated failures, a few times at most.
-                    let t = solver.state().t;
-                    let too_many = matches!(
-                        e,
-                        diffsol::DiffsolError::OdeSolverError(
-                            diffsol::error::OdeSolverError::TooManyErrorTestFailures { .. }
-                        )
-                    );
-                    let here = match rescues {
-                        Some((at, n)) if at == t => n,
-                        _ => 0,
-                    };
-                    if !too_many || here >= 3 {
-                        return Err(diagnose(sys, problem, &solver, e));
-                    }
-                    rescues = Some((t, here + 1));
-                    stats.rescues += 1;
-                    solver = restart(problem, solver, &make, t, stats, order)?;
-                    solver
-                        .set_stop_time(stop)
-                        .map_err(|e| solver_err(stop, e))?;
-                    set = stop;
                 }
             }
         };
@@ -694,6 +735,33 @@ fn soft_stop(t: f64, tmax: f64, stop: f64) -> Option<f64> {
     } else {
         Some(t + tmax)
     }
+}
+
+/// Newton failures allowed within one step. A step that halves its way from
+/// 1e-3 of the span down to diffsol's floor (1e-16 of it) fails about 50
+/// times; four times that leaves the floor as what normally ends a step.
+const NEWTON_FAILS_PER_STEP: usize = 200;
+
+/// The solver configurations whose Newton-failure limit `drive` moves.
+pub(super) trait NewtonFailLimit {
+    fn set_newton_fail_limit(&mut self, limit: usize);
+}
+
+impl NewtonFailLimit for diffsol::BdfConfig<f64> {
+    fn set_newton_fail_limit(&mut self, limit: usize) {
+        self.maximum_newton_fails = limit;
+    }
+}
+
+impl NewtonFailLimit for diffsol::SdirkConfig<f64> {
+    fn set_newton_fail_limit(&mut self, limit: usize) {
+        self.maximum_newton_fails = limit;
+    }
+}
+
+/// Explicit methods solve no equations.
+impl NewtonFailLimit for diffsol::ExplicitRkConfig<f64> {
+    fn set_newton_fail_limit(&mut self, _: usize) {}
 }
 
 /// Add the counters of one solver's life (up to a restart or the end).

@@ -218,10 +218,13 @@ where
     // diffsol says so by a variant, and in the text of errors from its
     // Newton line search and its interpolation when a step can shrink no
     // further.
+    // The per-step limit on Newton failures (see `NewtonFailLimit`) ends a
+    // step that could not converge however it shrank: an underflow too.
     let underflow = matches!(
         &e,
         diffsol::DiffsolError::OdeSolverError(
             diffsol::error::OdeSolverError::StepSizeTooSmall { .. }
+                | diffsol::error::OdeSolverError::TooManyNonlinearSolverFailures { .. }
         )
     ) || e.to_string().to_ascii_lowercase().contains("step size");
     if underflow {

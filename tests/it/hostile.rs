@@ -382,3 +382,66 @@ fn a_subcircuit_tree_past_the_element_limit_is_refused_at_its_instance() {
         started.elapsed()
     );
 }
+
+/// Fuzz findings that ran for ever inside one integrator step (a NaN error
+/// estimate made the step NaN, which diffsol's step floor never catches) or
+/// failed on a stop time: each ends in seconds, under every method, with a
+/// run or the diagnostic it should give.
+#[test]
+fn numerical_extremes_end_under_every_method() {
+    let cases: [(&str, &str, Option<&str>); 5] = [
+        // Coupled inductors of opposite signs: k·√(L1·L2) is not real.
+        (
+            "negative_coupled_l",
+            "K1 L1 L2 0.5\nL2 a 0 1m\nL1 out 0 -1m\nV1 in 0 DC 2\nR2 in out 1k\n.ic v(out)=-0.5\n.tran 10u 15m\n",
+            Some("K0221"),
+        ),
+        // A 1e308 V pulse overflows; ngspice stops with "timestep too small".
+        (
+            "pulse_1e308",
+            "C1 a 0 1p ic=1\nV1 a b PULSE(0 1e308 0 1n 1n 1n 1n)\nL1 b 0 1m\n.tran 5u 20m uic\n",
+            Some("× "),
+        ),
+        // A rise time of 5e-324 s: its slope overflows, the edge is a jump.
+        (
+            "pulse_denormal_rise",
+            "V1 a 0 DC 1\nR1 a b 1k\nC1 b 0 1u\nV2 c 0 PULSE(0 1 0.1m 5e-324 10u 0.3m 1m)\nR2 c d 2k\nC2 d 0 0.5u\n.tran 10u 3m\n",
+            None,
+        ),
+        // A period of 1e-20 s: corners closer than the solver's roundoff.
+        (
+            "pulse_period_1e-20",
+            "V1 a 0 PULSE(0 1 0 1n 1n 1n 1e-20)\nR1 a b 1k\nC1 b 0 1u\n.tran 5u 20m\n",
+            None,
+        ),
+        // 1e15 output rows.
+        (
+            "rows_1e15",
+            "V1 a 0 SIN(0 1 1k)\nR1 a b 1k\nC1 b 0 1u\n.tran 1f 1\n",
+            Some("K0222"),
+        ),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.csv");
+    for (name, body, expect) in cases {
+        let path = dir.path().join(format!("{name}.cir"));
+        std::fs::write(&path, format!("{name}\n{body}.end\n")).unwrap();
+        for method in ["bdf", "tr-bdf2", "esdirk34", "tsit5", "circuit"] {
+            let run = kausal_bounded(&[
+                "sim",
+                path.to_str().unwrap(),
+                "--method",
+                method,
+                "-o",
+                out.to_str().unwrap(),
+            ]);
+            match expect {
+                None => assert_eq!(run.code, 0, "{name} {method}: {}", run.stderr),
+                Some(code) => {
+                    assert_eq!(run.code, 1, "{name} {method}: {}", run.stderr);
+                    assert!(run.stderr.contains(code), "{name} {method}: {}", run.stderr);
+                }
+            }
+        }
+    }
+}

@@ -24,12 +24,13 @@
 static inline double pulse(double t, int o, double v1, double v2, double td, double tr, double tf, double pw, double per) {
     if (t < td) return o == 0 ? v1 : 0.0;
     double tt = t - td;
-    if (per > 0.0 && tt >= per) tt -= floor(tt / per) * per;
+    if (per > 0.0 && (o == 0 ? tt > per : tt >= per)) tt -= floor(tt / per) * per;
     double val, s;
-    if (tt < tr) { s = (v2 - v1) / tr; val = v1 + s * tt; }
+    if (tt < tr) { s = (v2 - v1) / tr; val = v1 + (v2 - v1) * (tt / tr); }
     else if (tt < tr + pw) { s = 0.0; val = v2; }
-    else if (tt < tr + pw + tf) { s = (v1 - v2) / tf; val = v2 + s * (tt - tr - pw); }
+    else if (tt < tr + pw + tf) { s = (v1 - v2) / tf; val = v2 + (v1 - v2) * ((tt - tr - pw) / tf); }
     else { s = 0.0; val = v1; }
+    if (!isfinite(s)) s = 0.0;
     return o == 0 ? val : (o == 1 ? s : 0.0);
 }
 

@@ -15,10 +15,12 @@
 fn pulse(t: f64, o: u8, v1: f64, v2: f64, td: f64, tr: f64, tf: f64, pw: f64, per: f64) -> f64 {
     if t < td { return if o == 0 { v1 } else { 0.0 }; }
     let mut tt = t - td;
-    if per > 0.0 && tt >= per { tt -= (tt / per).floor() * per; }
-    let (val, s) = if tt < tr { ((v1 + (v2 - v1) / tr * tt), (v2 - v1) / tr) }
+    if per > 0.0 && (if o == 0 { tt > per } else { tt >= per }) { tt -= (tt / per).floor() * per; }
+    let edge = |a: f64, b: f64, d: f64, x: f64| { let s = (b - a) / d;
+        (a + (b - a) * (x / d), if s.is_finite() { s } else { 0.0 }) };
+    let (val, s) = if tt < tr { edge(v1, v2, tr, tt) }
         else if tt < tr + pw { (v2, 0.0) }
-        else if tt < tr + pw + tf { (v2 + (v1 - v2) / tf * (tt - tr - pw), (v1 - v2) / tf) }
+        else if tt < tr + pw + tf { edge(v2, v1, tf, tt - tr - pw) }
         else { (v1, 0.0) };
     match o { 0 => val, 1 => s, _ => 0.0 }
 }
