@@ -455,7 +455,8 @@ where
 
 /// Steps are counted in windows of this many; BDF has stalled when, after at
 /// least [`STALL_MIN_STEPS`], a window's pace would take more than
-/// [`STALL_PROJECTED`] steps to cover the run.
+/// [`STALL_PROJECTED`] steps to cover the run (ten times span/TMAX when
+/// that is more).
 const STALL_WINDOW: usize = 1_000;
 const STALL_MIN_STEPS: usize = 2_000;
 const STALL_PROJECTED: f64 = 1e6;
@@ -574,7 +575,12 @@ where
             loop {
                 // TMAX caps the step: a soft stop at most TMAX ahead, which
                 // diffsol reaches by shortening its step (no restart there).
-                let soft = tmax.and_then(|m| soft_stop(solver.state().t, m, stop));
+                // Only when the next step would exceed TMAX: each stop resets
+                // BDF's count of equal steps, and a stop every step would keep
+                // its step from ever growing back to TMAX.
+                let soft = tmax
+                    .filter(|&m| solver.state().h.abs() > m * (1.0 + 1e-9))
+                    .and_then(|m| soft_stop(solver.state().t, m, stop));
                 let target = soft.unwrap_or(stop);
                 if target != set {
                     solver
@@ -637,9 +643,13 @@ where
                         window.add(h, solver.order());
                         if window.steps == STALL_WINDOW {
                             let pace = (t - window.t) / STALL_WINDOW as f64;
+                            // TMAX asks for span/TMAX steps: a stall takes
+                            // ten times as many.
+                            let projected = tmax
+                                .map_or(STALL_PROJECTED, |m| STALL_PROJECTED.max(10.0 * span / m));
                             if method == Method::Bdf
                                 && budget.taken() >= STALL_MIN_STEPS
-                                && span > STALL_PROJECTED * pace
+                                && span > projected * pace
                                 && window.held()
                             {
                                 return Ok(Driven::Stalled(rec, solver, pace));
