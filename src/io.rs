@@ -239,6 +239,15 @@ pub fn run_child(
     cmd: &mut std::process::Command,
     limit: std::time::Duration,
 ) -> std::io::Result<std::process::Output> {
+    run_child_measured(cmd, limit).map(|(out, _)| out)
+}
+
+/// [`run_child`], with the child's peak resident memory in bytes where the
+/// system reports it (`wait4`'s `ru_maxrss`, per child).
+pub fn run_child_measured(
+    cmd: &mut std::process::Command,
+    limit: std::time::Duration,
+) -> std::io::Result<(std::process::Output, Option<u64>)> {
     use std::io::Read;
     let spawn = || {
         cmd.stdin(std::process::Stdio::null())
@@ -261,8 +270,10 @@ pub fn run_child(
     let out = drain(child.stdout.take());
     let err = drain(child.stderr.take());
     let started = std::time::Instant::now();
+    let mut peak = None;
     let status = loop {
-        if let Some(status) = child.try_wait()? {
+        if let Some((status, rss)) = reap(&mut child)? {
+            peak = rss;
             break Ok(status);
         }
         if started.elapsed() > limit {
@@ -282,11 +293,58 @@ pub fn run_child(
         out.join().unwrap_or_default(),
         err.join().unwrap_or_default(),
     );
-    Ok(std::process::Output {
-        status: status?,
-        stdout,
-        stderr,
-    })
+    Ok((
+        std::process::Output {
+            status: status?,
+            stdout,
+            stderr,
+        },
+        peak,
+    ))
+}
+
+/// The child's exit status once it has ended, and its peak resident memory.
+#[cfg(unix)]
+fn reap(
+    child: &mut std::process::Child,
+) -> std::io::Result<Option<(std::process::ExitStatus, Option<u64>)>> {
+    use std::os::unix::process::ExitStatusExt;
+    let mut status: libc::c_int = 0;
+    // SAFETY: an all-zero rusage is a valid value of the plain C struct.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: wait4 writes only into the two locals passed; the pid is our
+    // own unreaped child (std's Child never waits for it after this).
+    let r = unsafe {
+        libc::wait4(
+            child.id() as libc::pid_t,
+            &mut status,
+            libc::WNOHANG,
+            &mut usage,
+        )
+    };
+    match r {
+        0 => Ok(None),
+        r if r < 0 => {
+            let e = std::io::Error::last_os_error();
+            if e.kind() == std::io::ErrorKind::Interrupted {
+                Ok(None)
+            } else {
+                Err(e)
+            }
+        }
+        // Linux reports ru_maxrss in kilobytes.
+        _ => Ok(Some((
+            std::process::ExitStatus::from_raw(status),
+            Some(usage.ru_maxrss as u64 * 1024),
+        ))),
+    }
+}
+
+#[cfg(not(unix))]
+fn reap(
+    child: &mut std::process::Child,
+) -> std::io::Result<Option<(std::process::ExitStatus, Option<u64>)>> {
+    Ok(child.try_wait()?.map(|s| (s, None)))
 }
 
 impl AtomicFile {

@@ -82,6 +82,8 @@ pub struct Point {
     pub energy_drift: Option<f64>,
     /// Why the run failed, if it did.
     pub failed: Option<String>,
+    /// Peak resident memory of the whole-job process, in bytes.
+    pub peak_bytes: Option<u64>,
 }
 
 /// Where kausal beats ngspice's default run.
@@ -112,11 +114,56 @@ pub struct CircuitBench {
     /// With an exact reference: largest difference between it and kausal's
     /// tight run (a wrong formula shows here).
     pub exact_check: Option<f64>,
+    /// The step cap both simulators ran with (see [`StepCap`]).
+    pub cap: StepCap,
     pub points: Vec<Point>,
     pub verdict: Option<Verdict>,
     /// Solvers whose error did not decrease as the tolerance tightened
     /// (beyond a factor 3 of noise, above the reference's own accuracy).
     pub non_monotone: Vec<String>,
+}
+
+/// The longest step of a benchmark's runs, the same on both sides: a
+/// comparison where only ngspice's step is capped measures the cap.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub enum StepCap {
+    /// The netlist's TMAX, which both honour.
+    Tmax(f64),
+    /// TSTEP below span/50, where ngspice caps its step at TSTEP (its
+    /// default TMAX is min(TSTEP, span/50)): kausal is given TMAX = TSTEP.
+    Tstep(f64),
+    /// TSTEP at least span/50: ngspice at its defaults (its own cap,
+    /// span/50, allows 50 steps), kausal without a cap.
+    Free,
+}
+
+impl StepCap {
+    pub fn of(tran: &crate::elab::Tran) -> StepCap {
+        match tran.tmax {
+            Some(m) => StepCap::Tmax(m),
+            None if tran.tstep < (tran.tstop - tran.tstart) / 50.0 => StepCap::Tstep(tran.tstep),
+            None => StepCap::Free,
+        }
+    }
+
+    /// The TMAX kausal runs with.
+    pub fn tmax(self) -> Option<f64> {
+        match self {
+            StepCap::Tmax(m) | StepCap::Tstep(m) => Some(m),
+            StepCap::Free => None,
+        }
+    }
+
+    fn describe(self) -> String {
+        match self {
+            StepCap::Tmax(m) => format!("TMAX {} from the netlist, on both sides", sci(m)),
+            StepCap::Tstep(m) => format!(
+                "TSTEP {} caps ngspice's step (below span/50): kausal runs with the same TMAX",
+                sci(m)
+            ),
+            StepCap::Free => "free steps (TSTEP ≥ span/50: ngspice at its defaults)".into(),
+        }
+    }
 }
 
 /// Errors of a benchmark run.
@@ -398,31 +445,34 @@ fn run_kausal(
 fn kausal_process(
     exe: &Path,
     path: &Path,
-    m: Method,
-    tol: f64,
+    (m, tol): (Method, f64),
+    probes: &[String],
+    tmax: Option<f64>,
     repeats: usize,
-) -> Result<f64, String> {
+) -> Result<(f64, Option<u64>), String> {
     let dir = crate::io::ScratchDir::new().map_err(|e| format!("no scratch directory: {e}"))?;
     let out = dir.path().join("out.csv");
     let mut times = Vec::new();
+    let mut peaks = Vec::new();
     for _ in 0..repeats.max(1) {
+        let mut cmd = std::process::Command::new(exe);
+        cmd.arg("sim")
+            .arg(path)
+            .args(["--method", method_name(m), "--rtol", &format!("{tol:e}")]);
+        // The vectors ngspice saves, no more.
+        for p in probes {
+            cmd.args(["--probe", p]);
+        }
+        if let Some(t) = tmax {
+            cmd.args(["--tmax", &format!("{t:e}")]);
+        }
+        cmd.arg("-o").arg(&out);
         let started = std::time::Instant::now();
-        let run = crate::io::run_child(
-            std::process::Command::new(exe)
-                .arg("sim")
-                .arg(path)
-                .args([
-                    "--method",
-                    method_name(m),
-                    "--rtol",
-                    &format!("{tol:e}"),
-                    "-o",
-                ])
-                .arg(&out),
-            std::time::Duration::from_secs(3600),
-        )
-        .map_err(|e| format!("cannot run `{}`: {e}", exe.display()))?;
+        let (run, peak) =
+            crate::io::run_child_measured(&mut cmd, std::time::Duration::from_secs(3600))
+                .map_err(|e| format!("cannot run `{}`: {e}", exe.display()))?;
         times.push(started.elapsed().as_secs_f64());
+        peaks.extend(peak);
         if !run.status.success() {
             return Err(format!(
                 "`kausal sim` failed: {}",
@@ -430,7 +480,7 @@ fn kausal_process(
             ));
         }
     }
-    Ok(median(times))
+    Ok((median(times), peaks.into_iter().max()))
 }
 
 /// The reference (kausal at `ref_rtol`) at given times.
@@ -478,16 +528,24 @@ fn acct_usize(output: &str, key: &str) -> Option<usize> {
 fn run_ngspice(
     path: &Path,
     options: &str,
+    probes: &[String],
     repeats: usize,
-) -> Result<(RawData, f64, f64, usize), ValidateError> {
+) -> Result<NgspiceRun, ValidateError> {
     let program = validate::ngspice_program();
-    let line = format!(".options {options} acct\n");
+    let mut line = format!(".options {options} acct\n");
+    // The vectors kausal writes, no more (without `.save` ngspice stores
+    // every node and branch).
+    if !probes.is_empty() {
+        line.push_str(&format!(".save {}\n", probes.join(" ")));
+    }
     let mut solve = Vec::new();
     let mut total = Vec::new();
     let mut last = None;
+    let mut peaks = Vec::new();
     for _ in 0..repeats.max(1) {
         let e = validate::exec(&program, path, Some(&line))?;
         total.push(e.wall.as_secs_f64());
+        peaks.extend(e.peak);
         solve.push(
             acct_seconds(&e.output, "Transient analysis time").unwrap_or(e.wall.as_secs_f64()),
         );
@@ -495,7 +553,23 @@ fn run_ngspice(
         last = Some((e.raw, steps));
     }
     let (raw, steps) = last.expect("one run");
-    Ok((raw, median(solve), median(total), steps))
+    Ok(NgspiceRun {
+        raw,
+        solve: median(solve),
+        total: median(total),
+        steps,
+        peak: peaks.into_iter().max(),
+    })
+}
+
+/// What [`run_ngspice`] measured: the last run's data, median solve and
+/// process times, accepted steps and the largest peak memory.
+struct NgspiceRun {
+    raw: RawData,
+    solve: f64,
+    total: f64,
+    steps: usize,
+    peak: Option<u64>,
 }
 
 /// What every run of one netlist is measured against.
@@ -508,6 +582,8 @@ struct Baseline<'b> {
     reference: Waveforms,
     /// The netlist's energy terms, when it states them.
     energy: Option<Vec<(f64, String)>>,
+    /// The step cap of every run.
+    cap: StepCap,
 }
 
 impl Baseline<'_> {
@@ -536,13 +612,13 @@ pub fn bench_circuit(
     let (sorted, front, sort) = sorted_from(path)?;
     let text = std::fs::read_to_string(path).unwrap_or_default();
     let energy = energy_terms(&text);
-    let tstop = sorted
+    let tran = sorted
         .elaborated
         .circuit
         .tran
         .as_ref()
-        .ok_or(sim::SimError::NoTran)?
-        .tstop;
+        .ok_or(sim::SimError::NoTran)?;
+    let (tstop, cap) = (tran.tstop, StepCap::of(tran));
     let probes: Vec<String> = sim::outputs(&sorted, &[])?
         .into_iter()
         .map(|o| o.0)
@@ -574,6 +650,7 @@ pub fn bench_circuit(
         ref_rtol: opts.ref_rtol,
         reference,
         energy,
+        cap,
     };
     tick("reference");
     let mut points = Vec::new();
@@ -619,6 +696,7 @@ pub fn bench_circuit(
         equations: sorted.system().eqs.len(),
         front_seconds: front,
         sort_seconds: sort,
+        cap,
         reference: match (&exact, exact_check) {
             (Some(x), Some(c)) => format!(
                 "exact ({}), kausal bdf rtol {:e} within {} of it",
@@ -651,19 +729,27 @@ fn kausal_point(
         method: Some(m),
         rtol: Some(tol),
         probes: base.probes.to_vec(),
+        tmax: base.cap.tmax(),
         ..Default::default()
     };
     let solver = format!("kausal {}", method_name(m));
     let run = run_kausal(base.sorted, &so, opts.repeats).map_err(|e| e.to_string());
     let run = run.and_then(|(w, secs)| {
-        let total = match &opts.exe {
-            Some(exe) => kausal_process(exe, path, m, tol, opts.repeats)?,
-            None => front + sort + secs,
+        let (total, peak) = match &opts.exe {
+            Some(exe) => kausal_process(
+                exe,
+                path,
+                (m, tol),
+                base.probes,
+                base.cap.tmax(),
+                opts.repeats,
+            )?,
+            None => (front + sort + secs, None),
         };
-        Ok((w, secs, total))
+        Ok((w, secs, total, peak))
     });
     match run {
-        Ok((w, secs, total)) => {
+        Ok((w, secs, total, peak)) => {
             let r = &base.reference;
             let (error, worst) = max_error(&r.names, &r.time, &r.data, &w.names, &w.time, &w.data);
             Point {
@@ -676,6 +762,7 @@ fn kausal_point(
                 steps: w.stats.steps,
                 energy_drift: base.drift(&w.names, &w.data),
                 failed: None,
+                peak_bytes: peak,
             }
         }
         Err(e) => failed_point(solver, Some(tol), e),
@@ -694,7 +781,7 @@ fn ngspice_reference_check(
         "reltol={:e} abstol=1e-15 vntol=1e-12 chgtol=1e-18 trtol=1",
         opts.ngspice_ref_reltol
     );
-    let (raw, _, _, _) = run_ngspice(path, &tight, 1).ok()?;
+    let raw = run_ngspice(path, &tight, base.probes, 1).ok()?.raw;
     let times = clean_times(&raw.time, tstop);
     let r = base.on(times).ok()?;
     Some(max_error(&r.names, &r.time, &r.data, &raw.names, &raw.time, &raw.data).0)
@@ -712,7 +799,13 @@ fn ngspice_point(
     tol: Option<f64>,
     line: &str,
 ) -> Result<Point, BenchError> {
-    let (raw, solve, total, steps) = match run_ngspice(path, line, opts.repeats) {
+    let NgspiceRun {
+        raw,
+        solve,
+        total,
+        steps,
+        peak,
+    } = match run_ngspice(path, line, base.probes, opts.repeats) {
         Ok(run) => run,
         Err(e @ ValidateError::Missing { .. }) => return Err(e.into()),
         Err(e) => return Ok(failed_point(solver, tol, e.to_string())),
@@ -736,6 +829,7 @@ fn ngspice_point(
         steps,
         energy_drift: base.drift(&raw.names, &raw.data),
         failed: None,
+        peak_bytes: peak,
     })
 }
 
@@ -796,6 +890,7 @@ fn failed_point(solver: String, tol: Option<f64>, why: String) -> Point {
         steps: 0,
         energy_drift: None,
         failed: Some(why),
+        peak_bytes: None,
     }
 }
 
@@ -831,6 +926,36 @@ fn ms(x: f64) -> String {
     }
 }
 
+fn mb(bytes: Option<u64>) -> String {
+    bytes.map_or_else(|| "—".into(), |b| format!("{:.0}", b as f64 / 1e6))
+}
+
+fn cap_short(cap: StepCap) -> String {
+    match cap {
+        StepCap::Tmax(m) => format!("TMAX {}", sci(m)),
+        StepCap::Tstep(m) => format!("TMAX = TSTEP {}", sci(m)),
+        StepCap::Free => "free".into(),
+    }
+}
+
+/// How every comparison of the report was made (its first section).
+pub const PROTOCOL: &str = "## Protocol\n\n\
+- **Same outputs.** Every kausal and ngspice run of a circuit stores the same vectors: \
+  ngspice gets a `.save` of what kausal writes (the netlist's `.save`, else its defaults), \
+  kausal gets them as `--probe`.\n\
+- **Same step cap.** ngspice caps its step at min(TSTEP, span/50) unless the netlist gives \
+  TMAX. On a netlist with TSTEP below span/50 that cap, not accuracy, sets ngspice's step \
+  count, so kausal is given the same TMAX (`--tmax TSTEP`). A netlist's own TMAX binds both. \
+  Otherwise (TSTEP ≥ span/50) ngspice runs at its defaults and kausal's steps are free.\n\
+- **Equal accuracy.** Errors are measured against one reference per circuit (a tight kausal \
+  run, cross-checked against ngspice at reltol 1e-8); a speed-up compares ngspice at its \
+  defaults with the fastest kausal run whose error is no larger.\n\
+- **Same run, medians, ratios.** Both sides are measured in one run, each figure the median \
+  of its repeats; whole processes against whole processes (wall time, peak resident memory \
+  from `wait4`), solve against solve (kausal's integration against ngspice's \
+  \"Transient analysis time\"). Absolute times on a shared 2-core machine are noisy; \
+  the ratios are the result.\n\n";
+
 /// The markdown report of a set of circuits.
 /// Plots are linked as `{plots}{stem}.svg`.
 pub fn markdown(benches: &[CircuitBench], scaling: Option<&Scaling>, plots: &str) -> String {
@@ -843,36 +968,52 @@ pub fn markdown(benches: &[CircuitBench], scaling: Option<&Scaling>, plots: &str
              (trapezoidal, reltol 1e-3), against that ngspice run. Solve: kausal's \
              integration in process against ngspice's \"Transient analysis time\" (CPU, \
              reported in whole milliseconds). Whole job: wall time of a `kausal sim -o FILE` \
-             process against an `ngspice -b` process (start-up, parse, solve, output).\n\n",
+             process against an `ngspice -b` process (start-up, parse, solve, output), with \
+             each process's peak resident memory. Per step: solve time over accepted steps. \
+             Cap: the step cap both sides ran with.\n\n",
         );
-        s.push_str("| circuit | ngspice default error | kausal run | kausal error | solve speed-up | whole-job speed-up |\n");
-        s.push_str("|---|---|---|---|---|---|\n");
+        s.push_str("| circuit | cap | ngspice default error | kausal run | kausal error | solve speed-up | whole-job speed-up | steps kausal / ngspice | per step kausal / ngspice (µs) | peak MB kausal / ngspice |\n");
+        s.push_str("|---|---|---|---|---|---|---|---|---|---|\n");
         for b in benches {
             let name = stem(&b.netlist);
             match &b.verdict {
                 Some(v) => match &v.kausal {
                     Some(k) => {
+                        let d = b.points.iter().find(|p| p.solver == "ngspice default");
+                        let per_step = |p: &Point| p.solve_seconds * 1e6 / p.steps.max(1) as f64;
                         let _ = writeln!(
                             s,
-                            "| {name} | {} | {} rtol {} | {} | {:.1}× | {:.1}× |",
+                            "| {name} | {} | {} | {} rtol {} | {} | {:.1}× | {:.1}× | {} / {} | {:.2} / {:.2} | {} / {} |",
+                            cap_short(b.cap),
                             sci(v.ngspice_default_error),
                             k.solver,
                             sci(k.tol.unwrap_or(f64::NAN)),
                             sci(k.error),
                             v.solve_speedup.unwrap_or(f64::NAN),
                             v.total_speedup.unwrap_or(f64::NAN),
+                            k.steps,
+                            d.map_or(0, |d| d.steps),
+                            per_step(k),
+                            d.map_or(f64::NAN, per_step),
+                            mb(k.peak_bytes),
+                            mb(d.and_then(|d| d.peak_bytes)),
                         );
                     }
                     None => {
                         let _ = writeln!(
                             s,
-                            "| {name} | {} | none as accurate | — | — | — |",
+                            "| {name} | {} | {} | none as accurate | — | — | — | | | |",
+                            cap_short(b.cap),
                             sci(v.ngspice_default_error)
                         );
                     }
                 },
                 None => {
-                    let _ = writeln!(s, "| {name} | (ngspice not run) | | | | |");
+                    let _ = writeln!(
+                        s,
+                        "| {name} | {} | (ngspice not run) | | | | | | | |",
+                        cap_short(b.cap)
+                    );
                 }
             }
         }
@@ -883,12 +1024,13 @@ pub fn markdown(benches: &[CircuitBench], scaling: Option<&Scaling>, plots: &str
         let _ = writeln!(s, "## {name}\n");
         let _ = writeln!(
             s,
-            "`{}`: {} equations, {} states; parse+build {} ms, sort {} ms. Reference: {}{}.\n",
+            "`{}`: {} equations, {} states; parse+build {} ms, sort {} ms; {}. Reference: {}{}.\n",
             b.netlist,
             b.equations,
             b.states,
             ms(b.front_seconds),
             ms(b.sort_seconds),
+            b.cap.describe(),
             b.reference,
             match b.reference_check {
                 Some(c) => format!(", within {} of ngspice at a tight reltol", sci(c)),
@@ -897,12 +1039,12 @@ pub fn markdown(benches: &[CircuitBench], scaling: Option<&Scaling>, plots: &str
         );
         let energy = b.points.iter().any(|p| p.energy_drift.is_some());
         s.push_str(
-            "| solver | tol | solve (ms) | whole job (ms) | steps | max error | worst signal |",
+            "| solver | tol | solve (ms) | whole job (ms) | peak MB | steps | max error | worst signal |",
         );
         if energy {
             s.push_str(" energy drift |");
         }
-        s.push_str("\n|---|---|---|---|---|---|---|");
+        s.push_str("\n|---|---|---|---|---|---|---|---|");
         if energy {
             s.push_str("---|");
         }
@@ -910,11 +1052,12 @@ pub fn markdown(benches: &[CircuitBench], scaling: Option<&Scaling>, plots: &str
         for p in &b.points {
             let _ = write!(
                 s,
-                "| {} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} |",
                 p.solver,
                 p.tol.map(sci).unwrap_or_else(|| "default".into()),
                 ms(p.solve_seconds),
                 ms(p.total_seconds),
+                mb(p.peak_bytes),
                 p.steps,
                 match &p.failed {
                     Some(why) => format!("failed: {}", why.lines().next().unwrap_or("")),
@@ -1006,8 +1149,13 @@ pub fn scaling(
             // A missing ngspice ends the run; one that failed or did not
             // finish on a large ladder is that point's note (the rest of
             // the report, an hour's measurements, must not be lost to it).
-            match run_ngspice(&path, "", 1) {
-                Ok((raw, s, t, _)) => {
+            match run_ngspice(&path, "", &probe, 1) {
+                Ok(NgspiceRun {
+                    raw,
+                    solve: s,
+                    total: t,
+                    ..
+                }) => {
                     ns = Some(s);
                     nt = Some(t);
                     diff = Some(

@@ -160,7 +160,7 @@ where
         last: Vec::new(),
     };
     let hard = breakpoints(sys, t0, tran.tstop);
-    let tmax = match (tran.tmax, sine_step_cap(sys)) {
+    let tmax = match (opts.tmax.or(tran.tmax), sine_step_cap(sys)) {
         (Some(a), Some(b)) => Some(a.min(b)),
         (a, b) => a.or(b),
     };

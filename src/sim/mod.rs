@@ -97,6 +97,8 @@ pub struct Options {
     pub times: Option<Vec<f64>>,
     /// The most steps a run may take (default [`DEFAULT_MAX_STEPS`]).
     pub max_steps: Option<usize>,
+    /// The longest step (in place of `.tran`'s TMAX).
+    pub tmax: Option<f64>,
 }
 
 /// Solver statistics of a run.

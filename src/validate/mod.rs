@@ -234,6 +234,8 @@ pub struct Execution {
     pub raw: RawData,
     pub output: String,
     pub wall: std::time::Duration,
+    /// Peak resident memory of the ngspice process, in bytes.
+    pub peak: Option<u64>,
 }
 
 /// Run `program -b` on `path` with `extra` (an `.options` line) before `.end`.
@@ -260,7 +262,7 @@ pub fn exec_within(
         .map_err(|e| ValidateError::Io(e.to_string()))?;
     let program = program.to_string();
     let started = std::time::Instant::now();
-    let output = crate::io::run_child(
+    let (output, peak) = crate::io::run_child_measured(
         Command::new(&program)
             .arg("-b")
             .arg("-r")
@@ -319,6 +321,7 @@ pub fn exec_within(
         raw,
         output: full,
         wall,
+        peak,
     })
 }
 

@@ -173,6 +173,7 @@ fn markdown(
             .collect::<Vec<_>>()
             .join(" ")
     ));
+    md.push_str(bench::PROTOCOL);
     md.push_str(&bench::markdown(&results.benches, scaled, &plots));
     if !results.failures.is_empty() {
         md.push_str("## Circuits that failed\n\n");

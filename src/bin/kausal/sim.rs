@@ -55,6 +55,10 @@ pub struct Args {
     /// stops early with a diagnostic (default 5e7).
     #[arg(long, value_name = "N")]
     max_steps: Option<usize>,
+    /// The longest step, in seconds (in place of `.tran`'s fourth argument,
+    /// TMAX, which ngspice reads the same way).
+    #[arg(long, value_parser = positive, value_name = "SECONDS")]
+    tmax: Option<f64>,
     /// Keep this capacitor's or inductor's state under index reduction.
     #[arg(long, value_name = "ELEMENT")]
     prefer_state: Vec<String>,
@@ -98,6 +102,7 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
             .then_some(progress as fn(f64)),
         times: None,
         max_steps: args.max_steps,
+        tmax: args.tmax,
     };
     let (waves, csv) = match simulate(&sorted, &sim_opts, &args) {
         Ok(x) => x,
