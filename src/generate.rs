@@ -19,6 +19,21 @@ pub fn rc_ladder(n: usize) -> String {
     s
 }
 
+/// The RC ladder of the speed comparisons: `n` sections of 1 kΩ and 1 nF
+/// behind a 1 kHz pulse, `.save v(n1) v(n10)`, and `.tran 20u 1m`, whose
+/// TSTEP (span/50) leaves ngspice's step to its error control.
+pub fn rc_ladder_free(n: usize) -> String {
+    let mut s = String::with_capacity(n * 36 + 200);
+    let _ = writeln!(s, "RC ladder of {n} sections at free steps");
+    s.push_str("V1 n0 0 PULSE(0 1 0 1u 1u 0.5m 1m)\n");
+    for k in 1..=n {
+        let _ = writeln!(s, "R{k} n{} n{k} 1k", k - 1);
+        let _ = writeln!(s, "C{k} n{k} 0 1n");
+    }
+    s.push_str(".save v(n1) v(n10)\n.tran 20u 1m\n.end\n");
+    s
+}
+
 /// An RLC ladder of `n` sections (series R–L, shunt C) with a matched load.
 pub fn rlc_ladder(n: usize) -> String {
     let mut s = String::with_capacity(n * 60 + 200);

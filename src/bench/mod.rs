@@ -1138,8 +1138,11 @@ pub fn scaling(
         let (sorted, front, sort) = sorted_from(&path)?;
         // The first node carries the step; the last barely moves.
         let probe = vec!["v(n1)".to_string(), format!("v(n{n})")];
+        // TSTEP 1u caps ngspice's step (below span/50): kausal's too.
+        let cap = sorted.elaborated.circuit.tran.as_ref().map(StepCap::of);
         let so = sim::Options {
             probes: probe.clone(),
+            tmax: cap.and_then(StepCap::tmax),
             ..Default::default()
         };
         let w = sim::simulate(&sorted, &so)?;
@@ -1200,7 +1203,7 @@ pub fn scaling(
 fn scaling_markdown(sc: &Scaling) -> String {
     use std::fmt::Write;
     let mut s = String::from("## Scaling: RC ladders at default tolerances\n\n");
-    s.push_str("Generated ladders (`kausal::generate::rc_ladder`, 10 ms, 10 001 output points), the first and the last node saved. kausal: rtol 1e-7; ngspice: its defaults.\n\n");
+    s.push_str("Generated ladders (`kausal::generate::rc_ladder`, 10 ms, 10 001 output points), the first and the last node saved. kausal: its defaults; ngspice: its defaults. TSTEP (1 µs) caps ngspice's step, so kausal runs with the same TMAX: this table measures per-step cost and scaling, not step selection (the ladders of the tables above do that).\n\n");
     s.push_str("| sections | states | parse+build (ms) | sort (ms) | kausal solve (ms) | ngspice solve (ms) | ngspice process (ms) | solve speed-up | max |Δv| vs ngspice |\n|---|---|---|---|---|---|---|---|---|\n");
     for p in &sc.points {
         let _ = writeln!(

@@ -37,6 +37,10 @@ pub struct Args {
     /// The largest ladder of --scaling.
     #[arg(long, default_value_t = 100_000)]
     max_sections: usize,
+    /// Also bench generated RC ladders of these many sections at free steps
+    /// (1 kΩ, 1 nF, `.tran 20u 1m`, `.save v(n1) v(n10)`), as circuits.
+    #[arg(long, value_delimiter = ',', value_name = "SECTIONS")]
+    ladders: Vec<usize>,
     /// Write bench.json and a work-precision SVG per circuit here.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -54,7 +58,20 @@ struct Results {
 
 /// Exit code 1 when a circuit failed (the others are still measured and
 /// reported); ngspice missing stops the run.
-pub fn run(args: Args) -> Result<ExitCode, Error> {
+pub fn run(mut args: Args) -> Result<ExitCode, Error> {
+    // The ladders are written where the report's files go (else a scratch
+    // directory that lives as long as the run).
+    let scratch = kausal::io::ScratchDir::new().map_err(Error::Scratch)?;
+    let ladder_dir = args
+        .out
+        .clone()
+        .unwrap_or_else(|| scratch.path().to_path_buf());
+    for &n in &args.ladders {
+        std::fs::create_dir_all(&ladder_dir).map_err(Error::Scratch)?;
+        let path = ladder_dir.join(format!("rc_ladder_free_{n}.cir"));
+        std::fs::write(&path, kausal::generate::rc_ladder_free(n)).map_err(Error::Scratch)?;
+        args.netlists.push(path);
+    }
     let opts = bench::Options {
         tolerances: args.tolerances.clone(),
         methods: args.solvers.iter().map(|&m| m.into()).collect(),
