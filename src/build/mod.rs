@@ -24,6 +24,11 @@ use crate::ir::{
 /// Thermal voltage kT/q at ngspice's default 27 °C.
 pub const VT_27C: f64 = 1.380_648_52e-23 * 300.15 / 1.602_176_620_8e-19;
 
+/// kT/q at `celsius` (ngspice's constants).
+pub fn thermal_voltage(celsius: f64) -> f64 {
+    VT_27C * (celsius + 273.15) / 300.15
+}
+
 /// How Kirchhoff's voltage law is written.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub enum Kvl {
@@ -391,7 +396,7 @@ impl Builder<'_> {
     fn diode(&mut self, id: ElemId, ev: ElemVars, m: &crate::elab::DiodeModel, area: f64) {
         use crate::ir::{DeviceFn, DiodePart, Expr};
         let name = self.c.elements[id].name.clone();
-        let vte = m.n * VT_27C;
+        let vte = m.n * thermal_voltage(self.c.options.device_temperature());
         let params = crate::ir::DiodeParams {
             name: name.clone(),
             is: m.is * area,

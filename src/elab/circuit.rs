@@ -176,6 +176,27 @@ pub struct SimOptions {
     /// `trap` or `gear`.
     pub method: Option<String>,
     pub maxord: Option<f64>,
+    /// Circuit and nominal temperatures, °C (ngspice's defaults: 27).
+    pub temp: Option<f64>,
+    pub tnom: Option<f64>,
+}
+
+impl SimOptions {
+    /// The temperature devices are simulated at, °C: TEMP where it equals
+    /// TNOM; else TNOM, where the model parameters hold (kausal does not
+    /// scale them with temperature, and warns, K0299).
+    pub fn device_temperature(&self) -> f64 {
+        let tnom = self.tnom.unwrap_or(27.0);
+        match self.temp {
+            Some(t) if t == tnom => t,
+            _ => tnom,
+        }
+    }
+
+    /// Whether TEMP and TNOM differ (with ngspice's defaults).
+    pub fn temperature_unscaled(&self) -> bool {
+        self.temp.unwrap_or(27.0) != self.tnom.unwrap_or(27.0)
+    }
 }
 
 /// An initial condition from `.ic v(node)=value`.

@@ -90,6 +90,10 @@ pub enum ElabError {
         v1: f64,
         v2: f64,
     },
+    #[error(
+        "TEMP ({temp} °C) differs from TNOM ({tnom} °C): kausal does not scale device parameters with temperature and simulates at TNOM"
+    )]
+    TemperatureUnscaled { span: Span, temp: f64, tnom: f64 },
     #[error("coupling coefficient {k} of `{element}` is outside (0, 1]")]
     CouplingRange { span: Span, element: String, k: f64 },
     #[error("{kind} of `{element}` {problem}")]
@@ -217,6 +221,7 @@ impl ElabError {
             | ManyOutputPoints { span, .. }
             | TooManyOutputPoints { span, .. }
             | TinyTmax { span, .. }
+            | TemperatureUnscaled { span, .. }
             | PwlParamOnCurrent { span, .. }
             | TransitTimeWithoutCapacitance { span, .. } => *span,
         }
@@ -232,6 +237,7 @@ impl ElabError {
             | DanglingNode { .. }
             | ManyOutputPoints { .. }
             | TinyTmax { .. }
+            | TemperatureUnscaled { .. }
             | PwlParamOnCurrent { .. }
             | TransitTimeWithoutCapacitance { .. } => Severity::Warning,
             _ => Severity::Error,
@@ -256,6 +262,7 @@ impl ToDiagnostic for ElabError {
             SingleNode { .. } => (codes::SINGLE_NODE, "both terminals here", "an element must connect two different nodes".into()),
             UnknownControl { .. } => (codes::UNKNOWN_CONTROL, "not a V source", "F and H elements sense the current of a voltage source (add a 0 V source to measure it)".into()),
             BadCoupling { .. } => (codes::BAD_COUPLING, "not an inductor", "K couples two inductors: `K1 L1 L2 0.99`".into()),
+            TemperatureUnscaled { .. } => (codes::TEMPERATURE_UNSCALED, "here", "with TEMP = TNOM the diodes' thermal voltage is that of TEMP and the parameters hold as given".into()),
             CouplingSigns { .. } => (codes::COUPLING_SIGNS, "this inductor", "an inductive system with a negative winding is not positive definite (ngspice says so too, then fails); give coupled inductors the same sign".into()),
             CouplingRange { .. } => (codes::COUPLING_RANGE, "out of range", "use 0 < k <= 1".into()),
             BadSourceArgs { .. } => (codes::BAD_SOURCE_ARGS, "here", "see the ngspice manual for the source function's arguments".into()),
@@ -268,7 +275,7 @@ impl ToDiagnostic for ElabError {
             UnknownModelParam { .. } => (codes::UNKNOWN_MODEL_PARAM, "unknown", "it is not a level-1 diode parameter of ngspice".into()),
             IgnoredModelParam { .. } => (codes::IGNORED_MODEL_PARAM, "ignored", "temperature and noise parameters do not affect kausal's transient run".into()),
             IgnoredElementParam { .. } => (codes::IGNORED_ELEMENT_PARAM, "ignored", "kausal does not model this instance parameter".into()),
-            IgnoredOption { .. } => (codes::IGNORED_OPTION, "ignored", "kausal honours reltol, abstol, vntol, chgtol, trtol, method and maxord".into()),
+            IgnoredOption { .. } => (codes::IGNORED_OPTION, "ignored", "kausal honours reltol, abstol, vntol, chgtol, trtol, method, maxord, temp and tnom".into()),
             DanglingNode { .. } => (codes::DANGLING_NODE, "dangling node", "a node with one connection carries no current".into()),
             PwlParamOnCurrent { .. } => (codes::PWL_PARAM_ON_CURRENT, "not in ngspice", "kausal runs it; for ngspice (and `kausal validate`) write the repeated points out".into()),
             TransitTimeWithoutCapacitance { .. } => (codes::TRANSIT_TIME_WITHOUT_CAPACITANCE, "TT without CJO", "a junction's charge is kausal's state for it, and diffusion charge alone (TT·id) nearly vanishes in reverse bias: it could not fix the junction's voltage. ngspice has no such capacitance (`kausal validate` shows what it changes); give CJO to choose the capacitance".into()),

@@ -56,6 +56,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         n_flattened: 0,
         top_line: Span::default(),
         too_many: false,
+        temp_span: None,
     };
     e.circuit.nodes.push(Node {
         name: "0".into(),
@@ -65,6 +66,15 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     e.collect(&netlist.stmts, &mut top);
     e.params(&netlist.stmts, &mut top);
     e.settings(&netlist.stmts, &top);
+    if let Some(span) = e.temp_span
+        && e.circuit.options.temperature_unscaled()
+    {
+        e.errors.push(ElabError::TemperatureUnscaled {
+            span,
+            temp: e.circuit.options.temp.unwrap_or(27.0),
+            tnom: e.circuit.options.tnom.unwrap_or(27.0),
+        });
+    }
     let mut stack = Vec::new();
     e.walk(&netlist.stmts, &top, &mut stack);
     e.resolve_pending();
@@ -161,6 +171,8 @@ struct Elab {
     top_line: Span,
     /// Set once the limit is reached: nothing more is flattened.
     too_many: bool,
+    /// Where TEMP or TNOM was last set.
+    temp_span: Option<Span>,
 }
 
 impl Elab {
@@ -332,6 +344,10 @@ impl Elab {
             "abstol" | "vntol" | "chgtol" | "trtol" => {
                 Some(("above 0", num.is_some_and(|x| x > 0.0 && x.is_finite())))
             }
+            "temp" | "tnom" => Some((
+                "a temperature in °C from -273.15 to 1000",
+                num.is_some_and(|x| (-273.15..=1000.0).contains(&x)),
+            )),
             _ => None,
         };
         if let (Some((range, false)), Some(_), ast::OptValue::Value(v)) = (range, num, &o.value) {
@@ -355,8 +371,13 @@ impl Elab {
             "chgtol" => Some(&mut opt.chgtol),
             "trtol" => Some(&mut opt.trtol),
             "maxord" => Some(&mut opt.maxord),
+            "temp" => Some(&mut opt.temp),
+            "tnom" => Some(&mut opt.tnom),
             _ => None,
         };
+        if matches!(key.as_str(), "temp" | "tnom") {
+            self.temp_span = Some(o.name.span);
+        }
         match (slot, &o.value) {
             (Some(slot), _) => *slot = num,
             (None, ast::OptValue::Word(w)) if key == "method" => {

@@ -383,3 +383,24 @@ fn unknown_print_items_are_warnings() {
     let printed = print::netlist(&ast);
     assert!(printed.contains(".print tran v(1) v(2) i(v1)"), "{printed}");
 }
+
+/// TEMP = TNOM sets the diodes' thermal voltage silently; TEMP ≠ TNOM (or
+/// one of them away from ngspice's 27 °C) is a warning at the option, since
+/// kausal does not scale model parameters with temperature.
+#[test]
+fn temperatures_are_honoured_when_equal_and_flagged_when_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t.cir");
+    let codes = |opts: &str| -> Vec<String> {
+        let text = format!("t\n{opts}\nV1 a 0 1\nD1 a 0 DX\n.model DX D\n.tran 1u 10u\n.end\n");
+        let el = kausal::pipeline::elaborate_text("t.cir", &path, text, &FsLoader)
+            .unwrap_or_else(|_| panic!("{opts} elaborates"));
+        el.warnings.iter().map(|d| d.code.to_string()).collect()
+    };
+    let has = |opts: &str, code: &str| codes(opts).iter().any(|c| c == code);
+    assert!(!has(".options temp=60 tnom=60", "K0299"));
+    assert!(has(".options temp=60", "K0299"));
+    assert!(has(".options tnom=25 temp=50", "K0299"));
+    assert!(!has(".options temp=27", "K0299"));
+    assert!(!has(".options temp=60 tnom=60", "K0293"));
+}

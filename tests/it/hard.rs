@@ -372,7 +372,22 @@ fn bench_errors_decrease_with_tolerance() {
                 .collect();
             assert_eq!(e.len(), 4, "{name} {m}: {:?}", b.points);
             assert!(e.iter().all(|x| x.is_finite()), "{name} {m}: {e:?}");
-            assert!(e[3] < e[0], "{name} {m}: errors {e:?} do not shrink");
+            // Under the bench's step cap (TSTEP below span/50, as ngspice
+            // runs it) a method whose every step is the cap takes the same
+            // steps at every tolerance, and its error cannot move.
+            let steps: Vec<usize> = b
+                .points
+                .iter()
+                .filter(|p| p.solver == m)
+                .map(|p| p.steps)
+                .collect();
+            let cap_bound = steps
+                .iter()
+                .all(|&n| n.abs_diff(steps[0]) * 100 <= steps[0]);
+            assert!(
+                e[3] < e[0] || cap_bound,
+                "{name} {m}: errors {e:?} do not shrink (steps {steps:?})"
+            );
         }
     }
 }

@@ -767,6 +767,28 @@ fn a_stalled_bdf_run_goes_on_with_an_l_stable_method() {
     assert_eq!(*w.time.last().unwrap(), 0.3);
 }
 
+/// A TMAX-bound run (VACASK's rc: TMAX 1 µs over 1 s) takes about
+/// span/TMAX steps with BDF and is no stall: a soft stop every step reset
+/// BDF's count of equal steps (2.2e6 steps), and the stall test read the
+/// TMAX pace as a held step (ESDIRK34 took over).
+#[test]
+fn a_tmax_bound_run_takes_span_over_tmax_steps_with_bdf() {
+    let path = root().join("netlists/bench/vacask_rc.cir");
+    let s = pipeline::sort(&path, &FsLoader, &SortOptions::default())
+        .unwrap_or_else(|_| panic!("vacask_rc sorts"));
+    let opts = sim::Options {
+        probes: vec!["v(2)".into()],
+        ..Default::default()
+    };
+    let w = sim::simulate(&s, &opts).expect("runs");
+    assert_eq!(w.stats.switched_at, None, "no stall under TMAX");
+    assert!(
+        w.stats.steps > 1_000_000 && w.stats.steps < 1_100_000,
+        "{} steps for 1e6 TMAX intervals",
+        w.stats.steps
+    );
+}
+
 /// A run whose pace can never reach TSTOP (a 1 GHz sine over a second)
 /// ends after one pace window with a diagnostic that says where it got to,
 /// instead of running for ever.
