@@ -243,7 +243,8 @@ pub fn run_child(
 }
 
 /// [`run_child`], with the child's peak resident memory in bytes where the
-/// system reports it (`wait4`'s `ru_maxrss`, per child).
+/// system reports it (`/proc/PID/status`, sampled every 2 ms: a peak in the
+/// last 2 ms of a run can be missed).
 pub fn run_child_measured(
     cmd: &mut std::process::Command,
     limit: std::time::Duration,
@@ -272,8 +273,13 @@ pub fn run_child_measured(
     let started = std::time::Instant::now();
     let mut peak = None;
     let status = loop {
-        if let Some((status, rss)) = reap(&mut child)? {
-            peak = rss;
+        // The child's own high-water mark, sampled while it runs: wait4's
+        // ru_maxrss would count the parent's pages the child shared before
+        // it exec'd (a large bench process made every child look as large).
+        if let Some(hwm) = high_water_mark(pid) {
+            peak = Some(peak.map_or(hwm, |p: u64| p.max(hwm)));
+        }
+        if let Some(status) = child.try_wait()? {
             break Ok(status);
         }
         if started.elapsed() > limit {
@@ -303,48 +309,12 @@ pub fn run_child_measured(
     ))
 }
 
-/// The child's exit status once it has ended, and its peak resident memory.
-#[cfg(unix)]
-fn reap(
-    child: &mut std::process::Child,
-) -> std::io::Result<Option<(std::process::ExitStatus, Option<u64>)>> {
-    use std::os::unix::process::ExitStatusExt;
-    let mut status: libc::c_int = 0;
-    // SAFETY: an all-zero rusage is a valid value of the plain C struct.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: wait4 writes only into the two locals passed; the pid is our
-    // own unreaped child (std's Child never waits for it after this).
-    let r = unsafe {
-        libc::wait4(
-            child.id() as libc::pid_t,
-            &mut status,
-            libc::WNOHANG,
-            &mut usage,
-        )
-    };
-    match r {
-        0 => Ok(None),
-        r if r < 0 => {
-            let e = std::io::Error::last_os_error();
-            if e.kind() == std::io::ErrorKind::Interrupted {
-                Ok(None)
-            } else {
-                Err(e)
-            }
-        }
-        // Linux reports ru_maxrss in kilobytes.
-        _ => Ok(Some((
-            std::process::ExitStatus::from_raw(status),
-            Some(usage.ru_maxrss as u64 * 1024),
-        ))),
-    }
-}
-
-#[cfg(not(unix))]
-fn reap(
-    child: &mut std::process::Child,
-) -> std::io::Result<Option<(std::process::ExitStatus, Option<u64>)>> {
-    Ok(child.try_wait()?.map(|s| (s, None)))
+/// The peak resident memory (`VmHWM`) of a running process, in bytes.
+fn high_water_mark(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
 }
 
 impl AtomicFile {
