@@ -141,7 +141,10 @@ impl StepCap {
     pub fn of(tran: &crate::elab::Tran) -> StepCap {
         match tran.tmax {
             Some(m) => StepCap::Tmax(m),
-            None if tran.tstep < (tran.tstop - tran.tstart) / 50.0 => StepCap::Tstep(tran.tstep),
+            // TSTEP = span/50 (to rounding) caps both ways alike.
+            None if tran.tstep < (tran.tstop - tran.tstart) / 50.0 * (1.0 - 1e-9) => {
+                StepCap::Tstep(tran.tstep)
+            }
             None => StepCap::Free,
         }
     }
