@@ -6,31 +6,39 @@ use std::fmt::Write;
 /// An RC ladder of `n` sections driven by a 1 V step: `R_k` from node k-1
 /// to k, `C_k` from k to ground. Time constants spread over three decades.
 pub fn rc_ladder(n: usize) -> String {
-    let mut s = String::with_capacity(n * 40 + 200);
-    let _ = writeln!(s, "RC ladder with {n} sections");
-    s.push_str("V1 n0 0 PULSE(0 1 1u 1u 1u 1 2)\n");
-    for k in 1..=n {
-        // Capacitances cycle through 1n..1u so that time constants differ.
-        let c = [1e-9, 1e-8, 1e-7, 1e-6][k % 4];
-        let _ = writeln!(s, "R{k} n{} n{k} 1k", k - 1);
-        let _ = writeln!(s, "C{k} n{k} 0 {c:e}");
-    }
-    s.push_str(".tran 1u 10m\n.end\n");
-    s
+    // Capacitances cycle through 1n..1u so that time constants differ.
+    ladder(
+        &format!("RC ladder with {n} sections"),
+        "V1 n0 0 PULSE(0 1 1u 1u 1u 1 2)",
+        n,
+        |k| [1e-9, 1e-8, 1e-7, 1e-6][k % 4],
+        ".tran 1u 10m",
+    )
 }
 
 /// The RC ladder of the speed comparisons: `n` sections of 1 kΩ and 1 nF
 /// behind a 1 kHz pulse, `.save v(n1) v(n10)`, and `.tran 20u 1m`, whose
 /// TSTEP (span/50) leaves ngspice's step to its error control.
 pub fn rc_ladder_free(n: usize) -> String {
-    let mut s = String::with_capacity(n * 36 + 200);
-    let _ = writeln!(s, "RC ladder of {n} sections at free steps");
-    s.push_str("V1 n0 0 PULSE(0 1 0 1u 1u 0.5m 1m)\n");
+    ladder(
+        &format!("RC ladder of {n} sections at free steps"),
+        "V1 n0 0 PULSE(0 1 0 1u 1u 0.5m 1m)",
+        n,
+        |_| 1e-9,
+        ".save v(n1) v(n10)\n.tran 20u 1m",
+    )
+}
+
+/// `title`, `source` into node n0, `n` sections of 1 kΩ and `c(k)`, then
+/// the `tail` cards and `.end`.
+fn ladder(title: &str, source: &str, n: usize, c: impl Fn(usize) -> f64, tail: &str) -> String {
+    let mut s = String::with_capacity(n * 40 + 200);
+    let _ = writeln!(s, "{title}\n{source}");
     for k in 1..=n {
         let _ = writeln!(s, "R{k} n{} n{k} 1k", k - 1);
-        let _ = writeln!(s, "C{k} n{k} 0 1n");
+        let _ = writeln!(s, "C{k} n{k} 0 {:e}", c(k));
     }
-    s.push_str(".save v(n1) v(n10)\n.tran 20u 1m\n.end\n");
+    let _ = writeln!(s, "{tail}\n.end");
     s
 }
 

@@ -364,23 +364,17 @@ fn bench_errors_decrease_with_tolerance() {
             "kausal esdirk34",
             "kausal circuit",
         ] {
-            let e: Vec<f64> = b
+            let (e, steps): (Vec<f64>, Vec<usize>) = b
                 .points
                 .iter()
                 .filter(|p| p.solver == m)
-                .map(|p| p.error)
-                .collect();
+                .map(|p| (p.error, p.steps))
+                .unzip();
             assert_eq!(e.len(), 4, "{name} {m}: {:?}", b.points);
             assert!(e.iter().all(|x| x.is_finite()), "{name} {m}: {e:?}");
             // Under the bench's step cap (TSTEP below span/50, as ngspice
             // runs it) a method whose every step is the cap takes the same
             // steps at every tolerance, and its error cannot move.
-            let steps: Vec<usize> = b
-                .points
-                .iter()
-                .filter(|p| p.solver == m)
-                .map(|p| p.steps)
-                .collect();
             let cap_bound = steps
                 .iter()
                 .all(|&n| n.abs_diff(steps[0]) * 100 <= steps[0]);
