@@ -600,24 +600,7 @@ where
                 // A NaN error estimate can pass an explicit method's test and
                 // give a NaN step: stop there, naming what went non-finite.
                 if r.is_ok() && !(solver.state().t.is_finite() && solver.state().h.is_finite()) {
-                    let e = diffsol::DiffsolError::from(
-                        diffsol::error::OdeSolverError::StepSizeTooSmall { time: t_before },
-                    );
-                    return Err(match diagnose(sys, problem, &solver, e) {
-                        SimError::NonFinite {
-                            name, value, what, ..
-                        } => SimError::NonFinite {
-                            name,
-                            value,
-                            t: t_before,
-                            what,
-                        },
-                        _ => SimError::StepUnderflow {
-                            t: t_before,
-                            state: String::new(),
-                            value: f64::NAN,
-                        },
-                    });
+                    return Err(non_finite_step(sys, problem, &solver, t_before));
                 }
                 // An evaluation that failed inside a step made diffsol retry
                 // with a smaller step; it is reported only if the solver gives up.
@@ -731,6 +714,40 @@ where
         k += 1;
     }
     Ok(Driven::Done(rec))
+}
+
+/// The error of a step that came back with a NaN time or size from
+/// `t_before`: what went non-finite there, else an underflow at `t_before`.
+fn non_finite_step<'p, M, S>(
+    sys: &EquationSystem,
+    problem: &'p OdeSolverProblem<CircuitOde<M>>,
+    solver: &S,
+    t_before: f64,
+) -> SimError
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    let e = diffsol::DiffsolError::from(diffsol::error::OdeSolverError::StepSizeTooSmall {
+        time: t_before,
+    });
+    match diagnose(sys, problem, solver, e) {
+        SimError::NonFinite {
+            name, value, what, ..
+        } => SimError::NonFinite {
+            name,
+            value,
+            t: t_before,
+            what,
+        },
+        SimError::StepUnderflow { state, value, .. } => SimError::StepUnderflow {
+            t: t_before,
+            state,
+            value,
+        },
+        other => other,
+    }
 }
 
 /// The soft stop that keeps a step from `t` within `tmax` on the way to the
