@@ -397,13 +397,21 @@ def ngspice_class(rec):
 LOGS = None  # OUT/logs, set by main(): the summary re-reads ngspice's logs where they are kept
 
 
-def ngspice_log(rec):
+def kept_log(rec, kind):
+    """The kept log `kind` (ngspice, validate) of a record, or None."""
     if LOGS:
         try:
-            with open(os.path.join(LOGS, rec["key"] + ".ngspice.log"), encoding="utf-8", errors="replace") as f:
+            with open(os.path.join(LOGS, "%s.%s.log" % (rec["key"], kind)), encoding="utf-8", errors="replace") as f:
                 return f.read()
         except OSError:
             pass
+    return None
+
+
+def ngspice_log(rec):
+    log = kept_log(rec, "ngspice")
+    if log is not None:
+        return log
     return "\n".join(rec["ngspice"].get("errors", []) + [rec["ngspice"].get("last_line", "")])
 
 
@@ -473,12 +481,9 @@ def file_of(rec):
 
 
 def validate_log(rec):
-    if LOGS:
-        try:
-            with open(os.path.join(LOGS, rec["key"] + ".validate.log"), encoding="utf-8", errors="replace") as f:
-                return f.read()
-        except OSError:
-            pass
+    log = kept_log(rec, "validate")
+    if log is not None:
+        return log
     return "\n".join(rec["validate"].get("ngspice_said", []))
 
 
