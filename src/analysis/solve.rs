@@ -62,6 +62,8 @@ pub fn is_linear_in(x: &ExprArena, root: ExprId, is_var: &dyn Fn(VarId) -> bool)
         Expr::Div(_, b) => !dep[&b],
         Expr::Pow(a, b) => !(dep[&a] || dep[&b]),
         Expr::Call(_, a) | Expr::Device(_, a) => !dep[&a],
+        Expr::Cmp(_, a, b) => !(dep[&a] || dep[&b]),
+        Expr::Select(c, a, b) => !(dep[&c] || dep[&a] || dep[&b]),
         _ => true,
     })
 }

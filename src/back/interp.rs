@@ -35,6 +35,14 @@ pub fn eval(sys: &EquationSystem, x: &ExprArena, e: ExprId, vals: &[f64], t: f64
         Expr::Device(f, a) => {
             sys.diodes[f.diode as usize].eval(f.part, f.order, eval(sys, x, a, vals, t))
         }
+        Expr::Cmp(op, a, b) => op.apply(eval(sys, x, a, vals, t), eval(sys, x, b, vals, t)),
+        Expr::Select(c, a, b) => {
+            if eval(sys, x, c, vals, t) != 0.0 {
+                eval(sys, x, a, vals, t)
+            } else {
+                eval(sys, x, b, vals, t)
+            }
+        }
     }
 }
 

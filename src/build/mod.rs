@@ -365,11 +365,58 @@ impl Builder<'_> {
                     self.diode(id, ev, model, *area);
                     continue;
                 }
+                ElementKind::Behavioural {
+                    current,
+                    expr,
+                    controls,
+                } => {
+                    let rhs = self.behavioural(expr, controls, vars, pots);
+                    (if *current { i } else { u }, rhs)
+                }
                 ElementKind::Coupling { .. } => continue,
             };
             self.sys.add_eq(lhs, rhs, self.elem_origin(id));
         }
         self.reduced_equations(vars);
+    }
+
+    /// A B source's expression over node potentials, controlling currents
+    /// and time, as written.
+    fn behavioural(
+        &mut self,
+        e: &crate::elab::BExpr,
+        controls: &[ElemId],
+        vars: &[Option<ElemVars>],
+        pots: &[ExprId],
+    ) -> ExprId {
+        use crate::elab::{Arith, BNode};
+        let mut ids: Vec<ExprId> = Vec::with_capacity(e.nodes.len());
+        for n in &e.nodes {
+            let at = |k: u32| ids[k as usize];
+            let id = match *n {
+                BNode::Num(v) => self.sys.exprs.constant(v),
+                BNode::Time => self.sys.exprs.time(),
+                BNode::Pot(node) => pots[node.0 as usize],
+                BNode::Current(k) => self.ctrl_current(vars, controls[k as usize]),
+                BNode::Neg(a) => self.sys.exprs.neg(at(a)),
+                BNode::Arith(op, a, b) => {
+                    let (a, b) = (at(a), at(b));
+                    let x = &mut self.sys.exprs;
+                    match op {
+                        Arith::Add => x.add(a, b),
+                        Arith::Sub => x.sub(a, b),
+                        Arith::Mul => x.mul(a, b),
+                        Arith::Div => x.div(a, b),
+                        Arith::Pow => x.pow(a, b),
+                    }
+                }
+                BNode::Cmp(op, a, b) => self.sys.exprs.cmp(op, at(a), at(b)),
+                BNode::Select(c, a, b) => self.sys.exprs.select(at(c), at(a), at(b)),
+                BNode::Call(f, a) => self.sys.exprs.call(f, at(a)),
+            };
+            ids.push(id);
+        }
+        ids.pop().unwrap_or_else(|| self.sys.exprs.constant(0.0))
     }
 
     fn der_of(&mut self, state: VarId) -> ExprId {

@@ -11,11 +11,16 @@ use crate::numeric::UnionFind;
 fn rank(k: &ElementKind) -> u8 {
     match k {
         ElementKind::VSource { .. } => 0,
-        ElementKind::Vcvs { .. } | ElementKind::Ccvs { .. } => 1,
+        ElementKind::Vcvs { .. }
+        | ElementKind::Ccvs { .. }
+        | ElementKind::Behavioural { current: false, .. } => 1,
         ElementKind::Capacitor { .. } => 2,
         ElementKind::Resistor { .. } | ElementKind::Diode { .. } => 3,
         ElementKind::Inductor { .. } => 4,
-        ElementKind::ISource { .. } | ElementKind::Vccs { .. } | ElementKind::Cccs { .. } => 5,
+        ElementKind::ISource { .. }
+        | ElementKind::Vccs { .. }
+        | ElementKind::Cccs { .. }
+        | ElementKind::Behavioural { current: true, .. } => 5,
         ElementKind::Coupling { .. } => 6,
     }
 }

@@ -3,7 +3,7 @@
 
 use crate::diag::Span;
 use crate::front::ast::ElementLetter;
-use crate::ir::{IdVec, Waveform};
+use crate::ir::{Cmp, Func, IdVec, Waveform};
 
 crate::entity_id!(
     /// A circuit node; `n0` is ground.
@@ -109,9 +109,72 @@ pub enum ElementKind {
         model: Box<DiodeModel>,
         area: f64,
     },
+    /// B: `V=expr` (`current` false) or `I=expr`; `controls` are the V
+    /// sources whose currents `expr` reads ([`BExpr::Current`]).
+    Behavioural {
+        current: bool,
+        expr: Box<BExpr>,
+        controls: Vec<ElemId>,
+    },
+}
+
+/// A B source's expression with its names resolved: parameters and `.func`
+/// calls are evaluated or inlined, node names are nodes. Nodes refer to
+/// earlier nodes by index, so a subterm used twice (`min(x, y)` reads `x`
+/// twice) is stored once; the root is the last.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct BExpr {
+    pub nodes: Vec<BNode>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BNode {
+    Num(f64),
+    Time,
+    /// A node's potential (`v(a)`; `v(a, b)` is a difference of two).
+    Pot(NodeId),
+    /// The current of the element's `k`-th controlling V source (`i(v1)`).
+    Current(u32),
+    Neg(u32),
+    Arith(Arith, u32, u32),
+    Cmp(Cmp, u32, u32),
+    /// The second where the first is not 0, else the third.
+    Select(u32, u32, u32),
+    Call(Func, u32),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Arith {
+    Add,
+    Sub,
+    Mul,
+    Div,
+    Pow,
 }
 
 impl ElementKind {
+    /// The V sources whose currents it reads (F, H, B).
+    pub fn controls_mut(&mut self) -> &mut [ElemId] {
+        match self {
+            ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => {
+                std::slice::from_mut(ctrl)
+            }
+            ElementKind::Behavioural { controls, .. } => controls,
+            _ => &mut [],
+        }
+    }
+
+    /// Whether its branch voltage is what it fixes (V, E, H, B with `V=`).
+    pub fn fixes_voltage(&self) -> bool {
+        matches!(
+            self,
+            ElementKind::VSource { .. }
+                | ElementKind::Vcvs { .. }
+                | ElementKind::Ccvs { .. }
+                | ElementKind::Behavioural { current: false, .. }
+        )
+    }
+
     /// The letter a netlist names this element with.
     pub fn letter(&self) -> ElementLetter {
         match self {
@@ -126,6 +189,7 @@ impl ElementKind {
             ElementKind::Cccs { .. } => ElementLetter::F,
             ElementKind::Ccvs { .. } => ElementLetter::H,
             ElementKind::Diode { .. } => ElementLetter::D,
+            ElementKind::Behavioural { .. } => ElementLetter::B,
         }
     }
 }

@@ -68,9 +68,19 @@ impl Elab {
                 elem: id,
                 what: PendingRef::Control {
                     vsrc: format!("{}{}", scope.prefix, vsrc.text).to_ascii_lowercase(),
+                    index: 0,
                 },
                 spans: [vsrc.span, vsrc.span],
             }),
+            ElementBody::Behavioural { span, .. } => {
+                for (index, vsrc) in std::mem::take(&mut self.b_controls).into_iter().enumerate() {
+                    self.pending.push(Pending {
+                        elem: id,
+                        what: PendingRef::Control { vsrc, index },
+                        spans: [*span, *span],
+                    });
+                }
+            }
             ElementBody::Coupling { l1, l2, .. } => self.pending.push(Pending {
                 elem: id,
                 what: PendingRef::Coupling {
@@ -125,6 +135,12 @@ impl Elab {
                 area,
                 params,
             } => self.diode(model, area.as_ref(), params, name, inherited, scope),
+            ElementBody::Behavioural {
+                current,
+                expr,
+                text,
+                span,
+            } => self.behavioural(*current, expr, text, *span, scope),
             ElementBody::Instance { .. } => unreachable!("instances are expanded before"),
         }
     }

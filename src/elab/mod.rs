@@ -4,6 +4,7 @@
 //!
 //! It knows the netlist AST and the circuit, nothing about equations.
 
+mod behavioural;
 mod circuit;
 mod element;
 mod error;
@@ -57,6 +58,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         top_line: Span::default(),
         too_many: false,
         temp_span: None,
+        b_controls: Vec::new(),
     };
     e.circuit.nodes.push(Node {
         name: "0".into(),
@@ -140,8 +142,15 @@ impl<'s, 'a> Scope<'s, 'a> {
 }
 
 enum PendingRef {
-    Control { vsrc: String },
-    Coupling { l1: String, l2: String },
+    /// The `index`-th controlling source of an F, H (index 0) or B.
+    Control {
+        vsrc: String,
+        index: usize,
+    },
+    Coupling {
+        l1: String,
+        l2: String,
+    },
 }
 
 struct Pending {
@@ -173,6 +182,9 @@ struct Elab {
     too_many: bool,
     /// Where TEMP or TNOM was last set.
     temp_span: Option<Span>,
+    /// The controlling sources of the B source being elaborated (keys),
+    /// left by [`Elab::behavioural`] for [`Elab::element`].
+    b_controls: Vec<String>,
 }
 
 impl Elab {
@@ -580,17 +592,20 @@ impl Elab {
         for p in std::mem::take(&mut self.pending) {
             let elem_name = self.circuit.elements[p.elem].name.clone();
             match p.what {
-                PendingRef::Control { vsrc } => {
+                PendingRef::Control { vsrc, index } => {
                     let found = self.elem_map.get(&vsrc).map(|&(id, _)| id).filter(|&id| {
                         matches!(self.circuit.elements[id].kind, ElementKind::VSource { .. })
                     });
                     match found {
-                        Some(id) => match &mut self.circuit.elements[p.elem].kind {
-                            ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => {
-                                *ctrl = id
+                        Some(id) => {
+                            if let Some(c) = self.circuit.elements[p.elem]
+                                .kind
+                                .controls_mut()
+                                .get_mut(index)
+                            {
+                                *c = id
                             }
-                            _ => {}
-                        },
+                        }
                         None => self.errors.push(ElabError::UnknownControl {
                             span: p.spans[0],
                             element: elem_name,
@@ -655,6 +670,7 @@ impl Elab {
         // that later stages never see a dangling id.
         let bad = |k: &ElementKind| match k {
             ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => ctrl.0 == u32::MAX,
+            ElementKind::Behavioural { controls, .. } => controls.iter().any(|c| c.0 == u32::MAX),
             ElementKind::Coupling { l1, l2, .. } => l1.0 == u32::MAX || l2.0 == u32::MAX,
             _ => false,
         };
@@ -671,12 +687,11 @@ impl Elab {
             let fix = |id: &mut ElemId| *id = remap[id.0 as usize].unwrap_or(ElemId(u32::MAX));
             for e in kept.as_mut_slice() {
                 match &mut e.kind {
-                    ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => fix(ctrl),
                     ElementKind::Coupling { l1, l2, .. } => {
                         fix(l1);
                         fix(l2);
                     }
-                    _ => {}
+                    k => k.controls_mut().iter_mut().for_each(fix),
                 }
             }
             self.circuit.elements = kept;
@@ -932,6 +947,9 @@ fn try_value(v: &Value<'_>, scope: &Scope<'_, '_>) -> Result<f64, ElabError> {
                         EvalError::UnknownFunction(f) => format!("unknown function `{f}`"),
                         EvalError::Arity(f, n) => format!("`{f}` takes {n} argument(s)"),
                         EvalError::NotFinite => "the result is not a finite number".into(),
+                        EvalError::Probe(p) => format!(
+                            "`{p}` is a node voltage or branch current, which only a B source's expression can read"
+                        ),
                     };
                     ElabError::BadValue {
                         span: *span,

@@ -25,12 +25,11 @@ enum Defines {
 
 fn defines(k: &ElementKind) -> Defines {
     match k {
-        ElementKind::VSource { .. } | ElementKind::Vcvs { .. } | ElementKind::Ccvs { .. } => {
-            Defines::Voltage
-        }
-        ElementKind::ISource { .. } | ElementKind::Vccs { .. } | ElementKind::Cccs { .. } => {
-            Defines::Current
-        }
+        k if k.fixes_voltage() => Defines::Voltage,
+        ElementKind::ISource { .. }
+        | ElementKind::Vccs { .. }
+        | ElementKind::Cccs { .. }
+        | ElementKind::Behavioural { current: true, .. } => Defines::Current,
         ElementKind::Capacitor { .. } => Defines::Capacitor,
         ElementKind::Inductor { .. } => Defines::Inductor,
         _ => Defines::Other,

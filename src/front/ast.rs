@@ -116,6 +116,16 @@ pub enum ElementBody<'a> {
         area: Option<Value<'a>>,
         params: Vec<Assign<'a>>,
     },
+    /// B: `V=expr` or `I=expr` over node voltages, branch currents, `time`
+    /// and parameters.
+    Behavioural {
+        /// `I=` (a current source), else `V=`.
+        current: bool,
+        expr: Box<PExpr>,
+        /// The expression as written (continuation lines joined).
+        text: String,
+        span: Span,
+    },
     /// X: a subcircuit instance.
     Instance {
         subckt: Name<'a>,
@@ -159,6 +169,8 @@ pub enum ElementLetter {
     H,
     /// Diode.
     D,
+    /// Behavioural voltage or current source.
+    B,
     /// Subcircuit instance.
     X,
 }
@@ -180,6 +192,7 @@ impl ElementLetter {
             'F' => F,
             'H' => H,
             'D' => D,
+            'B' => B,
             'X' => X,
             _ => return None,
         })
@@ -200,6 +213,7 @@ impl ElementLetter {
             F => 'F',
             H => 'H',
             D => 'D',
+            B => 'B',
             X => 'X',
         }
     }
@@ -210,7 +224,7 @@ impl ElementLetter {
     pub fn n_nodes(self) -> Option<usize> {
         use ElementLetter::*;
         match self {
-            R | C | L | V | I | F | H | D => Some(2),
+            R | C | L | V | I | F | H | D | B => Some(2),
             E | G => Some(4),
             K => Some(0),
             X => None,
@@ -226,7 +240,6 @@ pub fn unsupported_kind(letter: char) -> Option<&'static str> {
         'Q' => "bipolar transistor",
         'M' => "MOSFET",
         'J' => "JFET",
-        'B' => "behavioural source",
         'S' => "voltage-controlled switch",
         'W' => "current-controlled switch",
         'T' | 'O' | 'U' | 'Y' => "transmission line",

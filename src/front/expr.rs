@@ -5,7 +5,7 @@ use nom::Parser;
 use nom::branch::alt;
 use nom::bytes::complete::{tag, take_while, take_while1};
 use nom::character::complete::{char, multispace0};
-use nom::combinator::{opt, recognize};
+use nom::combinator::{opt, recognize, value};
 use nom::multi::separated_list0;
 use nom::number::complete::recognize_float;
 use nom::sequence::{delimited, pair, preceded};
@@ -18,6 +18,16 @@ pub enum PExpr {
     Neg(Box<PExpr>),
     Bin(BinOp, Box<PExpr>, Box<PExpr>),
     Call(String, Vec<PExpr>),
+    /// `!a`: 1 where `a` is 0, else 0.
+    Not(Box<PExpr>),
+    /// `c ? a : b`.
+    Ternary(Box<PExpr>, Box<PExpr>, Box<PExpr>),
+    /// `v(node)`, `v(node, node)` or `i(vsource)` (behavioural sources
+    /// only): the names as written.
+    Probe {
+        current: bool,
+        args: Vec<String>,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -27,6 +37,14 @@ pub enum BinOp {
     Mul,
     Div,
     Pow,
+    Lt,
+    Le,
+    Gt,
+    Ge,
+    Eq,
+    Ne,
+    And,
+    Or,
 }
 
 impl BinOp {
@@ -37,6 +55,34 @@ impl BinOp {
             BinOp::Mul => "*",
             BinOp::Div => "/",
             BinOp::Pow => "**",
+            BinOp::Lt => "<",
+            BinOp::Le => "<=",
+            BinOp::Gt => ">",
+            BinOp::Ge => ">=",
+            BinOp::Eq => "==",
+            BinOp::Ne => "!=",
+            BinOp::And => "&&",
+            BinOp::Or => "||",
+        }
+    }
+
+    /// The operator applied to values (comparisons and logic give 1 or 0).
+    pub fn apply(self, a: f64, b: f64) -> f64 {
+        let truth = |x: bool| if x { 1.0 } else { 0.0 };
+        match self {
+            BinOp::Add => a + b,
+            BinOp::Sub => a - b,
+            BinOp::Mul => a * b,
+            BinOp::Div => a / b,
+            BinOp::Pow => a.powf(b),
+            BinOp::Lt => truth(a < b),
+            BinOp::Le => truth(a <= b),
+            BinOp::Gt => truth(a > b),
+            BinOp::Ge => truth(a >= b),
+            BinOp::Eq => truth(a == b),
+            BinOp::Ne => truth(a != b),
+            BinOp::And => truth(a != 0.0 && b != 0.0),
+            BinOp::Or => truth(a != 0.0 || b != 0.0),
         }
     }
 }
@@ -104,17 +150,45 @@ fn ident(input: &str) -> IResult<&str, &str> {
     .parse(input)
 }
 
+/// `v(a)`, `v(a, b)`, `i(v1)`: node and element names are not
+/// expressions (`v(1)` names node 1), so they are read as raw words.
+fn probe(input: &str) -> IResult<&str, PExpr> {
+    let (i, letter) = alt((char('v'), char('V'), char('i'), char('I'))).parse(input)?;
+    let name = |i| take_while1(|c: char| !(c.is_whitespace() || matches!(c, ',' | '(' | ')')))(i);
+    let (i, args) = delimited(
+        ws(char('(')),
+        separated_list0(ws(char(',')), name),
+        ws(char(')')),
+    )
+    .parse(i)?;
+    let current = letter.eq_ignore_ascii_case(&'i');
+    if args.is_empty() || args.len() > 2 || (current && args.len() != 1) {
+        return Err(nom::Err::Error(nom::error::Error::new(
+            input,
+            nom::error::ErrorKind::Verify,
+        )));
+    }
+    Ok((
+        i,
+        PExpr::Probe {
+            current,
+            args: args.into_iter().map(str::to_string).collect(),
+        },
+    ))
+}
+
 fn atom(input: &str) -> IResult<&str, PExpr> {
     ws(alt((
         |i| {
             let (i, v) = number_with_suffix(i)?;
             Ok((i, PExpr::Num(v)))
         },
+        probe,
         |i| {
             let (i, name) = ident(i)?;
             let (i, args) = opt(delimited(
                 ws(char('(')),
-                separated_list0(ws(char(',')), sum),
+                separated_list0(ws(char(',')), ternary),
                 ws(char(')')),
             ))
             .parse(i)?;
@@ -127,7 +201,7 @@ fn atom(input: &str) -> IResult<&str, PExpr> {
                 },
             ))
         },
-        delimited(ws(char('(')), sum, ws(char(')'))),
+        delimited(ws(char('(')), ternary, ws(char(')'))),
     )))
     .parse(input)
 }
@@ -151,6 +225,18 @@ fn unary(input: &str) -> IResult<&str, PExpr> {
             Ok((i, PExpr::Neg(Box::new(e))))
         },
         preceded(ws(char('+')), unary),
+        |i| {
+            // `!` but not `!=`.
+            let (i, _) = ws(char('!')).parse(i)?;
+            if i.starts_with('=') {
+                return Err(nom::Err::Error(nom::error::Error::new(
+                    i,
+                    nom::error::ErrorKind::Char,
+                )));
+            }
+            let (i, e) = unary(i)?;
+            Ok((i, PExpr::Not(Box::new(e))))
+        },
         power,
     ))
     .parse(input)
@@ -205,6 +291,65 @@ fn sum(input: &str) -> IResult<&str, PExpr> {
     }
 }
 
+fn comparison(input: &str) -> IResult<&str, PExpr> {
+    let (i, a) = sum(input)?;
+    let op = ws(alt((
+        value(BinOp::Le, tag("<=")),
+        value(BinOp::Ge, tag(">=")),
+        value(BinOp::Eq, tag("==")),
+        value(BinOp::Ne, tag("!=")),
+        value(BinOp::Ne, tag("<>")),
+        value(BinOp::Lt, tag("<")),
+        value(BinOp::Gt, tag(">")),
+    )))
+    .parse(i);
+    match op {
+        Ok((r, op)) => {
+            let (r, b) = sum(r)?;
+            Ok((r, PExpr::Bin(op, Box::new(a), Box::new(b))))
+        }
+        Err(_) => Ok((i, a)),
+    }
+}
+
+/// A left-associative chain of `op` over `item`.
+fn chain<'a>(
+    input: &'a str,
+    item: fn(&str) -> IResult<&str, PExpr>,
+    token: &'static str,
+    op: BinOp,
+) -> IResult<&'a str, PExpr> {
+    let (mut i, mut acc) = item(input)?;
+    while let Ok((r, _)) = ws(tag(token)).parse(i) {
+        let (r, rhs) = item(r)?;
+        acc = PExpr::Bin(op, Box::new(acc), Box::new(rhs));
+        i = r;
+    }
+    Ok((i, acc))
+}
+
+fn conjunction(input: &str) -> IResult<&str, PExpr> {
+    chain(input, comparison, "&&", BinOp::And)
+}
+
+fn disjunction(input: &str) -> IResult<&str, PExpr> {
+    chain(input, conjunction, "||", BinOp::Or)
+}
+
+/// `c ? a : b` (right-associative), the loosest binding.
+fn ternary(input: &str) -> IResult<&str, PExpr> {
+    let (i, c) = disjunction(input)?;
+    match ws(char('?')).parse(i) {
+        Ok((r, _)) => {
+            let (r, a) = ternary(r)?;
+            let (r, _) = ws(char(':')).parse(r)?;
+            let (r, b) = ternary(r)?;
+            Ok((r, PExpr::Ternary(Box::new(c), Box::new(a), Box::new(b))))
+        }
+        Err(_) => Ok((i, c)),
+    }
+}
+
 /// Nested parentheses an expression may have (see [`too_complex`]).
 pub const MAX_NESTING: usize = 64;
 /// Operators an expression may have (see [`too_complex`]).
@@ -225,7 +370,7 @@ pub fn too_complex(s: &str) -> Option<(usize, String)> {
                 }
             }
             ')' => depth = depth.saturating_sub(1),
-            '+' | '-' | '*' | '/' | '^' | ',' => {
+            '+' | '-' | '*' | '/' | '^' | ',' | '<' | '>' | '=' | '!' | '&' | '|' | '?' => {
                 ops += 1;
                 if ops > MAX_OPERATORS {
                     return Some((k, format!("more than {MAX_OPERATORS} operators")));
@@ -240,7 +385,7 @@ pub fn too_complex(s: &str) -> Option<(usize, String)> {
 /// Parse a whole parameter expression; on failure, the byte offset where
 /// parsing stopped. The caller checks [`too_complex`] first.
 pub fn parse_expr(s: &str) -> Result<PExpr, usize> {
-    match sum(s) {
+    match ternary(s) {
         Ok((rest, e)) if rest.trim().is_empty() => Ok(e),
         Ok((rest, _)) => Err(s.len() - rest.len()),
         Err(nom::Err::Error(e) | nom::Err::Failure(e)) => Err(s.len() - e.input.len()),
@@ -261,6 +406,9 @@ pub enum EvalError {
     TooDeep(String),
     /// `.func`s that call each other more than 10^5 times in one expression.
     TooManyCalls,
+    /// A node voltage or branch current (`v(a)`), which only a behavioural
+    /// source can read.
+    Probe(String),
 }
 
 /// A user function (`.func`) as the evaluator calls it: `None` when `name`
@@ -293,12 +441,28 @@ impl PExpr {
             PExpr::Neg(a) => -a.eval_with(lookup, user)?,
             PExpr::Bin(op, a, b) => {
                 let (a, b) = (a.eval_with(lookup, user)?, b.eval_with(lookup, user)?);
-                match op {
-                    BinOp::Add => a + b,
-                    BinOp::Sub => a - b,
-                    BinOp::Mul => a * b,
-                    BinOp::Div => a / b,
-                    BinOp::Pow => a.powf(b),
+                op.apply(a, b)
+            }
+            PExpr::Not(a) => {
+                if a.eval_with(lookup, user)? == 0.0 {
+                    1.0
+                } else {
+                    0.0
+                }
+            }
+            PExpr::Ternary(c, a, b) => {
+                if c.eval_with(lookup, user)? != 0.0 {
+                    a.eval_with(lookup, user)?
+                } else {
+                    b.eval_with(lookup, user)?
+                }
+            }
+            PExpr::Probe { .. } => return Err(EvalError::Probe(self.to_string())),
+            PExpr::Call(name, args) if name == "if" && args.len() == 3 => {
+                if args[0].eval_with(lookup, user)? != 0.0 {
+                    args[1].eval_with(lookup, user)?
+                } else {
+                    args[2].eval_with(lookup, user)?
                 }
             }
             PExpr::Call(name, args) => {
@@ -356,6 +520,25 @@ impl PExpr {
             "min" => two(f64::min),
             "max" => two(f64::max),
             "atan2" => two(f64::atan2),
+            "u" => one(|x| {
+                if x > 0.0 {
+                    1.0
+                } else if x < 0.0 {
+                    0.0
+                } else {
+                    0.5
+                }
+            }),
+            "uramp" => one(|x| x.max(0.0)),
+            "sgn" => one(|x| {
+                if x > 0.0 {
+                    1.0
+                } else if x < 0.0 {
+                    -1.0
+                } else {
+                    0.0
+                }
+            }),
             _ => Err(EvalError::UnknownFunction(name.to_string())),
         }
     }
@@ -363,10 +546,15 @@ impl PExpr {
     /// The parameter names this expression reads.
     pub fn idents<'s>(&'s self, out: &mut Vec<&'s str>) {
         match self {
-            PExpr::Num(_) => {}
+            PExpr::Num(_) | PExpr::Probe { .. } => {}
             PExpr::Ident(n) => out.push(n),
-            PExpr::Neg(a) => a.idents(out),
+            PExpr::Neg(a) | PExpr::Not(a) => a.idents(out),
             PExpr::Bin(_, a, b) => {
+                a.idents(out);
+                b.idents(out);
+            }
+            PExpr::Ternary(c, a, b) => {
+                c.idents(out);
                 a.idents(out);
                 b.idents(out);
             }
@@ -381,7 +569,17 @@ impl std::fmt::Display for PExpr {
             PExpr::Num(x) => write!(f, "{x:e}"),
             PExpr::Ident(n) => f.write_str(n),
             PExpr::Neg(a) => write!(f, "-({a})"),
+            PExpr::Not(a) => write!(f, "!({a})"),
             PExpr::Bin(op, a, b) => write!(f, "({a}){}({b})", op.symbol()),
+            PExpr::Ternary(c, a, b) => write!(f, "({c}) ? ({a}) : ({b})"),
+            PExpr::Probe { current, args } => {
+                write!(
+                    f,
+                    "{}({})",
+                    if *current { 'i' } else { 'v' },
+                    args.join(", ")
+                )
+            }
             PExpr::Call(n, args) => {
                 write!(f, "{n}(")?;
                 for (i, a) in args.iter().enumerate() {

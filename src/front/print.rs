@@ -212,6 +212,9 @@ fn element(e: &Element<'_>, out: &mut String) {
             }
             assigns(params, out);
         }
+        ElementBody::Behavioural { current, text, .. } => {
+            let _ = write!(out, " {}={{{text}}}", if *current { 'I' } else { 'V' });
+        }
         ElementBody::Instance { subckt, params } => {
             let _ = write!(out, " {}", subckt.text);
             assigns(params, out);

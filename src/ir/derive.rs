@@ -115,6 +115,13 @@ fn derive(
                     x.mul(p, s)
                 }
             }
+            // A comparison is piecewise constant; a selection's derivative
+            // is that of the operand it chooses.
+            Expr::Cmp(..) => x.constant(0.0),
+            Expr::Select(c, a, b) => {
+                let (da, db) = (d(memo, a), d(memo, b));
+                x.select(c, da, db)
+            }
             Expr::Device(f, a) => {
                 let da = d(memo, a);
                 let next = crate::ir::DeviceFn {

@@ -143,6 +143,50 @@ pub enum Slope {
     Sign,
 }
 
+/// A comparison, as [`Expr::Cmp`] makes it: 1 where it holds, else 0.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Cmp {
+    Lt,
+    Le,
+    Gt,
+    Ge,
+    Eq,
+    Ne,
+}
+
+impl Cmp {
+    pub fn symbol(self) -> &'static str {
+        match self {
+            Cmp::Lt => "<",
+            Cmp::Le => "<=",
+            Cmp::Gt => ">",
+            Cmp::Ge => ">=",
+            Cmp::Eq => "==",
+            Cmp::Ne => "!=",
+        }
+    }
+
+    /// 1 where `a op b` holds, else 0 (a NaN operand: 0, but 1 for `!=`).
+    pub fn apply(self, a: f64, b: f64) -> f64 {
+        let holds = match self {
+            Cmp::Lt => a < b,
+            Cmp::Le => a <= b,
+            Cmp::Gt => a > b,
+            Cmp::Ge => a >= b,
+            Cmp::Eq => a == b,
+            Cmp::Ne => a != b,
+        };
+        if holds { 1.0 } else { 0.0 }
+    }
+}
+
+/// `if c != 0 { a } else { b }`: only the chosen operand is used (a NaN in
+/// the other one does not leak), as ngspice's B sources choose.
+#[inline]
+pub fn select(c: f64, a: f64, b: f64) -> f64 {
+    if c != 0.0 { a } else { b }
+}
+
 /// One node of an expression DAG.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Expr {
@@ -163,20 +207,26 @@ pub enum Expr {
     Call(Func, ExprId),
     /// A device function (diode current or charge) of one argument.
     Device(DeviceFn, ExprId),
+    /// A comparison: 1 where it holds, else 0 (its derivative is 0).
+    Cmp(Cmp, ExprId, ExprId),
+    /// `Select(c, a, b)`: `a` where `c` is not 0, else `b` (see [`select`]).
+    Select(ExprId, ExprId, ExprId),
 }
 
 impl Expr {
     /// The operands, left to right (`None` past the arity).
-    pub fn operands(self) -> [Option<ExprId>; 2] {
+    pub fn operands(self) -> [Option<ExprId>; 3] {
         match self {
-            Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => [Some(a), None],
+            Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => [Some(a), None, None],
             Expr::Add(a, b)
             | Expr::Sub(a, b)
             | Expr::Mul(a, b)
             | Expr::Div(a, b)
-            | Expr::Pow(a, b) => [Some(a), Some(b)],
+            | Expr::Pow(a, b)
+            | Expr::Cmp(_, a, b) => [Some(a), Some(b), None],
+            Expr::Select(c, a, b) => [Some(c), Some(a), Some(b)],
             Expr::Const(_) | Expr::Var(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => {
-                [None, None]
+                [None, None, None]
             }
         }
     }
@@ -442,6 +492,24 @@ impl ExprArena {
         }
     }
 
+    pub fn cmp(&mut self, op: Cmp, a: ExprId, b: ExprId) -> ExprId {
+        if let (Some(x), Some(y)) = (self.as_const(a), self.as_const(b)) {
+            return self.constant(op.apply(x, y));
+        }
+        self.intern(Expr::Cmp(op, a, b))
+    }
+
+    /// `a` where `c` is not 0, else `b`.
+    pub fn select(&mut self, c: ExprId, a: ExprId, b: ExprId) -> ExprId {
+        if let Some(x) = self.as_const(c) {
+            return if x != 0.0 { a } else { b };
+        }
+        if a == b {
+            return a;
+        }
+        self.intern(Expr::Select(c, a, b))
+    }
+
     /// Sum of many terms (an empty sum is 0).
     ///
     /// Up to [`SUM_CHAIN`] terms make a left-to-right chain, `((a + b) + c)`,
@@ -664,6 +732,21 @@ impl ExprArena {
                     self.substitute_at(b, map, memo, d),
                 );
                 self.pow(a, b)
+            }
+            Expr::Cmp(op, a, b) => {
+                let (a, b) = (
+                    self.substitute_at(a, map, memo, d),
+                    self.substitute_at(b, map, memo, d),
+                );
+                self.cmp(op, a, b)
+            }
+            Expr::Select(c, a, b) => {
+                let (c, a, b) = (
+                    self.substitute_at(c, map, memo, d),
+                    self.substitute_at(a, map, memo, d),
+                    self.substitute_at(b, map, memo, d),
+                );
+                self.select(c, a, b)
             }
         };
         memo.insert(root, r);

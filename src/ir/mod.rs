@@ -15,7 +15,7 @@ mod verify;
 
 pub use device::{DeviceFn, DiodeParams, DiodePart, pnjlim};
 pub use entity::{EntityId, IdVec};
-pub use expr::{Expr, ExprArena, ExprId, Func, Slope, bits};
+pub use expr::{Cmp, Expr, ExprArena, ExprId, Func, Slope, bits, select};
 pub use system::{
     EqId, Equation, EquationSystem, Name, Origin, OriginKind, Param, ParamId, SourceFn, SourceId,
     Var, VarId, VarKind, VarRole, Waveform, joined,

@@ -23,6 +23,7 @@ pub fn number(x: f64) -> String {
 
 fn prec(e: Expr) -> u8 {
     match e {
+        Expr::Cmp(..) => 0,
         Expr::Add(..) | Expr::Sub(..) => 1,
         Expr::Mul(..) | Expr::Div(..) => 2,
         Expr::Neg(..) => 3,
@@ -112,6 +113,20 @@ pub fn write_expr_in(sys: &EquationSystem, x: &ExprArena, id: ExprId, out: &mut 
             out.push_str(f.name());
             out.push('(');
             write_expr_in(sys, x, a, out);
+            out.push(')');
+        }
+        Expr::Cmp(op, a, b) => {
+            child(a, 1, out);
+            let _ = write!(out, " {} ", op.symbol());
+            child(b, 1, out);
+        }
+        Expr::Select(c, a, b) => {
+            out.push_str("if(");
+            write_expr_in(sys, x, c, out);
+            out.push_str(", ");
+            write_expr_in(sys, x, a, out);
+            out.push_str(", ");
+            write_expr_in(sys, x, b, out);
             out.push(')');
         }
     }

@@ -160,6 +160,7 @@ pub(super) fn floating_islands(c: &Circuit) -> Vec<(Vec<crate::elab::NodeId>, Ve
                 | ElementKind::Diode { .. }
                 | ElementKind::Vcvs { .. }
                 | ElementKind::Ccvs { .. }
+                | ElementKind::Behavioural { current: false, .. }
         )
     });
     let ground = root[GROUND.0 as usize];

@@ -54,6 +54,7 @@ fn holdable(c: &Circuit, ics: &[NodeIc]) -> Vec<bool> {
                 | ElementKind::Inductor { .. }
                 | ElementKind::Vcvs { .. }
                 | ElementKind::Ccvs { .. }
+                | ElementKind::Behavioural { current: false, .. }
         )
     });
     let mut fixed = vec![false; c.nodes.len()];
@@ -93,8 +94,8 @@ fn dc_image(
         })));
     }
     for e in elements.values_mut() {
-        if let ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } = &mut e.kind {
-            // A controlling element is a voltage source, never a coupling.
+        // A controlling element is a voltage source, never a coupling.
+        for ctrl in e.kind.controls_mut() {
             if let Some(to) = map[ctrl.0 as usize] {
                 *ctrl = to;
             }

@@ -110,6 +110,13 @@ pub(super) fn set_constant_jacobians(
                 Instr::Div { a, b, .. } => (v(a) || v(b), !v(b) && (!v(a) || coefficient(b))),
                 Instr::Pow { a, b, .. } => (v(a) || v(b), !(v(a) || v(b))),
                 Instr::Call { a, .. } | Instr::Device { a, .. } => (v(a), !v(a)),
+                // Piecewise: a comparison or a choice that moves with the
+                // tears can change the Jacobian.
+                Instr::Cmp { a, b, .. } => (v(a) || v(b), !(v(a) || v(b))),
+                Instr::Select { c, a, b, .. } => {
+                    let moves = v(c) || v(a) || v(b);
+                    (moves, !moves)
+                }
                 Instr::Src { .. } | Instr::Time { .. } => (false, true),
                 Instr::Block { .. } => (true, false),
             };
@@ -341,6 +348,16 @@ impl Tape {
                     false => (d, Dep::Bad),
                 },
                 Instr::Call { d, a, .. } => (d, if dep[a].timed() { dep[a] } else { Dep::Bad }),
+                Instr::Cmp { d, a, b, .. } => match dep[a].timed() && dep[b].timed() {
+                    true => (d, dep[a].max_timed(dep[b])),
+                    false => (d, Dep::Bad),
+                },
+                Instr::Select { d, c, a, b } => {
+                    match dep[c].timed() && dep[a].timed() && dep[b].timed() {
+                        true => (d, dep[a].max_timed(dep[b]).max_timed(dep[c])),
+                        false => (d, Dep::Bad),
+                    }
+                }
                 Instr::Device { d, f, a } => match dep[a] {
                     x if x.timed() => (d, x),
                     Dep::Volt(diode)

@@ -125,13 +125,13 @@ impl Compiler<'_> {
                 let x = &self.sched.exprs;
                 let children = match x.get(n) {
                     Expr::Var(v) if self.var_reg[v.0 as usize] == NONE => {
-                        [self.sys.vars[v].alias, None]
+                        [self.sys.vars[v].alias, None, None]
                     }
                     Expr::Var(_)
                     | Expr::Const(_)
                     | Expr::Param(_)
                     | Expr::Time
-                    | Expr::Source(..) => [None, None],
+                    | Expr::Source(..) => [None, None, None],
                     op => op.operands(),
                 };
                 stack.extend(children.into_iter().rev().flatten().map(|c| (c, false)));
@@ -210,11 +210,24 @@ impl Compiler<'_> {
                 out.push(Instr::Mul { d, a: ra, b: rb });
                 d
             }
+            Expr::Select(c, a, b) => {
+                let rc = self.emit_at(c, out, depth);
+                let (ra, rb) = (self.emit_at(a, out, depth), self.emit_at(b, out, depth));
+                let d = self.reg(0.0);
+                out.push(Instr::Select {
+                    d,
+                    c: rc,
+                    a: ra,
+                    b: rb,
+                });
+                d
+            }
             Expr::Add(a, b)
             | Expr::Sub(a, b)
             | Expr::Mul(a, b)
             | Expr::Div(a, b)
-            | Expr::Pow(a, b) => {
+            | Expr::Pow(a, b)
+            | Expr::Cmp(_, a, b) => {
                 let (ra, rb) = (self.emit_at(a, out, depth), self.emit_at(b, out, depth));
                 let d = self.reg(0.0);
                 out.push(match x.get(e) {
@@ -222,6 +235,12 @@ impl Compiler<'_> {
                     Expr::Sub(..) => Instr::Sub { d, a: ra, b: rb },
                     Expr::Mul(..) => Instr::Mul { d, a: ra, b: rb },
                     Expr::Div(..) => Instr::Div { d, a: ra, b: rb },
+                    Expr::Cmp(op, ..) => Instr::Cmp {
+                        d,
+                        op,
+                        a: ra,
+                        b: rb,
+                    },
                     _ => Instr::Pow { d, a: ra, b: rb },
                 });
                 d

@@ -50,6 +50,8 @@ impl Tape {
                 Instr::Div { d, a, b } => r[d] = r[a] / r[b],
                 Instr::Pow { d, a, b } => r[d] = r[a].powf(r[b]),
                 Instr::Call { d, f, a } => r[d] = f.apply(r[a]),
+                Instr::Cmp { d, op, a, b } => r[d] = op.apply(r[a], r[b]),
+                Instr::Select { d, c, a, b } => r[d] = crate::ir::select(r[c], r[a], r[b]),
                 Instr::Device { d, f, a } => {
                     r[d] = self.diodes[f.diode as usize].eval(f.part, f.order, r[a])
                 }

@@ -1,7 +1,7 @@
 //! The tape's instruction set: register operations, source reads and
 //! block solves, with the derivative rules of the functions they call.
 
-use crate::ir::{DeviceFn, Func};
+use crate::ir::{Cmp, DeviceFn, Func};
 
 /// A register of the tape: an index into the `f64` register file that
 /// every program of one tape shares.
@@ -94,6 +94,20 @@ pub enum Instr {
         f: Func,
         a: Reg,
     },
+    /// 1 where `a op b` holds, else 0.
+    Cmp {
+        d: Reg,
+        op: Cmp,
+        a: Reg,
+        b: Reg,
+    },
+    /// `a` where `c` is not 0, else `b`.
+    Select {
+        d: Reg,
+        c: Reg,
+        a: Reg,
+        b: Reg,
+    },
     /// The `order`-th time derivative of source `s`.
     Src {
         d: Reg,
@@ -112,16 +126,16 @@ pub enum Instr {
 /// No register: the destination of a [`Instr::Block`].
 pub(super) const NONE: Reg = Reg(u32::MAX);
 
-/// The registers an instruction reads (at most two), without allocating.
+/// The registers an instruction reads (at most three), without allocating.
 #[derive(Clone, Copy, Debug)]
 pub struct Operands {
-    regs: [Reg; 2],
+    regs: [Reg; 3],
     n: usize,
 }
 
 impl IntoIterator for Operands {
     type Item = Reg;
-    type IntoIter = std::iter::Take<std::array::IntoIter<Reg, 2>>;
+    type IntoIter = std::iter::Take<std::array::IntoIter<Reg, 3>>;
     fn into_iter(self) -> Self::IntoIter {
         self.regs.into_iter().take(self.n)
     }
@@ -139,6 +153,8 @@ impl Instr {
             | Instr::Div { d, .. }
             | Instr::Pow { d, .. }
             | Instr::Call { d, .. }
+            | Instr::Cmp { d, .. }
+            | Instr::Select { d, .. }
             | Instr::Device { d, .. }
             | Instr::Src { d, .. }
             | Instr::Time { d } => d,
@@ -152,14 +168,16 @@ impl Instr {
     pub fn operands(&self) -> Operands {
         let (regs, n) = match *self {
             Instr::Neg { a, .. } | Instr::Call { a, .. } | Instr::Device { a, .. } => {
-                ([a, NONE], 1)
+                ([a, NONE, NONE], 1)
             }
             Instr::Add { a, b, .. }
             | Instr::Sub { a, b, .. }
             | Instr::Mul { a, b, .. }
             | Instr::Div { a, b, .. }
-            | Instr::Pow { a, b, .. } => ([a, b], 2),
-            Instr::Src { .. } | Instr::Time { .. } | Instr::Block { .. } => ([NONE, NONE], 0),
+            | Instr::Pow { a, b, .. }
+            | Instr::Cmp { a, b, .. } => ([a, b, NONE], 2),
+            Instr::Select { c, a, b, .. } => ([c, a, b], 3),
+            Instr::Src { .. } | Instr::Time { .. } | Instr::Block { .. } => ([NONE, NONE, NONE], 0),
         };
         Operands { regs, n }
     }

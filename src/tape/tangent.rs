@@ -96,6 +96,15 @@ impl Tape {
                     r[d] = fx;
                     dr[d] = f.derivative(x, fx) * dr[a];
                 }
+                Instr::Cmp { d, op, a, b } => {
+                    r[d] = op.apply(r[a], r[b]);
+                    dr[d] = 0.0;
+                }
+                Instr::Select { d, c, a, b } => {
+                    let pick = if r[c] != 0.0 { a } else { b };
+                    r[d] = r[pick];
+                    dr[d] = dr[pick];
+                }
                 Instr::Device { d, f, a } => {
                     let x = r[a];
                     let p = &self.diodes[f.diode as usize];
@@ -278,6 +287,15 @@ impl Tape {
                     let fx = f.apply(x);
                     r[d] = fx;
                     lin(dr, m, d, (a, f.derivative(x, fx)), None);
+                }
+                Instr::Cmp { d, op, a, b } => {
+                    r[d] = op.apply(r[a], r[b]);
+                    dr[d.idx() * m..(d.idx() + 1) * m].fill(0.0);
+                }
+                Instr::Select { d, c, a, b } => {
+                    let pick = if r[c] != 0.0 { a } else { b };
+                    r[d] = r[pick];
+                    lin(dr, m, d, (pick, 1.0), None);
                 }
                 Instr::Device { d, f, a } => {
                     let p = &self.diodes[f.diode as usize];

@@ -95,6 +95,9 @@ fn generated_rust_and_c_agree_with_the_evaluator() {
         "pwl_repeat_rc",
         "transformer_k",
         "sallen_key_lowpass",
+        // B sources: comparisons and choices, and a torn nonlinear loop.
+        "b_limiter",
+        "b_multiplier",
         // Generated: its repeated sections become loops in the source.
         "rlc_ladder_60",
     ] {
@@ -209,6 +212,7 @@ fn evaluator_jacobian_matches_finite_differences() {
         ("diode_halfwave", 0, 1),
         ("diode_clipper", 1, 2),
         ("rc_ladder_5", 0, 0),
+        ("b_limiter", 0, 0),
     ] {
         let path = root().join(format!("netlists/{file}.cir"));
         let s = pipeline::sort(&path, &FsLoader, &SortOptions::default())

@@ -5,7 +5,7 @@
 use std::fmt::Write;
 
 use super::{Driver, Sizes, Sweep, Syntax, num, prelude_body};
-use crate::ir::Func;
+use crate::ir::{Cmp, Func};
 
 /// `prelude.c` as it stands on disk, its header included.
 pub(super) const PRELUDE_FILE: &str = include_str!("prelude.c");
@@ -24,6 +24,14 @@ impl Syntax for C {
 
     fn pow(&self, a: String, b: String) -> String {
         format!("pow({a}, {b})")
+    }
+
+    fn cmp(&self, op: Cmp, a: String, b: String) -> String {
+        format!("({a} {} {b} ? 1.0 : 0.0)", op.symbol())
+    }
+
+    fn select(&self, c: String, a: String, b: String) -> String {
+        format!("({c} != 0.0 ? {a} : {b})")
     }
 
     fn call(&self, f: Func, arg: String) -> String {

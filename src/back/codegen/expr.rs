@@ -59,7 +59,11 @@ impl Gen<'_> {
     fn varies(&self, e: ExprId) -> bool {
         match self.x.get(e) {
             Expr::Var(_) => true,
-            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => false,
+            // A comparison's tangent is zero wherever it is defined.
+            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) | Expr::Cmp(..) => {
+                false
+            }
+            Expr::Select(_, a, b) => self.varies(a) || self.varies(b),
             Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => self.varies(a),
             Expr::Add(a, b)
             | Expr::Sub(a, b)
@@ -89,6 +93,14 @@ impl Gen<'_> {
                 syn.pow(base, sub(b))
             }
             Expr::Call(f, a) => syn.call(f, sub(a)),
+            Expr::Cmp(op, a, b) => {
+                let ea = sub(a);
+                syn.cmp(op, ea, sub(b))
+            }
+            Expr::Select(c, a, b) => {
+                let (ec, ea) = (sub(c), sub(a));
+                syn.select(ec, ea, sub(b))
+            }
             Expr::Device(f, a) => {
                 format!(
                     "diode_{}({}, {}, {})",
@@ -124,7 +136,19 @@ impl Gen<'_> {
                 format!("({slope} * {})", self.tangent_with(a, leaf)?)
             }
             Expr::Device(f, a) => self.tangent_device(f, a, leaf)?,
-            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => return None,
+            Expr::Select(c, a, b) => {
+                let ec = self.expr_with(c, leaf);
+                let da = self
+                    .tangent_with(a, leaf)
+                    .unwrap_or_else(|| self.syn.float("0.0"));
+                let db = self
+                    .tangent_with(b, leaf)
+                    .unwrap_or_else(|| self.syn.float("0.0"));
+                self.syn.select(ec, da, db)
+            }
+            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) | Expr::Cmp(..) => {
+                return None;
+            }
         };
         Some(d)
     }

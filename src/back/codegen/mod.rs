@@ -26,7 +26,7 @@ mod rust;
 use std::fmt::Write;
 
 use crate::analysis::{Assignment, Schedule, Solved, Step};
-use crate::ir::{EquationSystem, ExprArena, ExprId, Func, VarRole, Waveform};
+use crate::ir::{Cmp, EquationSystem, ExprArena, ExprId, Func, VarRole, Waveform};
 
 /// Statements per generated function.
 pub const CHUNK: usize = 50;
@@ -64,6 +64,10 @@ trait Syntax {
     fn pow(&self, a: String, b: String) -> String;
     /// The function `f` of `arg`.
     fn call(&self, f: Func, arg: String) -> String;
+    /// 1.0 where `a op b` holds, else 0.0.
+    fn cmp(&self, op: Cmp, a: String, b: String) -> String;
+    /// `a` where `c` is not zero, else `b` (only the chosen one evaluated).
+    fn select(&self, c: String, a: String, b: String) -> String;
     /// ±1 by the sign bit of `x`.
     fn sign(&self, x: String) -> String;
     /// The head of a loop of `len` rerolled assignments over `k`.

@@ -5,7 +5,7 @@
 use std::fmt::Write;
 
 use super::{Driver, Sizes, Sweep, Syntax, num, prelude_body};
-use crate::ir::Func;
+use crate::ir::{Cmp, Func};
 
 /// `prelude.rs` as it stands on disk, its header included.
 pub(super) const PRELUDE_FILE: &str = include_str!("prelude.rs");
@@ -41,6 +41,17 @@ impl Syntax for Rust {
 
     fn call(&self, f: Func, arg: String) -> String {
         format!("{arg}.{}()", f.name())
+    }
+
+    fn cmp(&self, op: Cmp, a: String, b: String) -> String {
+        format!(
+            "(if {a} {} {b} {{ 1.0f64 }} else {{ 0.0f64 }})",
+            op.symbol()
+        )
+    }
+
+    fn select(&self, c: String, a: String, b: String) -> String {
+        format!("(if {c} != 0.0f64 {{ {a} }} else {{ {b} }})")
     }
 
     /// `signum`: ±1 by the sign bit, as C's copysign.

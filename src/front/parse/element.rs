@@ -28,6 +28,7 @@ impl<'a> Parser<'a> {
             E | G => self.voltage_controlled(&mut c, name, span)?,
             F | H => self.current_controlled(&mut c, name, span)?,
             D => self.diode(&mut c, name, span)?,
+            B => self.behavioural_source(&mut c, name, span)?,
             X => unreachable!("instances are read by Parser::instance"),
         };
         Some(Element {
@@ -289,6 +290,105 @@ impl<'a> Parser<'a> {
             area,
             params,
         })
+    }
+
+    /// B: `V=expr` or `I=expr`, the expression running to the end of the
+    /// line, braced or not.
+    fn behavioural_source(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        span: Span,
+    ) -> Option<ElementBody<'a>> {
+        let kind = c.peek().filter(|t| t.is_word("v") || t.is_word("i"));
+        let (Some(kind), Some(eq)) = (kind, c.peek_at(1).filter(|t| t.kind == TokKind::Eq)) else {
+            self.errors.push(ParseError::Expected {
+                span: c.here(span),
+                expected: format!(
+                    "`V=expression` or `I=expression` after the nodes of {}",
+                    name.text
+                ),
+            });
+            return None;
+        };
+        let current = kind.is_word("i");
+        c.next();
+        c.next();
+        let toks = &c.toks[c.pos..];
+        c.pos = c.toks.len();
+        if toks.is_empty() {
+            self.errors.push(ParseError::MissingValue {
+                span: Span {
+                    start: eq.span.end,
+                    end: eq.span.end + 1,
+                    ..eq.span
+                },
+                name: name.text.to_string(),
+                what: "expression",
+            });
+            return None;
+        }
+        // The expression's text, and where each piece of it starts in the
+        // file (for carets).
+        let file_text = self.sources.file(eq.span.file).text.as_str();
+        let mut text = String::new();
+        let mut pieces: Vec<(usize, usize)> = Vec::with_capacity(toks.len());
+        for (k, t) in toks.iter().enumerate() {
+            if k > 0 {
+                let gap = &file_text[toks[k - 1].span.end as usize..t.span.start as usize];
+                if gap.contains('\n') {
+                    text.push(' ');
+                } else {
+                    text.push_str(gap);
+                }
+            }
+            if t.kind == TokKind::Expr && toks.len() == 1 {
+                // `V={…}`: the braces' content as it is.
+                pieces.push((text.len(), t.span.start as usize + 1));
+                text.push_str(t.text);
+            } else if t.kind == TokKind::Expr {
+                pieces.push((text.len(), t.span.start as usize));
+                text.push('(');
+                text.push_str(t.text);
+                text.push(')');
+            } else {
+                pieces.push((text.len(), t.span.start as usize));
+                text.push_str(t.text);
+            }
+        }
+        let whole = toks[0].span.to(toks[toks.len() - 1].span);
+        let at_offset = |k: usize| {
+            let (from, pos) = pieces
+                .iter()
+                .rev()
+                .find(|p| p.0 <= k)
+                .copied()
+                .unwrap_or((0, whole.start as usize));
+            let start = (pos + (k - from)).min(whole.end as usize - 1);
+            Span::new(whole.file, start, start + 1)
+        };
+        if let Some((k, why)) = crate::front::expr::too_complex(&text) {
+            self.errors.push(ParseError::ComplexExpression {
+                span: at_offset(k),
+                why,
+            });
+            return None;
+        }
+        match crate::front::expr::parse_expr(&text) {
+            Ok(expr) => Some(ElementBody::Behavioural {
+                current,
+                expr: Box::new(expr),
+                text,
+                span: whole,
+            }),
+            Err(k) => {
+                self.errors.push(ParseError::BadExpression {
+                    span: at_offset(k.min(text.len().saturating_sub(1))),
+                    text,
+                });
+                None
+            }
+        }
     }
 
     /// The value at the cursor (`what` in a malformed value's error), or a
