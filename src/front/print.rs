@@ -213,7 +213,12 @@ fn element(e: &Element<'_>, out: &mut String) {
             assigns(params, out);
         }
         ElementBody::Behavioural { current, text, .. } => {
-            let _ = write!(out, " {}={{{text}}}", if *current { 'I' } else { 'V' });
+            let key = match (e.letter, current) {
+                (ElementLetter::E | ElementLetter::G, _) => "VALUE",
+                (_, true) => "I",
+                (_, false) => "V",
+            };
+            let _ = write!(out, " {key}={{{text}}}");
         }
         ElementBody::Instance { subckt, params } => {
             let _ = write!(out, " {}", subckt.text);

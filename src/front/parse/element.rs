@@ -16,10 +16,33 @@ impl<'a> Parser<'a> {
         let letter = self.letter(name)?;
         let mut c = Cursor::new(toks);
         c.next();
-        let Some(n_nodes) = letter.n_nodes() else {
+        let Some(mut n_nodes) = letter.n_nodes() else {
             return self.instance(&mut c, name, span);
         };
-        let nodes = self.nodes(&mut c, name, letter, n_nodes)?;
+        // `E1 out 0 VALUE={…}`, `G1 out 0 cur={…}`: a B source by another
+        // name, with two nodes.
+        let expression = matches!(letter, ElementLetter::E | ElementLetter::G)
+            && toks
+                .get(3)
+                .is_some_and(|t| t.is_word("value") || t.is_word("vol") || t.is_word("cur"))
+            && toks.get(4).is_some_and(|t| t.kind == TokKind::Eq);
+        if expression {
+            n_nodes = 2;
+        }
+        // Read as a B source's nodes: the expression form is not refused.
+        let node_letter = if expression { ElementLetter::B } else { letter };
+        let nodes = self.nodes(&mut c, name, node_letter, n_nodes)?;
+        if expression {
+            let current = letter == ElementLetter::G;
+            c.next();
+            return Some(Element {
+                name,
+                letter,
+                nodes,
+                body: self.expression_body(&mut c, name, current)?,
+                span,
+            });
+        }
         use ElementLetter::*;
         let body = match letter {
             R | C | L => self.passive(&mut c, name, letter, span)?,
@@ -301,7 +324,7 @@ impl<'a> Parser<'a> {
         span: Span,
     ) -> Option<ElementBody<'a>> {
         let kind = c.peek().filter(|t| t.is_word("v") || t.is_word("i"));
-        let (Some(kind), Some(eq)) = (kind, c.peek_at(1).filter(|t| t.kind == TokKind::Eq)) else {
+        let (Some(kind), Some(_)) = (kind, c.peek_at(1).filter(|t| t.kind == TokKind::Eq)) else {
             self.errors.push(ParseError::Expected {
                 span: c.here(span),
                 expected: format!(
@@ -313,7 +336,18 @@ impl<'a> Parser<'a> {
         };
         let current = kind.is_word("i");
         c.next();
-        c.next();
+        self.expression_body(c, name, current)
+    }
+
+    /// After `V`, `I` or `VALUE` (at the `=`): the expression to the end of
+    /// the line, braced or not.
+    fn expression_body(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        current: bool,
+    ) -> Option<ElementBody<'a>> {
+        let eq = *c.next()?;
         let toks = &c.toks[c.pos..];
         c.pos = c.toks.len();
         if toks.is_empty() {
