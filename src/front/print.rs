@@ -214,7 +214,9 @@ fn element(e: &Element<'_>, out: &mut String) {
         }
         ElementBody::Behavioural { current, text, .. } => {
             let key = match (e.letter, current) {
-                (ElementLetter::E | ElementLetter::G, _) => "VALUE",
+                (ElementLetter::E | ElementLetter::F | ElementLetter::G | ElementLetter::H, _) => {
+                    "VALUE"
+                }
                 (_, true) => "I",
                 (_, false) => "V",
             };

@@ -19,27 +19,43 @@ impl<'a> Parser<'a> {
         let Some(mut n_nodes) = letter.n_nodes() else {
             return self.instance(&mut c, name, span);
         };
-        // `E1 out 0 VALUE={…}`, `G1 out 0 cur={…}`: a B source by another
-        // name, with two nodes.
-        let expression = matches!(letter, ElementLetter::E | ElementLetter::G)
+        // `E1 out 0 VALUE={…}`, `G1 out 0 cur={…}`, `F1 out 0 POLY(1) V1 0 2`:
+        // a B source by another name, with two nodes.
+        let controlled = matches!(
+            letter,
+            ElementLetter::E | ElementLetter::F | ElementLetter::G | ElementLetter::H
+        );
+        let expression = controlled
             && toks
                 .get(3)
                 .is_some_and(|t| t.is_word("value") || t.is_word("vol") || t.is_word("cur"))
             && toks.get(4).is_some_and(|t| t.kind == TokKind::Eq);
-        if expression {
+        let poly = controlled
+            && toks.get(3).is_some_and(|t| t.is_word("poly"))
+            && toks.get(4).is_some_and(|t| t.kind == TokKind::LParen);
+        if expression || poly {
             n_nodes = 2;
         }
-        // Read as a B source's nodes: the expression form is not refused.
-        let node_letter = if expression { ElementLetter::B } else { letter };
+        // Read as a B source's nodes: these forms are not refused.
+        let node_letter = if expression || poly {
+            ElementLetter::B
+        } else {
+            letter
+        };
         let nodes = self.nodes(&mut c, name, node_letter, n_nodes)?;
-        if expression {
-            let current = letter == ElementLetter::G;
-            c.next();
+        if expression || poly {
+            let current = matches!(letter, ElementLetter::G | ElementLetter::F);
+            let body = if poly {
+                self.poly(&mut c, name, letter, current, span)?
+            } else {
+                c.next();
+                self.expression_body(&mut c, name, current)?
+            };
             return Some(Element {
                 name,
                 letter,
                 nodes,
-                body: self.expression_body(&mut c, name, current)?,
+                body,
                 span,
             });
         }
@@ -339,6 +355,124 @@ impl<'a> Parser<'a> {
         self.expression_body(c, name, current)
     }
 
+    /// `POLY(n)`, the `n` controls (node pairs for E and G, V sources for F
+    /// and H) and the coefficients, as SPICE orders them: the constant, the
+    /// linear terms, then each higher degree's products `x_i·x_j·…` with
+    /// `i ≤ j ≤ …` in lexicographic order. A single coefficient is the
+    /// constant, as ngspice reads it (SPICE2 took it as the gain).
+    fn poly(
+        &mut self,
+        c: &mut Cursor<'_, 'a>,
+        name: Name<'a>,
+        letter: ElementLetter,
+        current: bool,
+        span: Span,
+    ) -> Option<ElementBody<'a>> {
+        use crate::front::expr::{BinOp, PExpr};
+        let head = *c.next()?;
+        c.next();
+        let dims = c.word().and_then(|w| w.text.parse::<usize>().ok());
+        let close = c.eat(TokKind::RParen);
+        let Some(dims) = dims.filter(|&n| close && (1..=8).contains(&n)) else {
+            self.errors.push(ParseError::Expected {
+                span: head.span,
+                expected: "`POLY(n)` with n from 1 to 8 controls".into(),
+            });
+            return None;
+        };
+        let by_nodes = matches!(letter, ElementLetter::E | ElementLetter::G);
+        let mut xs = Vec::with_capacity(dims);
+        for _ in 0..dims {
+            let pair = if by_nodes {
+                c.word().zip(c.word())
+            } else {
+                c.word().map(|a| (a, a))
+            };
+            let Some((a, b)) = pair else {
+                self.errors.push(ParseError::Expected {
+                    span: c.here(span),
+                    expected: format!(
+                        "the {dims} {} of `POLY({dims})`",
+                        if by_nodes {
+                            "controlling node pairs"
+                        } else {
+                            "controlling V sources"
+                        }
+                    ),
+                });
+                return None;
+            };
+            xs.push(PExpr::Probe {
+                current: !by_nodes,
+                args: if by_nodes {
+                    vec![a.text.to_string(), b.text.to_string()]
+                } else {
+                    vec![a.text.to_string()]
+                },
+            });
+        }
+        let mut coeffs = Vec::new();
+        while let Some(t) = c.peek() {
+            if matches!(t.kind, TokKind::LParen | TokKind::RParen) {
+                c.next();
+                continue;
+            }
+            if t.kind == TokKind::Word && c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq) {
+                break;
+            }
+            coeffs.push(match self.value_tok(c, name.text, "coefficient")? {
+                Value::Num { value, .. } => PExpr::Num(value),
+                Value::Expr { expr, .. } => *expr,
+                Value::Ident(n) => PExpr::Ident(n.key()),
+            });
+        }
+        self.rest_unexpected(c);
+        if coeffs.is_empty() {
+            self.errors.push(ParseError::MissingValue {
+                span: c.here(span),
+                name: name.text.to_string(),
+                what: "polynomial coefficients",
+            });
+            return None;
+        }
+        // The monomials in SPICE's order, as lists of control indices.
+        let mut monomials: Vec<Vec<usize>> = vec![Vec::new()];
+        let mut degree: Vec<Vec<usize>> = vec![Vec::new()];
+        while monomials.len() < coeffs.len() {
+            let mut next = Vec::new();
+            for m in &degree {
+                for i in m.last().copied().unwrap_or(0)..dims {
+                    let mut n = m.clone();
+                    n.push(i);
+                    next.push(n);
+                }
+            }
+            monomials.extend(next.iter().cloned());
+            degree = next;
+        }
+        let bin = |op, a, b| PExpr::Bin(op, Box::new(a), Box::new(b));
+        let mut sum: Option<PExpr> = None;
+        for (k, m) in monomials.iter().zip(coeffs) {
+            if m == PExpr::Num(0.0) {
+                continue;
+            }
+            let term = k
+                .iter()
+                .fold(m, |acc, &i| bin(BinOp::Mul, acc, xs[i].clone()));
+            sum = Some(match sum {
+                None => term,
+                Some(s) => bin(BinOp::Add, s, term),
+            });
+        }
+        let expr = sum.unwrap_or(PExpr::Num(0.0));
+        Some(ElementBody::Behavioural {
+            current,
+            text: expr.to_string(),
+            expr: Box::new(expr),
+            span: head.span.to(c.toks[c.toks.len() - 1].span),
+        })
+    }
+
     /// After `V`, `I` or `VALUE` (at the `=`): the expression to the end of
     /// the line, braced or not.
     fn expression_body(
@@ -460,7 +594,7 @@ fn behavioural<'a>(
         .iter()
         .any(|w| t.is_word(w))
         && c.peek_at(1)
-            .is_some_and(|n| matches!(n.kind, TokKind::Eq | TokKind::LParen));
+            .is_some_and(|n| matches!(n.kind, TokKind::Eq | TokKind::LParen | TokKind::Expr));
     form.then(|| ParseError::BehavioralSource {
         span: t.span,
         name: name.text.to_string(),
