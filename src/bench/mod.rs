@@ -417,13 +417,7 @@ fn max_error(
 }
 
 fn method_name(m: Method) -> &'static str {
-    match m {
-        Method::Bdf => "bdf",
-        Method::TrBdf2 => "tr-bdf2",
-        Method::Esdirk34 => "esdirk34",
-        Method::Tsit5 => "tsit5",
-        Method::Circuit => "circuit",
-    }
+    m.name()
 }
 
 /// kausal on `sorted`, `repeats` times; the waveforms of the last run and

@@ -128,6 +128,9 @@ codes! {
     BAD_TOLERANCE = "K0411", "A tolerance out of range.";
     BDF_STALLED = "K0412", "BDF's steps stalled at a stability limit; ESDIRK34 took over.";
     NO_PROGRESS = "K0413", "The run stopped making progress within its step budget.";
+    FIXED_STEP_BOUND = "K0414", "A fixed-step method's stability bound, and where the step stands.";
+    BLEW_UP = "K0415", "A fixed-step run blew up: its step is past the stability bound.";
+    FIXED_STEP = "K0416", "A step length given to a method that has none, or missing where needed.";
     VALIDATE_FAILED = "K0500", "Validation against ngspice failed.";
 }
 

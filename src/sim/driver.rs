@@ -65,10 +65,10 @@ impl Method {
     /// restart: the order each method starts at.
     fn start_order(self) -> usize {
         match self {
-            Method::Bdf | Method::Circuit => 1,
-            Method::TrBdf2 => 2,
+            Method::Bdf | Method::Circuit | Method::Euler => 1,
+            Method::TrBdf2 | Method::Rk2 => 2,
             Method::Esdirk34 => 3,
-            Method::Tsit5 => 4,
+            Method::Tsit5 | Method::Rk4 => 4,
         }
     }
 }
@@ -176,6 +176,23 @@ where
     // The steps a stalled BDF took before ESDIRK34 took over.
     let mut stalled_steps = 0;
     let rec = match method {
+        Method::Euler | Method::Rk2 | Method::Rk4 => {
+            let h = opts.step.unwrap_or(tran.tstop);
+            let y0 = problem.eqn.y0.borrow().clone();
+            let bound = super::fixed::eigenvalues(&problem.eqn, t0, &y0)
+                .and_then(|eigs| super::fixed::stability_bound(method, &eigs));
+            warnings.push(super::fixed::bound_note(method, h, bound));
+            stats.stable_step = bound.map(|b| b.0);
+            let names = |k: usize| sys.vars[tape.states[k]].name.to_string();
+            let run = super::fixed::Run {
+                method,
+                h,
+                bound: bound.map(|b| b.0),
+                names: &names,
+                hard: &hard,
+            };
+            super::fixed::drive(&problem.eqn, run, rec, &mut stats)?
+        }
         Method::Circuit => {
             let setup = circuit::Setup {
                 rtol,
@@ -251,7 +268,7 @@ where
             drive(&stops, s, |p, st| p.tsit45_solver(st), rec, &mut stats)?.recorder()
         }
     };
-    if method != Method::Circuit {
+    if method != Method::Circuit && !method.is_fixed_step() {
         let counts: EvalCounts = problem.eqn.counts();
         stats.rhs_evals = counts.rhs;
         stats.jac_mul_evals = counts.jac_mul;

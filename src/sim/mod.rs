@@ -11,6 +11,7 @@ mod budget;
 mod circuit;
 mod dc;
 mod driver;
+mod fixed;
 mod grid;
 mod ic;
 mod modes;
@@ -69,7 +70,37 @@ pub enum Method {
     /// largest magnitude so far, as circuit simulators measure it; fastest
     /// on switching circuits (rectifiers).
     Circuit,
+    /// Forward Euler at a fixed `--step` (seed 004; no error control).
+    Euler,
+    /// Runge–Kutta 2, the midpoint rule, at a fixed `--step` (seed 004).
+    Rk2,
+    /// Runge–Kutta 4 at a fixed `--step` (seed 004).
+    Rk4,
 }
+
+impl Method {
+    /// The name the command line gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Bdf => "bdf",
+            Method::TrBdf2 => "tr-bdf2",
+            Method::Esdirk34 => "esdirk34",
+            Method::Tsit5 => "tsit5",
+            Method::Circuit => "circuit",
+            Method::Euler => "euler",
+            Method::Rk2 => "rk2",
+            Method::Rk4 => "rk4",
+        }
+    }
+
+    /// Seed 004's fixed-step methods, which take `--step` and have no error
+    /// control.
+    pub fn is_fixed_step(self) -> bool {
+        matches!(self, Method::Euler | Method::Rk2 | Method::Rk4)
+    }
+}
+
+pub use fixed::stability_bound;
 
 /// Default relative tolerance: accurate by default (see README).
 pub const DEFAULT_RTOL: f64 = 1e-7;
@@ -99,6 +130,8 @@ pub struct Options {
     pub max_steps: Option<usize>,
     /// The longest step (in place of `.tran`'s TMAX).
     pub tmax: Option<f64>,
+    /// The step of the fixed-step methods (euler, rk2, rk4).
+    pub step: Option<f64>,
 }
 
 /// Solver statistics of a run.
@@ -117,6 +150,9 @@ pub struct Stats {
     pub rescues: usize,
     /// Where a stalled BDF run went on with ESDIRK34.
     pub switched_at: Option<f64>,
+    /// The longest stable step of a fixed-step method on the circuit, where
+    /// it was estimated (see [`stability_bound`]).
+    pub stable_step: Option<f64>,
     pub wall: Duration,
     /// Assignments computed in `f` / at output points only / never.
     pub in_f: usize,
@@ -193,6 +229,23 @@ pub enum SimError {
         path: Option<std::path::PathBuf>,
         source: std::rc::Rc<std::io::Error>,
     },
+    #[error(
+        "{method} blew up at t = {t:.4e} s: `{state}` reached {value:.3e} with steps of {h:.4e} s{}",
+        match bound {
+            Some(b) => format!(", {:.2}× its stability bound {b:.4e} s on this circuit", h / b),
+            None => String::new(),
+        }
+    )]
+    BlewUp {
+        method: &'static str,
+        t: f64,
+        state: String,
+        value: f64,
+        h: f64,
+        bound: Option<f64>,
+    },
+    #[error("{0}")]
+    FixedStep(String),
     #[error("{what} is {value}; it must be {range}")]
     BadTolerance {
         what: &'static str,
@@ -294,6 +347,14 @@ impl crate::diag::ToDiagnostic for SimError {
             ),
             SimError::Write { .. } => (codes::WRITE_FAILED, "check the output path and free space"),
             SimError::BadTolerance { .. } => (codes::BAD_TOLERANCE, "e.g. rtol 1e-6, atol 1e-9"),
+            SimError::BlewUp { .. } => (
+                codes::BLEW_UP,
+                "shorten --step below the bound, or use an implicit method (bdf, tr-bdf2), whose steps are not bound by the fastest mode",
+            ),
+            SimError::FixedStep(_) => (
+                codes::FIXED_STEP,
+                "--step goes with --method euler, rk2 or rk4, which need it",
+            ),
         };
         crate::diag::Diagnostic::error(code, self.to_string()).with_help(help)
     }
@@ -342,6 +403,27 @@ fn simulate_rows(
             range: "finite and above 0",
         });
     }
+    let method = opts.method.unwrap_or(Method::Bdf);
+    match (method.is_fixed_step(), opts.step) {
+        (true, None) => {
+            return Err(SimError::FixedStep(format!(
+                "--method {} has no error control: it needs --step (the step length, in seconds)",
+                method.name()
+            )));
+        }
+        (true, Some(h)) if !(h > 0.0 && h.is_finite()) => {
+            return Err(SimError::FixedStep(format!(
+                "--step {h} is not a step length above 0"
+            )));
+        }
+        (false, Some(_)) => {
+            return Err(SimError::FixedStep(format!(
+                "--method {} chooses its own steps; --step is for euler, rk2 and rk4 (--tmax caps an adaptive method's steps)",
+                method.name()
+            )));
+        }
+        _ => {}
+    }
     let sys = sorted.system();
     let list = output_list(c, &opts.probes)?;
     let refs: Vec<OutputRef> = list.iter().map(|o| output_ref(&sorted.built, o)).collect();
@@ -352,7 +434,6 @@ fn simulate_rows(
         &refs,
     ));
     let n = tape.states.len();
-    let method = opts.method.unwrap_or(Method::Bdf);
     let job = Job {
         sorted,
         tape: tape.clone(),

@@ -869,3 +869,74 @@ fn breakpoint_steps_count_against_the_budget() {
         other => panic!("expected TooManySteps, got {other:?}"),
     }
 }
+
+/// Seed 004's fixed-step RK4 on the stiff RC ladder (time constants 1 ns to
+/// 1 s): kausal states the longest stable step (set by the 1 ns section),
+/// and that bound is the real one: at 0.98 of it the run through the
+/// pulse's edge stays bounded and matches BDF, at 1.02 of it the run blows
+/// up, with an error that names the bound. Both runs end at 1.02 ms, just
+/// past the edge at 1 ms (7.5·10^5 steps).
+#[test]
+fn rk4_is_stable_just_below_its_stated_bound_and_blows_up_just_above() {
+    let s = sort_file("hard/stiff_rc_ladder.cir");
+    let times: Vec<f64> = (0..=102).map(|k| k as f64 * 1e-5).collect();
+    let opts = |method, step| sim::Options {
+        method: Some(method),
+        step,
+        probes: vec!["v(n1)".into(), "v(n5)".into()],
+        times: Some(times.clone()),
+        ..Default::default()
+    };
+    // The bound the run states (a short run before the edge, all at rest).
+    let probe = sim::simulate(
+        &s,
+        &sim::Options {
+            times: Some(vec![0.0, 1e-5]),
+            ..opts(Method::Rk4, Some(1e-6))
+        },
+    )
+    .expect("at rest");
+    let bound = probe.stats.stable_step.expect("the bound is estimated");
+    // The 1 ns section (1 kΩ into 1 pF, loaded by the next) sets it:
+    // 2.785/|λ| with |λ| a little above 1/(1 ns).
+    assert!(bound > 1e-9 && bound < 2.785e-9, "{bound}");
+    let stable = sim::simulate(&s, &opts(Method::Rk4, Some(0.98 * bound))).expect("stable");
+    let note = stable
+        .warnings
+        .iter()
+        .find(|d| d.code == kausal::diag::codes::FIXED_STEP_BOUND)
+        .expect("the bound is stated");
+    assert!(note.message.contains("within it"), "{}", note.message);
+    let reference = sim::simulate(
+        &s,
+        &sim::Options {
+            method: Some(Method::Bdf),
+            ..opts(Method::Bdf, None)
+        },
+    )
+    .expect("bdf");
+    for (a, b) in stable.data.iter().zip(&reference.data) {
+        let err = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
+        assert!(err < 1e-4, "rk4 below its bound against bdf: {err}");
+    }
+    match sim::simulate(&s, &opts(Method::Rk4, Some(1.02 * bound))) {
+        Err(SimError::BlewUp { t, .. }) => assert!(t > 1e-3 && t < 1.02e-3, "{t}"),
+        other => panic!(
+            "expected a blow-up just above the bound: {:?}",
+            other.map(|w| w.stats)
+        ),
+    }
+    // Fixed-step methods need their step, and only they take one.
+    assert!(matches!(
+        sim::simulate(&s, &opts(Method::Rk4, None)),
+        Err(SimError::FixedStep(_))
+    ));
+    assert!(matches!(
+        sim::simulate(&s, &opts(Method::Bdf, Some(1e-6))),
+        Err(SimError::FixedStep(_))
+    ));
+}

@@ -67,6 +67,13 @@ pub enum Method {
     /// largest magnitude so far, as circuit simulators measure it; fastest
     /// on switching circuits (rectifiers).
     Circuit,
+    /// Forward Euler at a fixed --step (seed 004; no error control).
+    Euler,
+    /// Runge–Kutta 2 (the midpoint rule) at a fixed --step (seed 004).
+    Rk2,
+    /// Runge–Kutta 4 at a fixed --step (seed 004). Before the run kausal
+    /// states the longest stable step on the circuit.
+    Rk4,
 }
 
 impl From<Method> for kausal::sim::Method {
@@ -78,6 +85,9 @@ impl From<Method> for kausal::sim::Method {
             Method::Esdirk34 => M::Esdirk34,
             Method::Tsit5 => M::Tsit5,
             Method::Circuit => M::Circuit,
+            Method::Euler => M::Euler,
+            Method::Rk2 => M::Rk2,
+            Method::Rk4 => M::Rk4,
         }
     }
 }
@@ -147,6 +157,9 @@ mod tests {
             M::Esdirk34 => Method::Esdirk34,
             M::Tsit5 => Method::Tsit5,
             M::Circuit => Method::Circuit,
+            M::Euler => Method::Euler,
+            M::Rk2 => Method::Rk2,
+            M::Rk4 => Method::Rk4,
         };
         for &k in Kvl::value_variants() {
             assert_eq!(kvl(k.into()), k);

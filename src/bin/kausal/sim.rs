@@ -59,6 +59,11 @@ pub struct Args {
     /// TMAX, which ngspice reads the same way).
     #[arg(long, value_parser = positive, value_name = "SECONDS")]
     tmax: Option<f64>,
+    /// The step of `--method euler`, `rk2` or `rk4`, in seconds (they have
+    /// no error control: before the run, kausal states the longest step
+    /// that keeps them stable on the circuit).
+    #[arg(long, value_parser = positive, value_name = "SECONDS")]
+    step: Option<f64>,
     /// Keep this capacitor's or inductor's state under index reduction.
     #[arg(long, value_name = "ELEMENT")]
     prefer_state: Vec<String>,
@@ -103,6 +108,7 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
         times: None,
         max_steps: args.max_steps,
         tmax: args.tmax,
+        step: args.step,
     };
     let (waves, csv) = match simulate(&sorted, &sim_opts, &args) {
         Ok(x) => x,
