@@ -180,12 +180,7 @@ impl DiodeParams {
     pub fn limit(&self, new: f64, old: f64) -> f64 {
         let vte = self.vte;
         let vcrit = vte * (vte / (std::f64::consts::SQRT_2 * self.is)).ln();
-        match self.bv {
-            Some(bv) if new < (-bv + 10.0 * vte).min(0.0) => {
-                -(pnjlim(-(new + bv), -(old + bv), vte, vcrit) + bv)
-            }
-            _ => pnjlim(new, old, vte, vcrit),
-        }
+        junction_limit(new, old, vte, vcrit, self.bv.unwrap_or(f64::INFINITY))
     }
 
     /// The junction voltage whose charge is `q` (the charge grows with the
@@ -239,6 +234,18 @@ impl DiodeParams {
     /// Whether the charge is used at all (a junction with capacitance).
     pub fn has_charge(&self) -> bool {
         self.cjo != 0.0 || self.tt != 0.0
+    }
+}
+
+/// A diode junction's step limited as ngspice's diode limits it: forward by
+/// [`pnjlim`], and past breakdown `bv` (below `-bv + 10 vte`; infinite:
+/// none) the same on the mirrored voltage `-(v + bv)`, where the reverse
+/// current grows as `exp(-(v + bv)/vte)`.
+pub fn junction_limit(new: f64, old: f64, vte: f64, vcrit: f64, bv: f64) -> f64 {
+    if bv.is_finite() && new < (10.0 * vte - bv).min(0.0) {
+        -(pnjlim(-(new + bv), -(old + bv), vte, vcrit) + bv)
+    } else {
+        pnjlim(new, old, vte, vcrit)
     }
 }
 

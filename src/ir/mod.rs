@@ -13,7 +13,7 @@ pub mod print;
 mod system;
 mod verify;
 
-pub use device::{DeviceFn, DiodeParams, DiodePart, pnjlim};
+pub use device::{DeviceFn, DiodeParams, DiodePart, junction_limit, pnjlim};
 pub use entity::{EntityId, IdVec};
 pub use expr::{Cmp, Expr, ExprArena, ExprId, Func, Slope, bits, select};
 pub use system::{

@@ -246,8 +246,53 @@ where
         .map(|ci| ci.map(|ci| &tape.diodes[ci.diode as usize]))
         .collect();
     let mut volts: Vec<f64> = vec![0.0; n];
+    let (mut before, mut after) = (Vec::new(), Vec::new());
+    let mut trial = vec![0.0; n];
+    let mut scratch = vec![0.0; n];
     let mut limit = |y: &[f64], step: &mut [f64]| -> bool {
-        let mut limited = false;
+        // Junctions inside the blocks (a diode driven through its series
+        // resistance by a node the states set): the step is halved until no
+        // junction moves further than ngspice's limiting lets it, from its
+        // voltage at `y`. A step that moves a reverse-biased junction by 10^14 V
+        // (the first step from 0 V of a zener driven by a current source,
+        // whose conductance there is GMIN) would leave every later iterate
+        // beyond what the exponential can represent.
+        let mut shortened = false;
+        if resid(y, &mut scratch).is_ok() {
+            ode.junction_voltages(&mut before);
+        } else {
+            before.clear();
+        }
+        if !before.is_empty() {
+            let mut lambda = 1.0f64;
+            for _ in 0..60 {
+                for k in 0..n {
+                    trial[k] = y[k] - lambda * step[k];
+                }
+                let within = resid(&trial, &mut scratch).is_ok_and(|r| r.is_finite()) && {
+                    ode.junction_voltages(&mut after);
+                    after.len() == before.len()
+                        && before
+                            .iter()
+                            .zip(&after)
+                            .all(|(&(old, vt, bv), &(new, ..))| {
+                                vt <= 0.0
+                                    || crate::ir::junction_limit(new, old, vt, 12.0 * vt, bv) == new
+                            })
+                };
+                if within {
+                    break;
+                }
+                lambda *= 0.5;
+            }
+            if lambda < 1.0 {
+                for s in step.iter_mut() {
+                    *s *= lambda;
+                }
+                shortened = true;
+            }
+        }
+        let mut limited = shortened;
         for k in 0..n {
             let Some(p) = junction[k] else { continue };
             let Some(old) = p.voltage_at_charge(y[k], volts[k]) else {

@@ -136,6 +136,12 @@ where
         self.tape.rhs(&mut self.regs.borrow_mut(), t, y, dy)
     }
 
+    /// The junction tears at the last [`CircuitOde::eval`] (see
+    /// [`Tape::junction_voltages`]).
+    pub fn junction_voltages(&self, out: &mut Vec<(f64, f64, f64)>) {
+        self.tape.junction_voltages(&self.regs.borrow(), out)
+    }
+
     /// The outputs at `(t, y)`.
     pub fn outputs(&self, t: f64, y: &[f64], out: &mut [f64]) -> Result<(), EvalError> {
         self.tangents.borrow_mut().valid = false;

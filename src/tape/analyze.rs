@@ -132,8 +132,12 @@ pub(super) fn set_constant_jacobians(
     }
 }
 
-/// Tears `x` of a block whose body computes `exp(x / vt)`.
-pub(super) fn junctions(b: &TapeBlock, vte_regs: &dyn Fn(u32) -> Option<Reg>) -> Vec<(usize, Reg)> {
+/// Tears `x` of a block whose body computes `exp(x / vt)` (a diode's
+/// current: its `vt` register and breakdown voltage from `diode`).
+pub(super) fn junctions(
+    b: &TapeBlock,
+    diode: &dyn Fn(u32) -> Option<(Reg, f64)>,
+) -> Vec<(usize, Reg, f64)> {
     let mut out = Vec::new();
     // Maps, not scans: a block can hold 10^4 tears and junctions.
     let tear_index: HashMap<Reg, usize> =
@@ -146,10 +150,10 @@ pub(super) fn junctions(b: &TapeBlock, vte_regs: &dyn Fn(u32) -> Option<Reg>) ->
     for ins in &b.body {
         if let Instr::Device { f, a, .. } = *ins
             && let Some(&j) = tear_index.get(&a)
-            && let Some(vt) = vte_regs(f.diode)
+            && let Some((vt, bv)) = diode(f.diode)
             && found.insert(j)
         {
-            out.push((j, vt));
+            out.push((j, vt, bv));
         }
         let Instr::Call {
             f: Func::Exp, a, ..
@@ -163,7 +167,7 @@ pub(super) fn junctions(b: &TapeBlock, vte_regs: &dyn Fn(u32) -> Option<Reg>) ->
         if let Some(&j) = tear_index.get(&num)
             && found.insert(j)
         {
-            out.push((j, den));
+            out.push((j, den, f64::INFINITY));
         }
     }
     out

@@ -285,7 +285,7 @@ impl Tape {
                 (newton, 0.5 * newton * newton * k.abs())
             };
             let next = x - step;
-            let limited = pnjlim(next, x, p.vte);
+            let limited = limit_junction(next, x, p.vte, p.bv.unwrap_or(f64::INFINITY));
             if limited != next {
                 x = limited;
                 continue;
@@ -313,7 +313,7 @@ impl Tape {
         w: &mut Work,
     ) -> Result<(), EvalError> {
         let (x, res) = (b.tears[0].idx(), b.residuals[0].idx());
-        let vt = b.junctions.first().map(|&(_, vt)| vt.idx());
+        let vt = b.junctions.first().map(|&(_, vt, bv)| (vt.idx(), bv));
         let finish = |r: &mut [f64], value: f64| {
             r[x] = value;
             self.settle(b, r, t)
@@ -359,7 +359,7 @@ impl Tape {
                 // Quadratic convergence: what this step leaves is below rounding.
                 return finish(r, xv - step);
             }
-            if let Some(vt) = vt {
+            if let Some((vt, bv)) = vt {
                 let vt = r[vt].abs();
                 // A junction's residual curves like exp(x/vt): Newton's error
                 // after this step is about step²/(2 vt). Below rounding, the
@@ -368,7 +368,7 @@ impl Tape {
                     return finish(r, xv - step);
                 }
                 if vt > 0.0 {
-                    let limited = pnjlim(xv - step, xv, vt);
+                    let limited = limit_junction(xv - step, xv, vt, bv);
                     if limited != xv - step {
                         r[x] = limited;
                         last = None;
@@ -432,10 +432,10 @@ impl Tape {
             // Junction limiting (ngspice's pnjlim) on tears inside an exp().
             // A limited step is taken as it is, as SPICE does.
             let mut limited = false;
-            for &(j, vt) in &b.junctions {
+            for &(j, vt, bv) in &b.junctions {
                 let vt = r[vt].abs();
                 if vt > 0.0 {
-                    let new = pnjlim(w.x0[j] - w.step[j], w.x0[j], vt);
+                    let new = limit_junction(w.x0[j] - w.step[j], w.x0[j], vt, bv);
                     if new != w.x0[j] - w.step[j] {
                         limited = true;
                     }
@@ -483,10 +483,12 @@ impl Tape {
     }
 }
 
-/// [`crate::ir::pnjlim`] where the saturation current is not known (tears
-/// inside an `exp()`): the critical voltage taken as 12 thermal voltages.
-pub(super) fn pnjlim(new: f64, old: f64, vt: f64) -> f64 {
-    crate::ir::pnjlim(new, old, vt, 12.0 * vt)
+/// [`crate::ir::junction_limit`] where the saturation current is not known
+/// (tears inside an `exp()`): the critical voltage taken as 12 thermal
+/// voltages. A tear's step is limited forward and past its diode's
+/// breakdown `bv`.
+pub(super) fn limit_junction(new: f64, old: f64, vt: f64, bv: f64) -> f64 {
+    crate::ir::junction_limit(new, old, vt, 12.0 * vt, bv)
 }
 
 /// Buffers of one Newton solve, pooled per thread so that evaluating `f`

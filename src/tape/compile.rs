@@ -281,8 +281,9 @@ impl Compiler<'_> {
         let mut regs = HashMap::new();
         for d in diodes {
             if let std::collections::hash_map::Entry::Vacant(e) = regs.entry(d) {
-                let vte = self.sys.diodes[d as usize].vte;
-                e.insert(self.reg(vte));
+                let p = &self.sys.diodes[d as usize];
+                let (vte, bv) = (p.vte, p.bv.unwrap_or(f64::INFINITY));
+                e.insert((self.reg(vte), bv));
             }
         }
         let j = junctions(&self.blocks[k], &|d| regs.get(&d).copied());

@@ -47,7 +47,9 @@ pub struct TapeBlock {
     pub elements: Vec<String>,
     /// Tears that enter an `exp(x/vt)` (junction voltages), with the register
     /// of `vt`: their Newton steps are limited as ngspice limits junctions.
-    pub junctions: Vec<(usize, Reg)>,
+    /// With each, the breakdown voltage of its diode (infinite: none), whose
+    /// reverse steps are limited too.
+    pub junctions: Vec<(usize, Reg, f64)>,
     /// Registers the body reads or writes, each once: the tangents a
     /// Jacobian column clears before it runs.
     pub touched: Vec<Reg>,
@@ -214,6 +216,19 @@ pub enum Mode {
     /// The operating point: sources' time derivatives read as zero, so
     /// capacitors are open and inductors shorted whatever the sources do.
     Dc,
+}
+
+impl Tape {
+    /// The junction tears of every block as the registers `regs` hold them:
+    /// `(voltage, vt, breakdown voltage)` each (see [`TapeBlock::junctions`]).
+    pub fn junction_voltages(&self, regs: &[f64], out: &mut Vec<(f64, f64, f64)>) {
+        out.clear();
+        for b in &self.blocks {
+            for &(j, vt, bv) in &b.junctions {
+                out.push((regs[b.tears[j]], regs[vt].abs(), bv));
+            }
+        }
+    }
 }
 
 impl Tape {
