@@ -370,7 +370,7 @@ impl Builder<'_> {
                     expr,
                     controls,
                 } => {
-                    let rhs = self.behavioural(expr, controls, vars, pots);
+                    let rhs = self.behavioural(id, expr, controls, vars, pots);
                     (if *current { i } else { u }, rhs)
                 }
                 ElementKind::Coupling { .. } => continue,
@@ -384,6 +384,7 @@ impl Builder<'_> {
     /// and time, as written.
     fn behavioural(
         &mut self,
+        elem: ElemId,
         e: &crate::elab::BExpr,
         controls: &[ElemId],
         vars: &[Option<ElemVars>],
@@ -413,6 +414,20 @@ impl Builder<'_> {
                 BNode::Cmp(op, a, b) => self.sys.exprs.cmp(op, at(a), at(b)),
                 BNode::Select(c, a, b) => self.sys.exprs.select(at(c), at(a), at(b)),
                 BNode::Call(f, a) => self.sys.exprs.call(f, at(a)),
+                // A state held equal to the operand: its derivative is the
+                // operand's, which index reduction writes out by
+                // differentiating the constraint.
+                BNode::Ddt(a) => {
+                    let name = format!("ddt{}_{}", ids.len(), self.names[elem.0 as usize]);
+                    let origin = self.elem_origin(elem);
+                    let s = self
+                        .sys
+                        .add_var(name, VarKind::BranchVoltage, origin.clone());
+                    self.sys.add_state(s);
+                    let lhs = self.sys.exprs.var(s);
+                    self.sys.add_eq(lhs, at(a), origin);
+                    self.der_of(s)
+                }
             };
             ids.push(id);
         }

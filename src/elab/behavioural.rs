@@ -238,7 +238,9 @@ impl Lower<'_, '_, '_> {
             _ => None,
         };
         let arity = match (func, name) {
-            (Some(_), _) | (None, "log10" | "u" | "step" | "uramp" | "sgn" | "sign") => Some(1),
+            (Some(_), _) | (None, "log10" | "u" | "step" | "uramp" | "sgn" | "sign" | "ddt") => {
+                Some(1)
+            }
             (None, "pow" | "pwr" | "min" | "max") => Some(2),
             (None, "if" | "limit") => Some(3),
             (None, "pwl") => None,
@@ -263,6 +265,7 @@ impl Lower<'_, '_, '_> {
                 self.arith(Arith::Mul, ln, k)
             }
             "pow" => self.arith(Arith::Pow, a[0], a[1]),
+            "ddt" => self.push(BNode::Ddt(a[0])),
             // ngspice: sign(x)·|x|^y.
             "pwr" => {
                 let abs = self.push(BNode::Call(Func::Abs, a[0]))?;

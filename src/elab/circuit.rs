@@ -141,6 +141,8 @@ pub enum BNode {
     /// The second where the first is not 0, else the third.
     Select(u32, u32, u32),
     Call(Func, u32),
+    /// `ddt(x)`: the time derivative of its operand.
+    Ddt(u32),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

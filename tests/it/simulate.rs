@@ -940,3 +940,23 @@ fn rk4_is_stable_just_below_its_stated_bound_and_blows_up_just_above() {
         Err(SimError::FixedStep(_))
     ));
 }
+
+/// `ddt()` in a B source is the exact derivative of its operand: index
+/// reduction differentiates the state held equal to it (ngspice's `ddt` is a
+/// backward difference over its own steps, first-order accurate, so this
+/// is checked against the analytic derivative, not against ngspice).
+#[test]
+fn ddt_in_a_b_source_is_the_exact_derivative() {
+    let text = "ddt\nV1 1 0 SIN(0 1 1k)\nR1 1 0 1k\nB2 2 0 V = 1e-3*ddt(v(1)) + 0.5*v(1)\nR2 2 0 1k\n.tran 10u 2m\n.end\n";
+    let (t, y) = run(text, "v(2)", None, 1e-7);
+    let w = 2.0 * std::f64::consts::PI * 1e3;
+    // After t = 0, where the operating point (DC: derivatives are zero)
+    // holds.
+    let err = t
+        .iter()
+        .zip(&y)
+        .filter(|(t, _)| **t > 0.0)
+        .map(|(&t, &v)| (v - (1e-3 * w * (w * t).cos() + 0.5 * (w * t).sin())).abs())
+        .fold(0.0, f64::max);
+    assert!(err < 1e-6, "{err}");
+}
