@@ -593,9 +593,21 @@ impl Elab {
             let elem_name = self.circuit.elements[p.elem].name.clone();
             match p.what {
                 PendingRef::Control { vsrc, index } => {
-                    let found = self.elem_map.get(&vsrc).map(|&(id, _)| id).filter(|&id| {
-                        matches!(self.circuit.elements[id].kind, ElementKind::VSource { .. })
-                    });
+                    // F and H sense a V source's current; a B source reads
+                    // any element's (`i(R1)`, as ngspice allows), but a
+                    // coupling's, which has none.
+                    let any = matches!(
+                        self.circuit.elements[p.elem].kind,
+                        ElementKind::Behavioural { .. }
+                    );
+                    let found =
+                        self.elem_map.get(&vsrc).map(|&(id, _)| id).filter(|&id| {
+                            match self.circuit.elements[id].kind {
+                                ElementKind::VSource { .. } => true,
+                                ElementKind::Coupling { .. } => false,
+                                _ => any,
+                            }
+                        });
                     match found {
                         Some(id) => {
                             if let Some(c) = self.circuit.elements[p.elem]

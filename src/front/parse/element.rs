@@ -383,6 +383,8 @@ impl<'a> Parser<'a> {
         let by_nodes = matches!(letter, ElementLetter::E | ElementLetter::G);
         let mut xs = Vec::with_capacity(dims);
         for _ in 0..dims {
+            // `(3,0)`: a pair may be parenthesized.
+            c.eat(TokKind::LParen);
             let pair = if by_nodes {
                 c.word().zip(c.word())
             } else {
@@ -402,6 +404,7 @@ impl<'a> Parser<'a> {
                 });
                 return None;
             };
+            c.eat(TokKind::RParen);
             xs.push(PExpr::Probe {
                 current: !by_nodes,
                 args: if by_nodes {
