@@ -105,8 +105,12 @@ pub fn lex_file<'a>(
             continue;
         }
         let lead = line.len() - trimmed.len();
+        // A line that starts with `)` closes the previous line's parentheses
+        // (a `.model` whose `)` stands alone): ngspice warns and reads on,
+        // and so does joining it to that line.
         let (body, body_start, continuation) = match trimmed.strip_prefix('+') {
             Some(rest) => (rest, start + lead + 1, true),
+            None if trimmed.starts_with(')') => (trimmed, start + lead, true),
             None => (trimmed, start + lead, false),
         };
         let n_errors = errors.len();

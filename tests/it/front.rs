@@ -404,3 +404,26 @@ fn temperatures_are_honoured_when_equal_and_flagged_when_not() {
     assert!(!has(".options temp=27", "K0299"));
     assert!(!has(".options temp=60 tnom=60", "K0293"));
 }
+
+/// Two ways published model cards break lines that ngspice reads on from
+/// (eSim's libraries): a `+` left mid-line between parameters, and the
+/// closing `)` alone on the next line. Both give the model every parameter.
+#[test]
+fn stray_plus_and_a_lone_closing_paren_in_a_model_are_read_as_ngspice_reads_them() {
+    let text = "t\nV1 1 0 0.7\nD1 1 0 dm\n.model dm D(IS=1e-14    +    N=2\n+ RS=3\n)\n.tran 1u 10u\n.end\n";
+    let path = std::path::Path::new("mem.cir");
+    let el = match kausal::pipeline::elaborate_text("mem.cir", path, text.to_string(), &FsLoader) {
+        Ok(el) => el,
+        Err(f) => panic!("{:?}", f.errors().map(|d| &d.message).collect::<Vec<_>>()),
+    };
+    let model = el
+        .circuit
+        .elements
+        .values()
+        .find_map(|e| match &e.kind {
+            kausal::elab::ElementKind::Diode { model, .. } => Some(model.clone()),
+            _ => None,
+        })
+        .expect("the diode");
+    assert_eq!((model.is, model.n, model.rs), (1e-14, 2.0, 3.0));
+}

@@ -79,7 +79,13 @@ impl<'a> Parser<'a> {
             return None;
         };
         let paren = c.eat(TokKind::LParen);
-        let params = self.assigns(c);
+        let mut params = self.assigns(c);
+        // A `+` left mid-line between parameters (a continuation mark pasted
+        // into one line): ngspice reads past it.
+        while c.peek().is_some_and(|t| t.is_word("+")) {
+            c.next();
+            params.extend(self.assigns(c));
+        }
         if paren && !c.eat(TokKind::RParen) {
             self.errors.push(ParseError::Expected {
                 span: c.here(span),
