@@ -185,7 +185,7 @@ impl ParseError {
             UnknownDirective { .. } => (codes::UNKNOWN_DIRECTIVE, "unknown directive", "check the spelling against the ngspice manual".into()),
             UnsupportedDirective { .. } => (codes::UNSUPPORTED_DIRECTIVE, "not supported", "remove it. kausal reads these directives: param, subckt, model, include, lib, global, func, ic, tran, options, print, save, probe".into()),
             UnsupportedSource { .. } => (codes::UNSUPPORTED_SOURCE, "not supported", "use DC, PULSE, SIN, PWL or EXP".into()),
-            BehavioralSource { .. } => (codes::BEHAVIORAL_SOURCE, "not supported", "write it linear: `E1 out 0 in 0 GAIN` (VCVS), `G1 out 0 in 0 GM` (VCCS), or F/H sensing a V source's current".into()),
+            BehavioralSource { .. } => (codes::BEHAVIORAL_SOURCE, "not supported", "write it as an expression, `E1 out 0 VALUE={...}` or a B source `B1 out 0 V={...}` (POLY is read too), or linear: `E1 out 0 in 0 GAIN`".into()),
             IncludeNotFound { .. } => (codes::INCLUDE_NOT_FOUND, "included here", "include paths are relative to the including file".into()),
             IncludeNotAFile { .. } => (codes::NOT_A_FILE, "included here", "`.include` and `.lib` read regular files only".into()),
             IncludeTooLarge { limit, .. } => (codes::FILE_TOO_LARGE, "included here", format!("kausal reads netlist files of up to {}", mib(*limit))),

@@ -120,12 +120,13 @@ pub fn write_expr_in(sys: &EquationSystem, x: &ExprArena, id: ExprId, out: &mut 
             let _ = write!(out, " {} ", op.symbol());
             child(b, 1, out);
         }
+        // As ngspice's B sources write a choice: `(c ? a : b)`.
         Expr::Select(c, a, b) => {
-            out.push_str("if(");
+            out.push('(');
             write_expr_in(sys, x, c, out);
-            out.push_str(", ");
+            out.push_str(" ? ");
             write_expr_in(sys, x, a, out);
-            out.push_str(", ");
+            out.push_str(" : ");
             write_expr_in(sys, x, b, out);
             out.push(')');
         }
