@@ -11,7 +11,7 @@
 use nalgebra::Complex;
 
 use super::HostVec;
-use super::ode::{CircuitOde, Regs};
+use super::ode::CircuitOde;
 use super::record::Recorder;
 use super::{DENSE_STATES, Method, SimError, Stats};
 use crate::diag::{Diagnostic, codes};
@@ -82,19 +82,7 @@ where
     M: Matrix<T = f64>,
     M::V: HostVec,
 {
-    let n = y.len();
-    if n == 0 || n > DENSE_STATES {
-        return None;
-    }
-    let cols: Vec<usize> = (0..n).collect();
-    let mut jac = vec![0.0; n * n];
-    let mut f = vec![0.0; n];
-    ode.jacobian_columns(Regs::Side, t, y, &cols, &mut jac, &mut f)
-        .ok()?;
-    if jac.iter().any(|v| !v.is_finite()) {
-        return None;
-    }
-    let j = nalgebra::DMatrix::from_row_slice(n, n, &jac);
+    let j = super::modes::dense_jacobian(ode, t, y)?;
     Some(j.complex_eigenvalues().iter().copied().collect())
 }
 

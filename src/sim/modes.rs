@@ -102,6 +102,32 @@ impl Mode {
     }
 }
 
+/// `J(t, y)` as a dense matrix, for a small circuit (at most
+/// `DENSE_STATES` states); `None` where it is larger or not finite.
+pub(super) fn dense_jacobian<M>(
+    ode: &CircuitOde<M>,
+    t: f64,
+    y: &[f64],
+) -> Option<nalgebra::DMatrix<f64>>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+{
+    let n = y.len();
+    if n == 0 || n > DENSE_STATES {
+        return None;
+    }
+    let cols: Vec<usize> = (0..n).collect();
+    let mut jac = vec![0.0; n * n];
+    let mut f = vec![0.0; n];
+    ode.jacobian_columns(Regs::Side, t, y, &cols, &mut jac, &mut f)
+        .ok()?;
+    if jac.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    Some(nalgebra::DMatrix::from_row_slice(n, n, &jac))
+}
+
 /// The least damped oscillatory mode of `J(t, y)` with angular frequency
 /// above `min_omega` and quality factor above `min_q`, for a small (dense)
 /// circuit; the states in it by modal participation factors `|w_k v_k|`
@@ -121,18 +147,7 @@ where
 {
     use nalgebra::{Complex, DMatrix, DVector};
     let n = y.len();
-    if n == 0 || n > DENSE_STATES {
-        return None;
-    }
-    let cols: Vec<usize> = (0..n).collect();
-    let mut jac = vec![0.0; n * n];
-    let mut f = vec![0.0; n];
-    ode.jacobian_columns(Regs::Side, t, y, &cols, &mut jac, &mut f)
-        .ok()?;
-    if jac.iter().any(|v| !v.is_finite()) {
-        return None;
-    }
-    let j = DMatrix::from_row_slice(n, n, &jac);
+    let j = dense_jacobian(ode, t, y)?;
     // Q = |λ| / (2 |Re λ|) > min_q, i.e. -Re λ < |λ| / (2 min_q).
     let lambda = j
         .complex_eigenvalues()
