@@ -145,12 +145,7 @@ impl Lower<'_, '_, '_> {
             BinOp::Mul => self.arith(Arith::Mul, x, y),
             BinOp::Div => self.arith(Arith::Div, x, y),
             BinOp::Pow => self.arith(Arith::Pow, x, y),
-            BinOp::Lt => self.cmp(Cmp::Lt, x, y),
-            BinOp::Le => self.cmp(Cmp::Le, x, y),
-            BinOp::Gt => self.cmp(Cmp::Gt, x, y),
-            BinOp::Ge => self.cmp(Cmp::Ge, x, y),
-            BinOp::Eq => self.cmp(Cmp::Eq, x, y),
-            BinOp::Ne => self.cmp(Cmp::Ne, x, y),
+            BinOp::Cmp(op) => self.cmp(op, x, y),
             BinOp::And => {
                 let (ty, z) = (self.cmp0(Cmp::Ne, y)?, self.num(0.0)?);
                 self.select(x, ty, z)

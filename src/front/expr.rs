@@ -10,6 +10,8 @@ use nom::multi::separated_list0;
 use nom::number::complete::recognize_float;
 use nom::sequence::{delimited, pair, preceded};
 
+use crate::ir::Cmp;
+
 /// A parameter expression, as written (names lower-cased).
 #[derive(Clone, Debug, PartialEq)]
 pub enum PExpr {
@@ -37,12 +39,8 @@ pub enum BinOp {
     Mul,
     Div,
     Pow,
-    Lt,
-    Le,
-    Gt,
-    Ge,
-    Eq,
-    Ne,
+    /// A comparison: 1 where it holds, else 0 (the IR's own operation).
+    Cmp(Cmp),
     And,
     Or,
 }
@@ -55,12 +53,7 @@ impl BinOp {
             BinOp::Mul => "*",
             BinOp::Div => "/",
             BinOp::Pow => "**",
-            BinOp::Lt => "<",
-            BinOp::Le => "<=",
-            BinOp::Gt => ">",
-            BinOp::Ge => ">=",
-            BinOp::Eq => "==",
-            BinOp::Ne => "!=",
+            BinOp::Cmp(c) => c.symbol(),
             BinOp::And => "&&",
             BinOp::Or => "||",
         }
@@ -75,12 +68,7 @@ impl BinOp {
             BinOp::Mul => a * b,
             BinOp::Div => a / b,
             BinOp::Pow => a.powf(b),
-            BinOp::Lt => truth(a < b),
-            BinOp::Le => truth(a <= b),
-            BinOp::Gt => truth(a > b),
-            BinOp::Ge => truth(a >= b),
-            BinOp::Eq => truth(a == b),
-            BinOp::Ne => truth(a != b),
+            BinOp::Cmp(c) => c.apply(a, b),
             BinOp::And => truth(a != 0.0 && b != 0.0),
             BinOp::Or => truth(a != 0.0 || b != 0.0),
         }
@@ -294,19 +282,19 @@ fn sum(input: &str) -> IResult<&str, PExpr> {
 fn comparison(input: &str) -> IResult<&str, PExpr> {
     let (i, a) = sum(input)?;
     let op = ws(alt((
-        value(BinOp::Le, tag("<=")),
-        value(BinOp::Ge, tag(">=")),
-        value(BinOp::Eq, tag("==")),
-        value(BinOp::Ne, tag("!=")),
-        value(BinOp::Ne, tag("<>")),
-        value(BinOp::Lt, tag("<")),
-        value(BinOp::Gt, tag(">")),
+        value(Cmp::Le, tag("<=")),
+        value(Cmp::Ge, tag(">=")),
+        value(Cmp::Eq, tag("==")),
+        value(Cmp::Ne, tag("!=")),
+        value(Cmp::Ne, tag("<>")),
+        value(Cmp::Lt, tag("<")),
+        value(Cmp::Gt, tag(">")),
     )))
     .parse(i);
     match op {
         Ok((r, op)) => {
             let (r, b) = sum(r)?;
-            Ok((r, PExpr::Bin(op, Box::new(a), Box::new(b))))
+            Ok((r, PExpr::Bin(BinOp::Cmp(op), Box::new(a), Box::new(b))))
         }
         Err(_) => Ok((i, a)),
     }

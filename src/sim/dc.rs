@@ -249,6 +249,9 @@ where
     let (mut before, mut after) = (Vec::new(), Vec::new());
     let mut trial = vec![0.0; n];
     let mut scratch = vec![0.0; n];
+    // Circuits without a junction inside a block (an RC ladder) skip the
+    // junction test and its evaluations.
+    let junction_tears = tape.blocks.iter().any(|b| !b.junctions.is_empty());
     let mut limit = |y: &[f64], step: &mut [f64]| -> bool {
         // Junctions inside the blocks (a diode driven through its series
         // resistance by a node the states set): the step is halved until no
@@ -258,10 +261,9 @@ where
         // whose conductance there is GMIN) would leave every later iterate
         // beyond what the exponential can represent.
         let mut shortened = false;
-        if resid(y, &mut scratch).is_ok() {
+        before.clear();
+        if junction_tears && resid(y, &mut scratch).is_ok() {
             ode.junction_voltages(&mut before);
-        } else {
-            before.clear();
         }
         if !before.is_empty() {
             let mut lambda = 1.0f64;
