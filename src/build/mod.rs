@@ -21,13 +21,7 @@ use crate::ir::{
     EquationSystem, ExprId, Name, Origin, OriginKind, SourceFn, VarId, VarKind, Waveform, joined,
 };
 
-/// Thermal voltage kT/q at ngspice's default 27 °C.
-pub const VT_27C: f64 = 1.380_648_52e-23 * 300.15 / 1.602_176_620_8e-19;
-
-/// kT/q at `celsius` (ngspice's constants).
-pub fn thermal_voltage(celsius: f64) -> f64 {
-    VT_27C * (celsius + 273.15) / 300.15
-}
+pub use crate::ir::{VT_27C, thermal_voltage};
 
 /// How Kirchhoff's voltage law is written.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -81,6 +75,9 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
             let mut sys = EquationSystem::with_capacity(4 * n, 2 * n, 2 * n);
             sys.title = circuit.title.clone();
             sys.params = crate::ir::IdVec::with_capacity(n);
+            // Transistors' junction functions first: their index in the
+            // circuit is their device-function index.
+            sys.diodes = circuit.junctions.clone();
             sys
         },
         names: circuit
@@ -373,6 +370,23 @@ impl Builder<'_> {
                     let rhs = self.behavioural(id, expr, controls, vars, pots);
                     (if *current { i } else { u }, rhs)
                 }
+                ElementKind::DeviceBranch {
+                    current,
+                    charge,
+                    controls,
+                    ..
+                } => {
+                    self.device_branch(
+                        id,
+                        ev,
+                        current.as_deref(),
+                        charge.as_deref(),
+                        controls,
+                        vars,
+                        pots,
+                    );
+                    continue;
+                }
                 ElementKind::Coupling { .. } => continue,
             };
             self.sys.add_eq(lhs, rhs, self.elem_origin(id));
@@ -399,6 +413,24 @@ impl Builder<'_> {
                 BNode::Time => self.sys.exprs.time(),
                 BNode::Pot(node) => pots[node.0 as usize],
                 BNode::Current(k) => self.ctrl_current(vars, controls[k as usize]),
+                BNode::Volt(k) => {
+                    match vars.get(controls[k as usize].0 as usize).copied().flatten() {
+                        Some(cv) => self.sys.exprs.var(cv.u),
+                        None => self.sys.exprs.constant(0.0),
+                    }
+                }
+                BNode::Junction {
+                    junction,
+                    part,
+                    arg,
+                } => {
+                    let f = crate::ir::DeviceFn {
+                        diode: junction,
+                        part,
+                        order: 0,
+                    };
+                    self.sys.exprs.intern(crate::ir::Expr::Device(f, at(arg)))
+                }
                 BNode::Neg(a) => self.sys.exprs.neg(at(a)),
                 BNode::Arith(op, a, b) => {
                     let (a, b) = (at(a), at(b));
@@ -432,6 +464,38 @@ impl Builder<'_> {
             ids.push(id);
         }
         ids.pop().unwrap_or_else(|| self.sys.exprs.constant(0.0))
+    }
+
+    /// A transistor's branch: `i = I + der(q)` and `q = Q`, the charge `q`
+    /// its state (as a diode's junction charge, see [`Builder::diode`]).
+    #[allow(clippy::too_many_arguments)]
+    fn device_branch(
+        &mut self,
+        id: ElemId,
+        ev: ElemVars,
+        current: Option<&crate::elab::BExpr>,
+        charge: Option<&crate::elab::BExpr>,
+        controls: &[ElemId],
+        vars: &[Option<ElemVars>],
+        pots: &[ExprId],
+    ) {
+        let origin = self.elem_origin(id);
+        let mut rhs = match current {
+            Some(c) => self.behavioural(id, c, controls, vars, pots),
+            None => self.sys.exprs.constant(0.0),
+        };
+        if let Some(q) = charge {
+            let name = joined(&["q_", &self.c.elements[id].name]);
+            let qv = self.sys.add_var(name, VarKind::Charge, origin.clone());
+            let der = self.sys.add_state(qv);
+            let law = self.behavioural(id, q, controls, vars, pots);
+            let x = &mut self.sys.exprs;
+            let (qx, dq) = (x.var(qv), x.var(der));
+            rhs = x.add(rhs, dq);
+            self.sys.add_eq(qx, law, origin.clone());
+        }
+        let i = self.sys.exprs.var(ev.i);
+        self.sys.add_eq(i, rhs, origin);
     }
 
     fn der_of(&mut self, state: VarId) -> ExprId {

@@ -16,6 +16,15 @@ fn rank(k: &ElementKind) -> u8 {
         | ElementKind::Behavioural { current: false, .. } => 1,
         ElementKind::Capacitor { .. } => 2,
         ElementKind::Resistor { .. } | ElementKind::Diode { .. } => 3,
+        // A transistor's junction (and charge) branches are as diodes; its
+        // transport current, a current alone, is never in the tree.
+        ElementKind::DeviceBranch { controlled, .. } => {
+            if *controlled {
+                5
+            } else {
+                3
+            }
+        }
         ElementKind::Inductor { .. } => 4,
         ElementKind::ISource { .. }
         | ElementKind::Vccs { .. }

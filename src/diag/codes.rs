@@ -94,6 +94,8 @@ codes! {
     TOO_MANY_ELEMENTS = "K0220", "The circuit has more than … elements once its subcircuits are expanded.";
     COUPLING_SIGNS = "K0221", "`…` couples `…` and `…`, of opposite signs.";
     TOO_MANY_OUTPUT_POINTS = "K0222", "`.tran` asks for … output points, more than kausal writes (…).";
+    UNSUPPORTED_MODEL = "K0223", "Model `…` is …, which kausal does not model.";
+    BAD_DEVICE = "K0224", "`…`: ….";
     UNKNOWN_MODEL_PARAM = "K0290", "Unknown parameter `…` on model `…`.";
     IGNORED_MODEL_PARAM = "K0291", "Model parameter `…` is ignored by kausal.";
     IGNORED_ELEMENT_PARAM = "K0292", "Parameter `…` of `…` is ignored by kausal.";
@@ -101,7 +103,7 @@ codes! {
     DANGLING_NODE = "K0294", "Node `…` has only one connection.";
     MANY_OUTPUT_POINTS = "K0295", "`.tran` asks for … output points (TSTOP/TSTEP): about … GB of CSV.";
     PWL_PARAM_ON_CURRENT = "K0296", "`…` is a current source: ngspice takes PWL `…=` on voltage sources only.";
-    TRANSIT_TIME_WITHOUT_CAPACITANCE = "K0297", "Model `…` has TT but no CJO: kausal gives its junctions a constant 1 pF capacitance.";
+    TRANSIT_TIME_WITHOUT_CAPACITANCE = "K0297", "Model `…` has … but no …: kausal gives the junction a constant 1 pF capacitance.";
     TINY_TMAX = "K0298", "`.tran`'s TMAX asks for more steps than kausal takes: the step cap is raised.";
     TEMPERATURE_UNSCALED = "K0299", "TEMP differs from TNOM: device parameters are not scaled with temperature.";
     STRUCTURALLY_SINGULAR = "K0300", "The equations are structurally singular.";

@@ -3,7 +3,7 @@
 
 use crate::diag::Span;
 use crate::front::ast::ElementLetter;
-use crate::ir::{Cmp, Func, IdVec, Waveform};
+use crate::ir::{Cmp, DiodePart, Func, IdVec, Waveform};
 
 crate::entity_id!(
     /// A circuit node; `n0` is ground.
@@ -25,6 +25,9 @@ pub struct Node {
     pub name: String,
     /// Where the node is first used.
     pub span: Span,
+    /// A device's internal node (`q1#c`, behind a terminal resistance):
+    /// not among the default output vectors.
+    pub internal: bool,
 }
 
 /// ngspice's level-1 diode parameters (defaults as in ngspice).
@@ -116,6 +119,22 @@ pub enum ElementKind {
         expr: Box<BExpr>,
         controls: Vec<ElemId>,
     },
+    /// One branch of a transistor (`Q1:be`): its current `i = I + dq/dt`
+    /// with `q = Q`, where `I` and `Q` read the branch voltages of
+    /// `controls` ([`BNode::Volt`]) and the circuit's junction functions
+    /// ([`BNode::Junction`]). Without `current`, a charge alone (a
+    /// depletion capacitance); without `charge`, a current alone.
+    DeviceBranch {
+        /// The device's letter (`Q`).
+        device: ElementLetter,
+        /// A current set by other branches' voltages alone (a transistor's
+        /// transport current), as a G source's; else the current depends on
+        /// the branch's own voltage, as a diode's or a resistor's.
+        controlled: bool,
+        current: Option<Box<BExpr>>,
+        charge: Option<Box<BExpr>>,
+        controls: Vec<ElemId>,
+    },
 }
 
 /// A B source's expression with its names resolved: parameters and `.func`
@@ -143,6 +162,15 @@ pub enum BNode {
     Call(Func, u32),
     /// `ddt(x)`: the time derivative of its operand.
     Ddt(u32),
+    /// The branch voltage of the element's `k`-th control (device branches).
+    Volt(u32),
+    /// A junction function of [`Circuit::junctions`] (a device's junction
+    /// current or depletion charge) of its operand.
+    Junction {
+        junction: u32,
+        part: DiodePart,
+        arg: u32,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -161,7 +189,8 @@ impl ElementKind {
             ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => {
                 std::slice::from_mut(ctrl)
             }
-            ElementKind::Behavioural { controls, .. } => controls,
+            ElementKind::Behavioural { controls, .. }
+            | ElementKind::DeviceBranch { controls, .. } => controls,
             _ => &mut [],
         }
     }
@@ -192,6 +221,7 @@ impl ElementKind {
             ElementKind::Ccvs { .. } => ElementLetter::H,
             ElementKind::Diode { .. } => ElementLetter::D,
             ElementKind::Behavioural { .. } => ElementLetter::B,
+            ElementKind::DeviceBranch { device, .. } => *device,
         }
     }
 }
@@ -299,6 +329,9 @@ pub struct Circuit {
     /// `.print` (and `.plot`) vectors: stored in addition to the default
     /// vectors when no `.save` selects.
     pub prints: Vec<Output>,
+    /// The junction functions of transistors ([`BNode::Junction`]), with
+    /// their area and thermal voltage applied.
+    pub junctions: Vec<crate::ir::DiodeParams>,
 }
 
 impl Circuit {

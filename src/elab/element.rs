@@ -44,12 +44,26 @@ impl Elab {
             return;
         }
         let nodes: Vec<NodeId> = el.nodes.iter().map(|n| self.node(n, scope)).collect();
-        if nodes.len() >= 2 && nodes[0] == nodes[1] {
+        // A transistor's terminals may share a node (a diode-connected BJT).
+        let device = matches!(el.body, ElementBody::Device { .. });
+        if !device && nodes.len() >= 2 && nodes[0] == nodes[1] {
             self.errors.push(ElabError::SingleNode {
                 span: el.nodes[0].span.to(el.nodes[1].span),
                 name: name.clone(),
                 node: self.circuit.nodes[nodes[0]].name.clone(),
             });
+            return;
+        }
+        if let ElementBody::Device { .. } = &el.body {
+            let Some(inherited) = self.inherited_multiplier(el, &name, scope) else {
+                return;
+            };
+            let first = self.circuit.elements.len();
+            self.bjt(el, &name, &nodes, inherited, scope);
+            if first < self.circuit.elements.len() {
+                self.elem_map
+                    .insert(key, (ElemId(first as u32), el.name.span));
+            }
             return;
         }
         let letter = el.letter;
@@ -141,7 +155,9 @@ impl Elab {
                 text,
                 span,
             } => self.behavioural(*current, expr, text, *span, scope),
-            ElementBody::Instance { .. } => unreachable!("instances are expanded before"),
+            ElementBody::Instance { .. } | ElementBody::Device { .. } => {
+                unreachable!("instances and devices are expanded before")
+            }
         }
     }
 
@@ -161,6 +177,7 @@ impl Elab {
                 el.body,
                 ElementBody::Passive { .. }
                     | ElementBody::Diode { .. }
+                    | ElementBody::Device { .. }
                     | ElementBody::Coupling { .. }
             )
         {
@@ -229,7 +246,7 @@ impl Elab {
     }
 
     /// An element parameter kausal does not read (a warning).
-    fn ignored_param(&mut self, p: &ast::Assign<'_>, element: &str) {
+    pub(super) fn ignored_param(&mut self, p: &ast::Assign<'_>, element: &str) {
         self.errors.push(ElabError::IgnoredElementParam {
             span: p.name.span,
             name: p.name.text.to_string(),

@@ -23,6 +23,19 @@ pub enum ElabError {
         expected: &'static str,
         element: String,
     },
+    #[error("model `{model}` is {what}, which kausal does not model")]
+    UnsupportedModel {
+        span: Span,
+        model: String,
+        what: String,
+        help: &'static str,
+    },
+    #[error("`{element}`: {why}")]
+    BadDevice {
+        span: Span,
+        element: String,
+        why: String,
+    },
     #[error("subcircuit `{name}` is not defined")]
     UndefinedSubckt { span: Span, name: String },
     #[error("subcircuit `{name}` instantiates itself ({chain})")]
@@ -176,9 +189,14 @@ pub enum ElabError {
         capped: f64,
     },
     #[error(
-        "model `{model}` has TT but no CJO: kausal gives its junctions a constant 1 pF capacitance"
+        "model `{model}` has {tt} but no {cj}: kausal gives the junction a constant 1 pF capacitance"
     )]
-    TransitTimeWithoutCapacitance { span: Span, model: String },
+    TransitTimeWithoutCapacitance {
+        span: Span,
+        model: String,
+        tt: &'static str,
+        cj: &'static str,
+    },
     #[error("`{name}` is a current source: ngspice takes PWL `{param}=` on voltage sources only")]
     PwlParamOnCurrent {
         span: Span,
@@ -196,6 +214,8 @@ impl ElabError {
             | BadOption { span, .. }
             | UndefinedModel { span, .. }
             | WrongModelType { span, .. }
+            | UnsupportedModel { span, .. }
+            | BadDevice { span, .. }
             | UndefinedSubckt { span, .. }
             | RecursiveSubckt { span, .. }
             | DeepHierarchy { span, .. }
@@ -252,7 +272,9 @@ impl ToDiagnostic for ElabError {
             UndefinedParam { .. } => (codes::UNDEFINED_PARAM, "undefined", "define it with `.param NAME=VALUE` before use".into()),
             BadValue { .. } => (codes::BAD_VALUE, "here", "check the expression's functions and operands".into()),
             UndefinedModel { .. } => (codes::UNDEFINED_MODEL, "no such model", "add `.model NAME D(...)` or fix the name".into()),
-            WrongModelType { .. } => (codes::WRONG_MODEL_TYPE, "wrong model type", "diodes need a model of type `D`".into()),
+            WrongModelType { expected, .. } => (codes::WRONG_MODEL_TYPE, "wrong model type", format!("this element needs a model of type `{expected}`")),
+            UnsupportedModel { help, .. } => (codes::UNSUPPORTED_MODEL, "not modelled", (*help).into()),
+            BadDevice { .. } => (codes::BAD_DEVICE, "here", "write `Qname collector base emitter [substrate] model [area] [m=…]`".into()),
             UndefinedSubckt { .. } => (codes::UNDEFINED_SUBCKT, "no such subcircuit", "define it with `.subckt NAME ports ... .ends`".into()),
             RecursiveSubckt { .. } => (codes::RECURSIVE_SUBCKT, "recursive instance", "a subcircuit may not contain itself, directly or indirectly".into()),
             DeepHierarchy { .. } => (codes::DEEP_HIERARCHY, "too deep", "flatten some levels of the hierarchy".into()),
@@ -272,13 +294,13 @@ impl ToDiagnostic for ElabError {
             UnknownCurrent { .. } => (codes::UNKNOWN_CURRENT, "no such source", "ngspice names currents of V sources, e.g. `i(v1)`".into()),
             BadOption { .. } => (codes::BAD_OPTION, "out of range", "tolerances are positive and reltol below 1 (ngspice's defaults: reltol=1e-3 abstol=1e-12 vntol=1e-6 chgtol=1e-14 trtol=7); maxord is 1 to 6".into()),
             BadTran { .. } => (codes::BAD_TRAN, "here", "write `.tran TSTEP TSTOP [TSTART [TMAX]] [uic]`".into()),
-            UnknownModelParam { .. } => (codes::UNKNOWN_MODEL_PARAM, "unknown", "it is not a level-1 diode parameter of ngspice".into()),
+            UnknownModelParam { .. } => (codes::UNKNOWN_MODEL_PARAM, "unknown", "it is not a parameter of ngspice's level-1 model of this type".into()),
             IgnoredModelParam { .. } => (codes::IGNORED_MODEL_PARAM, "ignored", "temperature and noise parameters do not affect kausal's transient run".into()),
             IgnoredElementParam { .. } => (codes::IGNORED_ELEMENT_PARAM, "ignored", "kausal does not model this instance parameter".into()),
             IgnoredOption { .. } => (codes::IGNORED_OPTION, "ignored", "kausal honours reltol, abstol, vntol, chgtol, trtol, method, maxord, temp and tnom".into()),
             DanglingNode { .. } => (codes::DANGLING_NODE, "dangling node", "a node with one connection carries no current".into()),
             PwlParamOnCurrent { .. } => (codes::PWL_PARAM_ON_CURRENT, "not in ngspice", "kausal runs it; for ngspice (and `kausal validate`) write the repeated points out".into()),
-            TransitTimeWithoutCapacitance { .. } => (codes::TRANSIT_TIME_WITHOUT_CAPACITANCE, "TT without CJO", "a junction's charge is kausal's state for it, and diffusion charge alone (TT·id) nearly vanishes in reverse bias: it could not fix the junction's voltage. ngspice has no such capacitance (`kausal validate` shows what it changes); give CJO to choose the capacitance".into()),
+            TransitTimeWithoutCapacitance { .. } => (codes::TRANSIT_TIME_WITHOUT_CAPACITANCE, "transit time without capacitance", "a junction's charge is kausal's state for it, and diffusion charge alone (transit time × current) nearly vanishes in reverse bias: it could not fix the junction's voltage. ngspice has no such capacitance (`kausal validate` shows what it changes); give the zero-bias capacitance to choose it".into()),
             TinyTmax { .. } => (codes::TINY_TMAX, "TMAX", "TMAX is the longest step; a run of more steps than this would not end in reasonable time".into()),
             TooManyOutputPoints { .. } => (codes::TOO_MANY_OUTPUT_POINTS, "TSTEP", "TSTEP is the output spacing, not the solver's step: a larger TSTEP (or `--times` with a TSTEP that makes few points) keeps the output to what can be read".into()),
             ManyOutputPoints { .. } => (codes::MANY_OUTPUT_POINTS, "TSTEP", "TSTEP is the output spacing, not the solver's step (which follows the tolerance): a larger TSTEP, `--times`, or `.save` of fewer vectors makes the file smaller".into()),

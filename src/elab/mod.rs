@@ -5,6 +5,7 @@
 //! It knows the netlist AST and the circuit, nothing about equations.
 
 mod behavioural;
+mod bjt;
 mod circuit;
 mod element;
 mod error;
@@ -51,6 +52,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         key_buf: String::new(),
         pending: Vec::new(),
         model_cache: HashMap::new(),
+        bjt_cache: HashMap::new(),
         tstep: 1.0,
         tstop: 1.0,
         globals: FxHashSet::default(),
@@ -63,6 +65,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     e.circuit.nodes.push(Node {
         name: "0".into(),
         span: Span::default(),
+        internal: false,
     });
     let mut top = Scope::default();
     e.collect(&netlist.stmts, &mut top);
@@ -168,6 +171,8 @@ struct Elab {
     key_buf: String,
     pending: Vec<Pending>,
     model_cache: HashMap<(u32, u32, String), DiodeModel>,
+    /// BJT models by definition and scope (`None`: refused, reported once).
+    bjt_cache: HashMap<(u32, u32, String), Option<bjt::BjtModel>>,
     tstep: f64,
     tstop: f64,
     /// `.global` node names (case-folded): top-level nodes in every scope.
@@ -449,6 +454,7 @@ impl Elab {
         let id = self.circuit.nodes.push(Node {
             name: key.clone(),
             span: name.span,
+            internal: false,
         });
         self.node_map.insert(key.clone(), id);
         id
@@ -604,7 +610,9 @@ impl Elab {
                         self.elem_map.get(&vsrc).map(|&(id, _)| id).filter(|&id| {
                             match self.circuit.elements[id].kind {
                                 ElementKind::VSource { .. } => true,
-                                ElementKind::Coupling { .. } => false,
+                                ElementKind::Coupling { .. } | ElementKind::DeviceBranch { .. } => {
+                                    false
+                                }
                                 _ => any,
                             }
                         });
@@ -682,7 +690,10 @@ impl Elab {
         // that later stages never see a dangling id.
         let bad = |k: &ElementKind| match k {
             ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => ctrl.0 == u32::MAX,
-            ElementKind::Behavioural { controls, .. } => controls.iter().any(|c| c.0 == u32::MAX),
+            ElementKind::Behavioural { controls, .. }
+            | ElementKind::DeviceBranch { controls, .. } => {
+                controls.iter().any(|c| c.0 == u32::MAX)
+            }
             ElementKind::Coupling { l1, l2, .. } => l1.0 == u32::MAX || l2.0 == u32::MAX,
             _ => false,
         };

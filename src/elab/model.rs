@@ -110,6 +110,8 @@ impl Elab {
                 self.errors.push(ElabError::TransitTimeWithoutCapacitance {
                     span: tt.name.span,
                     model: def.name.text.to_string(),
+                    tt: "TT",
+                    cj: "CJO",
                 });
             }
         }

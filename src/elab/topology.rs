@@ -29,7 +29,10 @@ fn defines(k: &ElementKind) -> Defines {
         ElementKind::ISource { .. }
         | ElementKind::Vccs { .. }
         | ElementKind::Cccs { .. }
-        | ElementKind::Behavioural { current: true, .. } => Defines::Current,
+        | ElementKind::Behavioural { current: true, .. }
+        | ElementKind::DeviceBranch {
+            controlled: true, ..
+        } => Defines::Current,
         ElementKind::Capacitor { .. } => Defines::Capacitor,
         ElementKind::Inductor { .. } => Defines::Inductor,
         _ => Defines::Other,

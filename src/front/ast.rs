@@ -126,6 +126,12 @@ pub enum ElementBody<'a> {
         text: String,
         span: Span,
     },
+    /// Q: after the terminals, the bare words (`[substrate] model [area]`,
+    /// told apart by which word names a model), then `name=value`s.
+    Device {
+        words: Vec<Value<'a>>,
+        params: Vec<Assign<'a>>,
+    },
     /// X: a subcircuit instance.
     Instance {
         subckt: Name<'a>,
@@ -171,6 +177,8 @@ pub enum ElementLetter {
     D,
     /// Behavioural voltage or current source.
     B,
+    /// Bipolar transistor.
+    Q,
     /// Subcircuit instance.
     X,
 }
@@ -193,6 +201,7 @@ impl ElementLetter {
             'H' => H,
             'D' => D,
             'B' => B,
+            'Q' => Q,
             'X' => X,
             _ => return None,
         })
@@ -214,18 +223,21 @@ impl ElementLetter {
             H => 'H',
             D => 'D',
             B => 'B',
+            Q => 'Q',
             X => 'X',
         }
     }
 
     /// How many nodes follow the name: four for the voltage-controlled
-    /// sources, none for K, two for the others; `None` for X, whose nodes
-    /// end where its subcircuit's name stands.
+    /// sources, three for Q (a fourth, the substrate, is one of its words),
+    /// none for K, two for the others; `None` for X, whose nodes end where
+    /// its subcircuit's name stands.
     pub fn n_nodes(self) -> Option<usize> {
         use ElementLetter::*;
         match self {
             R | C | L | V | I | F | H | D | B => Some(2),
             E | G => Some(4),
+            Q => Some(3),
             K => Some(0),
             X => None,
         }
@@ -237,7 +249,6 @@ impl ElementLetter {
 /// does not know either. `letter` is upper-case.
 pub fn unsupported_kind(letter: char) -> Option<&'static str> {
     Some(match letter {
-        'Q' => "bipolar transistor",
         'M' => "MOSFET",
         'J' => "JFET",
         'S' => "voltage-controlled switch",

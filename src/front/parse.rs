@@ -234,7 +234,17 @@ impl<'a> Parser<'a> {
             return None;
         };
         let mut ports = Vec::new();
+        // `.subckt inv (in out vdd vss)`: ports in parentheses, as VACASK's
+        // and some vendors' netlists write them.
+        let paren = c.peek().is_some_and(|t| t.kind == TokKind::LParen);
+        if paren {
+            c.next();
+        }
         while let Some(t) = c.peek() {
+            if paren && t.kind == TokKind::RParen {
+                c.next();
+                break;
+            }
             if t.kind != TokKind::Word || c.peek_at(1).is_some_and(|t| t.kind == TokKind::Eq) {
                 break;
             }
@@ -243,6 +253,9 @@ impl<'a> Parser<'a> {
                 break;
             }
             ports.push(name_of(t));
+            c.next();
+        }
+        if c.peek().is_some_and(|t| t.is_word("params:")) {
             c.next();
         }
         let params = self.assigns(&mut c);

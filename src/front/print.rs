@@ -222,6 +222,12 @@ fn element(e: &Element<'_>, out: &mut String) {
             };
             let _ = write!(out, " {key}={{{text}}}");
         }
+        ElementBody::Device { words, params } => {
+            for w in words {
+                let _ = write!(out, " {}", value(w));
+            }
+            assigns(params, out);
+        }
         ElementBody::Instance { subckt, params } => {
             let _ = write!(out, " {}", subckt.text);
             assigns(params, out);

@@ -2,6 +2,14 @@
 //! current and charge as functions of the junction voltage, with their
 //! derivatives up to second order (Jacobians, tangents, index reduction).
 
+/// Thermal voltage kT/q at ngspice's default 27 °C.
+pub const VT_27C: f64 = 1.380_648_52e-23 * 300.15 / 1.602_176_620_8e-19;
+
+/// kT/q at `celsius` (ngspice's constants).
+pub fn thermal_voltage(celsius: f64) -> f64 {
+    VT_27C * (celsius + 273.15) / 300.15
+}
+
 /// A diode model, with the area factor applied (ngspice's level 1 at 27 °C).
 #[derive(Clone, Debug, PartialEq)]
 pub struct DiodeParams {

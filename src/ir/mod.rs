@@ -13,7 +13,9 @@ pub mod print;
 mod system;
 mod verify;
 
-pub use device::{DeviceFn, DiodeParams, DiodePart, junction_limit, pnjlim};
+pub use device::{
+    DeviceFn, DiodeParams, DiodePart, VT_27C, junction_limit, pnjlim, thermal_voltage,
+};
 pub use entity::{EntityId, IdVec};
 pub use expr::{Cmp, Expr, ExprArena, ExprId, Func, Slope, bits, select};
 pub use system::{

@@ -158,6 +158,11 @@ pub(super) fn floating_islands(c: &Circuit) -> Vec<(Vec<crate::elab::NodeId>, Ve
                 | ElementKind::Inductor { .. }
                 | ElementKind::VSource { .. }
                 | ElementKind::Diode { .. }
+                | ElementKind::DeviceBranch {
+                    controlled: false,
+                    current: Some(_),
+                    ..
+                }
                 | ElementKind::Vcvs { .. }
                 | ElementKind::Ccvs { .. }
                 | ElementKind::Behavioural { current: false, .. }

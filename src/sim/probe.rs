@@ -94,7 +94,7 @@ fn default_vectors(c: &Circuit) -> Vec<Output> {
     let mut v: Vec<Output> = c
         .nodes
         .ids()
-        .filter(|&n| n != GROUND)
+        .filter(|&n| n != GROUND && !c.nodes[n].internal)
         .map(|n| Output::Voltage {
             pos: n,
             neg: GROUND,

@@ -90,14 +90,24 @@ pub struct RefTol {
 }
 
 /// The netlist text for ngspice: `.include` and `.lib` paths made absolute
-/// (it runs in a temporary directory), tolerances appended for a reference run.
+/// (it runs in a temporary directory), tolerances appended for a reference
+/// run. A `.tran` line in `extra` replaces the netlist's own.
 fn prepare_netlist(path: &Path, text: &str, extra: Option<&str>) -> String {
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let mut out = String::with_capacity(text.len() + 200);
     let mut end_seen = false;
+    let is_tran = |l: &str| {
+        l.trim_start()
+            .get(..5)
+            .is_some_and(|h| h.eq_ignore_ascii_case(".tran"))
+    };
+    let replace_tran = extra.is_some_and(|x| x.lines().any(is_tran));
     for (k, line) in text.lines().enumerate() {
         let trimmed = line.trim_start();
         let lower = trimmed.to_ascii_lowercase();
+        if k > 0 && replace_tran && is_tran(line) {
+            continue;
+        }
         if k > 0 && (lower.starts_with(".include") || lower.starts_with(".inc ")) {
             let mut parts = trimmed.splitn(2, char::is_whitespace);
             let _ = parts.next();
@@ -454,6 +464,19 @@ impl Default for Options {
 /// (`* kausal-validate: ref-tol=3e-9`), for circuits whose trapezoidal
 /// reference drifts (long oscillations).
 pub fn netlist_ref_tol(text: &str) -> Option<f64> {
+    netlist_validate_setting(text, "ref-tol=")
+}
+
+/// The longest step a netlist asks the reference run to take, in a comment
+/// (`* kausal-validate: ref-tmax=2n`): for circuits whose edges ngspice
+/// places late at any tolerance it can reach (its step control lets the
+/// trapezoidal rule's error through on regenerative switching), and where a
+/// capped step converges.
+pub fn netlist_ref_tmax(text: &str) -> Option<f64> {
+    netlist_validate_setting(text, "ref-tmax=")
+}
+
+fn netlist_validate_setting(text: &str, key: &str) -> Option<f64> {
     text.lines().find_map(|l| {
         let rest = l
             .trim_start()
@@ -461,7 +484,7 @@ pub fn netlist_ref_tol(text: &str) -> Option<f64> {
             .trim_start()
             .strip_prefix("kausal-validate:")?;
         rest.split_whitespace()
-            .find_map(|kv| kv.strip_prefix("ref-tol="))
+            .find_map(|kv| kv.strip_prefix(key))
             .and_then(crate::front::expr::parse_number)
     })
 }
@@ -470,10 +493,12 @@ pub fn netlist_ref_tol(text: &str) -> Option<f64> {
 /// "timestep too small") at ten and a hundred times looser; then the same
 /// with Gear's method, whose damping gets through where the trapezoidal
 /// rule's ringing keeps cutting the step.
-fn reference_run(
+/// `tran` is a `.tran` line replacing the netlist's, or empty.
+fn reference_run_with(
     path: &Path,
     reltol: f64,
     saves: &str,
+    tran: &str,
 ) -> Result<(RawData, RefTol), ValidateError> {
     let mut last = None;
     for (gear, k) in [false, true]
@@ -484,7 +509,7 @@ fn reference_run(
             reltol: reltol * 10f64.powi(k),
             gear,
         };
-        match run_ngspice_saving(path, Some(tol), saves) {
+        match run_ngspice_saving(path, Some(tol), &format!("{saves}{tran}")) {
             Ok(r) => return Ok((r, tol)),
             Err(
                 e @ (ValidateError::Failed { .. }
@@ -499,16 +524,28 @@ fn reference_run(
 
 /// Validate a sorted netlist read from `path` against ngspice.
 pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, ValidateError> {
-    let asked = crate::io::read_netlist(path)
+    let text = crate::io::read_netlist(path)
         .ok()
-        .and_then(|b| netlist_ref_tol(&String::from_utf8_lossy(&b)))
-        .unwrap_or(opts.ref_reltol);
+        .map(|b| String::from_utf8_lossy(&b).into_owned())
+        .unwrap_or_default();
+    let asked = netlist_ref_tol(&text).unwrap_or(opts.ref_reltol);
     let names: Vec<String> = sim::outputs(sorted, &opts.sim.probes)?
         .into_iter()
         .map(|o| o.0)
         .collect();
     let saves = device_saves(&names);
-    let (reference, ref_tol) = reference_run(path, asked, &saves)?;
+    let tran_line = match (netlist_ref_tmax(&text), &sorted.elaborated.circuit.tran) {
+        (Some(tmax), Some(t)) => format!(
+            ".tran {:e} {:e} {:e} {:e}{}\n",
+            t.tstep,
+            t.tstop,
+            t.tstart,
+            tmax,
+            if t.uic { " uic" } else { "" }
+        ),
+        _ => String::new(),
+    };
+    let (reference, ref_tol) = reference_run_with(path, asked, &saves, &tran_line)?;
     let ref_reltol = ref_tol.reltol;
     // kausal at ngspice's own time points, and just before each source
     // corner the reference steps on: a signal that jumps there (an inductor

@@ -248,9 +248,11 @@ fn check_equations(sys: &EquationSystem, s: &Schedule, seed: u64) -> Result<(), 
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
         let r = ((x >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0;
-        // Junction charges are picocoulombs, not coulombs.
+        // Junction charges are a tenth of a picocoulomb: a few tenths of a
+        // volt on picofarad junctions (more forward-biases a transistor's
+        // junctions to currents beyond any circuit's).
         let scale = if sys.vars[v].kind == kausal::ir::VarKind::Charge {
-            1e-11
+            1e-13
         } else {
             1.0
         };

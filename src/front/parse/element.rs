@@ -67,6 +67,7 @@ impl<'a> Parser<'a> {
             E | G => self.voltage_controlled(&mut c, name, span)?,
             F | H => self.current_controlled(&mut c, name, span)?,
             D => self.diode(&mut c, name, span)?,
+            Q => self.device(&mut c),
             B => self.behavioural_source(&mut c, name, span)?,
             X => unreachable!("instances are read by Parser::instance"),
         };
@@ -329,6 +330,29 @@ impl<'a> Parser<'a> {
             area,
             params,
         })
+    }
+
+    /// Q: the bare words after the terminals (up to `off` or the first
+    /// `name=value`), then the `name=value`s. Which word is the model is
+    /// decided where models are known.
+    fn device(&mut self, c: &mut Cursor<'_, 'a>) -> ElementBody<'a> {
+        let mut words = Vec::new();
+        while let Some(t) = c.peek() {
+            if t.is_word("off") || c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq) {
+                break;
+            }
+            c.next();
+            match super::value_of(t) {
+                Ok(v) => words.push(v),
+                Err(e) => self.errors.push(e),
+            }
+        }
+        if c.peek().is_some_and(|t| t.is_word("off")) {
+            c.next();
+        }
+        let params = self.assigns(c);
+        self.rest_unexpected(c);
+        ElementBody::Device { words, params }
     }
 
     /// B: `V=expr` or `I=expr`, the expression running to the end of the
