@@ -103,7 +103,7 @@ codes! {
     DANGLING_NODE = "K0294", "Node `…` has only one connection.";
     MANY_OUTPUT_POINTS = "K0295", "`.tran` asks for … output points (TSTOP/TSTEP): about … GB of CSV.";
     PWL_PARAM_ON_CURRENT = "K0296", "`…` is a current source: ngspice takes PWL `…=` on voltage sources only.";
-    TRANSIT_TIME_WITHOUT_CAPACITANCE = "K0297", "Model `…` has … but no …: kausal gives the junction a constant 1 pF capacitance.";
+    TRANSIT_TIME_WITHOUT_CAPACITANCE = "K0297", "Model `…` has … but no …: kausal gives the junction a constant … capacitance.";
     TINY_TMAX = "K0298", "`.tran`'s TMAX asks for more steps than kausal takes: the step cap is raised.";
     TEMPERATURE_UNSCALED = "K0299", "TEMP differs from TNOM: device parameters are not scaled with temperature.";
     STRUCTURALLY_SINGULAR = "K0300", "The equations are structurally singular.";

@@ -189,13 +189,14 @@ pub enum ElabError {
         capped: f64,
     },
     #[error(
-        "model `{model}` has {tt} but no {cj}: kausal gives the junction a constant 1 pF capacitance"
+        "model `{model}` has {tt} but no {cj}: kausal gives the junction a constant {cap} capacitance"
     )]
     TransitTimeWithoutCapacitance {
         span: Span,
         model: String,
         tt: &'static str,
         cj: &'static str,
+        cap: &'static str,
     },
     #[error("`{name}` is a current source: ngspice takes PWL `{param}=` on voltage sources only")]
     PwlParamOnCurrent {

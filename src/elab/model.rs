@@ -112,6 +112,7 @@ impl Elab {
                     model: def.name.text.to_string(),
                     tt: "TT",
                     cj: "CJO",
+                    cap: "1 pF",
                 });
             }
         }

@@ -362,6 +362,39 @@ where
     let Err(error) = first else {
         return first;
     };
+    // GMIN stepping (as SPICE steps it): a conductance across every junction
+    // with GMIN, large enough that the circuit is nearly linear, stepped down
+    // to none, each solution the start of the next; a failed stage is retried
+    // with a smaller step down. Transistor circuits whose nodes only
+    // junctions join (a 555's cut-off stages) converge this way.
+    if tape.diodes.iter().any(|d| d.gmin > 0.0) {
+        let stepped = (|| {
+            let mut g = 1e-2f64;
+            ode.set_gmin_step(g);
+            let mut at = dc_newton(y.clone(), &resid, solve, &mut limit, atol)?;
+            let mut factor = 10.0f64;
+            loop {
+                let next = if g / factor < 1e-13 { 0.0 } else { g / factor };
+                ode.set_gmin_step(next);
+                match dc_newton(at.clone(), &resid, solve, &mut limit, atol) {
+                    Ok(found) => {
+                        at = found;
+                        if next == 0.0 {
+                            return Ok(at);
+                        }
+                        g = next;
+                        factor = (factor * factor).min(10.0);
+                    }
+                    Err(_) if factor > 1.05 => factor = factor.sqrt(),
+                    Err(e) => return Err(e),
+                }
+            }
+        })();
+        ode.set_gmin_step(0.0);
+        if let Ok(found) = stepped {
+            return Ok(found);
+        }
+    }
     // Source stepping: from all sources off (where y = 0 solves a circuit
     // without sources) up to their full values, each solution the start of
     // the next; a failed stage is retried with a quarter of the increment.

@@ -179,6 +179,13 @@ where
         self.tangents.borrow_mut().valid = false;
     }
 
+    /// The DC solve's GMIN step across the junctions (see
+    /// [`crate::tape::Tape::set_gmin_step`]).
+    pub fn set_gmin_step(&self, g: f64) {
+        self.tape.set_gmin_step(g);
+        self.tangents.borrow_mut().valid = false;
+    }
+
     /// `f(t, y)` at an output point, on the output side's own registers.
     pub fn side_eval(&self, t: f64, y: &[f64], dy: &mut [f64]) -> Result<(), EvalError> {
         self.tape.rhs(&mut self.side_regs.borrow_mut(), t, y, dy)

@@ -644,6 +644,7 @@ mod tests {
             reg_var: Vec::new(),
             mode: std::cell::Cell::new(Mode::Transient),
             source_scale: std::cell::Cell::new(1.0),
+            gmin_step: std::cell::Cell::new(0.0),
             source_params: Vec::new(),
             source_memo: Vec::new(),
         }

@@ -620,6 +620,7 @@ pub fn compile(
         reg_var: c.reg_var,
         mode: std::cell::Cell::new(Mode::Transient),
         source_scale: std::cell::Cell::new(1.0),
+        gmin_step: std::cell::Cell::new(0.0),
         source_params,
         source_memo: vec![std::cell::Cell::new((f64::NAN, 0.0)); sys.sources.len()],
     }

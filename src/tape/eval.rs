@@ -31,6 +31,29 @@ impl Tape {
         self.init.clone()
     }
 
+    /// Set the conductance the DC solve's GMIN stepping adds across every
+    /// junction that has GMIN (diodes, a BJT's leakage junctions).
+    pub fn set_gmin_step(&self, g: f64) {
+        self.gmin_step.set(g);
+    }
+
+    /// `(f^(order)(x), f^(order+1)(x))` of a device function, with the
+    /// stepped GMIN across junction currents.
+    #[inline]
+    pub(super) fn device(&self, f: crate::ir::DeviceFn, x: f64) -> (f64, f64) {
+        let p = &self.diodes[f.diode as usize];
+        let (v, slope) = p.eval_with_slope(f.part, f.order, x);
+        let g = self.gmin_step.get();
+        if g == 0.0 || p.gmin == 0.0 || f.part != crate::ir::DiodePart::Current {
+            return (v, slope);
+        }
+        match f.order {
+            0 => (v + g * x, slope + g),
+            1 => (v + g, slope),
+            _ => (v, slope),
+        }
+    }
+
     /// Scale every independent source by `s`: the waveforms (through
     /// `source_scale`) and the DC values held in `regs`.
     pub fn scale_sources(&self, regs: &mut [f64], s: f64) {
@@ -52,9 +75,7 @@ impl Tape {
                 Instr::Call { d, f, a } => r[d] = f.apply(r[a]),
                 Instr::Cmp { d, op, a, b } => r[d] = op.apply(r[a], r[b]),
                 Instr::Select { d, c, a, b } => r[d] = crate::ir::select(r[c], r[a], r[b]),
-                Instr::Device { d, f, a } => {
-                    r[d] = self.diodes[f.diode as usize].eval(f.part, f.order, r[a])
-                }
+                Instr::Device { d, f, a } => r[d] = self.device(f, r[a]).0,
                 Instr::Src { d, s, order } => r[d] = self.source(s, t, order),
                 Instr::Time { d } => r[d] = t,
                 Instr::Block { k } => self.solve_block(k as usize, r, t)?,

@@ -188,6 +188,9 @@ pub struct Tape {
     /// the DC solve ramps the sources up): waveforms as they are evaluated,
     /// DC values in their registers (see [`Tape::scale_sources`]).
     pub source_scale: std::cell::Cell<f64>,
+    /// A conductance added across every junction that has GMIN (0 but
+    /// while the DC solve steps it down, see [`Tape::set_gmin_step`]).
+    pub gmin_step: std::cell::Cell<f64>,
     /// The registers of DC sources' values, and the values.
     pub source_params: Vec<(Reg, f64)>,
     /// Each source's last `(t, value)` (unscaled, order 0): the Newton

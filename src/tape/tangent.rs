@@ -106,9 +106,7 @@ impl Tape {
                     dr[d] = dr[pick];
                 }
                 Instr::Device { d, f, a } => {
-                    let x = r[a];
-                    let p = &self.diodes[f.diode as usize];
-                    let (v, slope) = p.eval_with_slope(f.part, f.order, x);
+                    let (v, slope) = self.device(f, r[a]);
                     r[d] = v;
                     dr[d] = slope * dr[a];
                 }
@@ -298,8 +296,7 @@ impl Tape {
                     lin(dr, m, d, (pick, 1.0), None);
                 }
                 Instr::Device { d, f, a } => {
-                    let p = &self.diodes[f.diode as usize];
-                    let (v, slope) = p.eval_with_slope(f.part, f.order, r[a]);
+                    let (v, slope) = self.device(f, r[a]);
                     r[d] = v;
                     lin(dr, m, d, (a, slope), None);
                 }

@@ -98,6 +98,10 @@ fn generated_rust_and_c_agree_with_the_evaluator() {
         // B sources: comparisons and choices, and a torn nonlinear loop.
         "b_limiter",
         "b_multiplier",
+        // Transistors: junction functions, the base charge, IRB's base
+        // resistance, a PNP mirror.
+        "bjt_ce_amp",
+        "bjt_diff_pair",
         // Generated: its repeated sections become loops in the source.
         "rlc_ladder_60",
     ] {
@@ -127,13 +131,14 @@ fn generated_rust_and_c_agree_with_the_evaluator() {
         let mut expected = Vec::new();
         let mut regs = t.registers();
         let mut dregs = vec![0.0; t.n_regs];
-        // A state's typical size: junction charges are ~1e-11 C.
+        // A state's typical size: junction charges are ~1e-13 C (a few
+        // tenths of a volt on picofarad junctions).
         let scale: Vec<f64> = t
             .states
             .iter()
             .map(|&v| {
                 if sys.vars[v].kind == kausal::ir::VarKind::Charge {
-                    1e-11
+                    1e-13
                 } else {
                     1.0
                 }

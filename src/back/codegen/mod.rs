@@ -26,7 +26,7 @@ mod rust;
 use std::fmt::Write;
 
 use crate::analysis::{Assignment, Schedule, Solved, Step};
-use crate::ir::{Cmp, EquationSystem, ExprArena, ExprId, Func, VarRole, Waveform};
+use crate::ir::{Cmp, EquationSystem, Expr, ExprArena, ExprId, Func, VarRole, Waveform};
 
 /// Statements per generated function.
 pub const CHUNK: usize = 50;
@@ -502,9 +502,20 @@ impl Gen<'_> {
         }
     }
 
-    /// The function of every diode model.
+    /// The function of every device model the expressions use (a
+    /// transistor's unused junction functions, such as a depletion charge of
+    /// zero capacitance, get none).
     fn diodes(&self, out: &mut String) {
+        let mut used = vec![false; self.sys.diodes.len()];
+        for e in self.x.nodes() {
+            if let Expr::Device(f, _) = e {
+                used[f.diode as usize] = true;
+            }
+        }
         for (k, d) in self.sys.diodes.iter().enumerate() {
+            if !used[k] {
+                continue;
+            }
             let args = [
                 d.is,
                 d.vte,

@@ -79,14 +79,36 @@ impl<'a> Parser<'a> {
             return None;
         };
         let paren = c.eat(TokKind::LParen);
-        let mut params = self.assigns(c);
-        // A `+` left mid-line between parameters (a continuation mark pasted
-        // into one line): ngspice reads past it.
-        while c.peek().is_some_and(|t| t.is_word("+")) {
-            c.next();
+        let mut closed = false;
+        let mut params = Vec::new();
+        loop {
             params.extend(self.assigns(c));
+            let Some(t) = c.peek() else { break };
+            match t.kind {
+                // A `+` left mid-line between parameters (a continuation mark
+                // pasted into one line), or commas between them: ngspice
+                // reads past them.
+                TokKind::Word if t.is_word("+") || t.is_word(",") => {}
+                // More parameters after the closing parenthesis (a
+                // continuation line after `…)`), as ngspice reads them.
+                TokKind::RParen if paren && !closed => closed = true,
+                // SPICE2's `BF 20 RB 100`: a name, then its value.
+                TokKind::Word if c.peek_at(1).is_some_and(super::is_value_token) => {
+                    c.next();
+                    match self.value_tok(c, t.text, "value") {
+                        Some(value) => params.push(Assign {
+                            name: name_of(t),
+                            value,
+                        }),
+                        None => break,
+                    }
+                    continue;
+                }
+                _ => break,
+            }
+            c.next();
         }
-        if paren && !c.eat(TokKind::RParen) {
+        if paren && !closed {
             self.errors.push(ParseError::Expected {
                 span: c.here(span),
                 expected: "`)` closing the model parameters".into(),

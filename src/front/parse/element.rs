@@ -344,6 +344,8 @@ impl<'a> Parser<'a> {
             c.next();
             match super::value_of(t) {
                 Ok(v) => words.push(v),
+                // A model or node name that starts with a digit (`2n3904`).
+                Err(_) if t.kind == TokKind::Word => words.push(Value::Ident(name_of(t))),
                 Err(e) => self.errors.push(e),
             }
         }
