@@ -680,30 +680,30 @@ impl Elab {
 /// One expression being built, with the elements whose branch voltages it
 /// reads (indices into `controls` once finished).
 #[derive(Default)]
-struct Ex {
+pub(super) struct Ex {
     e: BExpr,
     reads: Vec<ElemId>,
 }
 
 impl Ex {
-    fn push(&mut self, n: BNode) -> u32 {
+    pub(super) fn push(&mut self, n: BNode) -> u32 {
         self.e.nodes.push(n);
         (self.e.nodes.len() - 1) as u32
     }
-    fn num(&mut self, v: f64) -> u32 {
+    pub(super) fn num(&mut self, v: f64) -> u32 {
         self.push(BNode::Num(v))
     }
-    fn arith(&mut self, op: Arith, a: u32, b: u32) -> u32 {
+    pub(super) fn arith(&mut self, op: Arith, a: u32, b: u32) -> u32 {
         self.push(BNode::Arith(op, a, b))
     }
-    fn junction(&mut self, junction: u32, part: DiodePart, arg: u32) -> u32 {
+    pub(super) fn junction(&mut self, junction: u32, part: DiodePart, arg: u32) -> u32 {
         self.push(BNode::Junction {
             junction,
             part,
             arg,
         })
     }
-    fn volt(&mut self, of: ElemId) -> u32 {
+    pub(super) fn volt(&mut self, of: ElemId) -> u32 {
         let k = match self.reads.iter().position(|&r| r == of) {
             Some(k) => k,
             None => {
@@ -714,14 +714,14 @@ impl Ex {
         self.push(BNode::Volt(k as u32))
     }
     /// `max(a, 0)`.
-    fn positive(&mut self, a: u32) -> u32 {
+    pub(super) fn positive(&mut self, a: u32) -> u32 {
         let zero = self.num(0.0);
         let c = self.push(BNode::Cmp(Cmp::Gt, a, zero));
         self.push(BNode::Select(c, a, zero))
     }
     /// The arena, its `Volt` indices made indices into `controls` (which
     /// gains the elements it reads).
-    fn finish(mut self, controls: &mut Vec<ElemId>) -> BExpr {
+    pub(super) fn finish(mut self, controls: &mut Vec<ElemId>) -> BExpr {
         let map: Vec<u32> = self
             .reads
             .iter()

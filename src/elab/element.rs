@@ -59,7 +59,11 @@ impl Elab {
                 return;
             };
             let first = self.circuit.elements.len();
-            self.bjt(el, &name, &nodes, inherited, scope);
+            if el.letter == ElementLetter::J {
+                self.jfet(el, &name, &nodes, inherited, scope);
+            } else {
+                self.bjt(el, &name, &nodes, inherited, scope);
+            }
             if first < self.circuit.elements.len() {
                 self.elem_map
                     .insert(key, (ElemId(first as u32), el.name.span));

@@ -9,10 +9,11 @@ mod bjt;
 mod circuit;
 mod element;
 mod error;
+mod jfet;
 mod model;
 pub mod topology;
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use rustc_hash::{FxHashMap, FxHashSet};
 
@@ -53,6 +54,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         pending: Vec::new(),
         model_cache: HashMap::new(),
         bjt_cache: HashMap::new(),
+        jfet_seen: HashSet::new(),
         tstep: 1.0,
         tstop: 1.0,
         globals: FxHashSet::default(),
@@ -173,6 +175,8 @@ struct Elab {
     model_cache: HashMap<(u32, u32, String), DiodeModel>,
     /// BJT models by definition and scope (`None`: refused, reported once).
     bjt_cache: HashMap<(u32, u32, String), Option<bjt::BjtModel>>,
+    /// JFET model definitions already read (their warnings are given once).
+    jfet_seen: HashSet<(u32, u32)>,
     tstep: f64,
     tstop: f64,
     /// `.global` node names (case-folded): top-level nodes in every scope.

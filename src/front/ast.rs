@@ -126,8 +126,9 @@ pub enum ElementBody<'a> {
         text: String,
         span: Span,
     },
-    /// Q: after the terminals, the bare words (`[substrate] model [area]`,
-    /// told apart by which word names a model), then `name=value`s.
+    /// Q and J: after the terminals, the bare words (Q's `[substrate] model
+    /// [area]`, told apart by which word names a model; J's `model [area]`),
+    /// then `name=value`s.
     Device {
         words: Vec<Value<'a>>,
         params: Vec<Assign<'a>>,
@@ -179,6 +180,8 @@ pub enum ElementLetter {
     B,
     /// Bipolar transistor.
     Q,
+    /// Junction field-effect transistor.
+    J,
     /// Subcircuit instance.
     X,
 }
@@ -202,6 +205,7 @@ impl ElementLetter {
             'D' => D,
             'B' => B,
             'Q' => Q,
+            'J' => J,
             'X' => X,
             _ => return None,
         })
@@ -224,6 +228,7 @@ impl ElementLetter {
             D => 'D',
             B => 'B',
             Q => 'Q',
+            J => 'J',
             X => 'X',
         }
     }
@@ -237,7 +242,7 @@ impl ElementLetter {
         match self {
             R | C | L | V | I | F | H | D | B => Some(2),
             E | G => Some(4),
-            Q => Some(3),
+            Q | J => Some(3),
             K => Some(0),
             X => None,
         }
@@ -250,7 +255,6 @@ impl ElementLetter {
 pub fn unsupported_kind(letter: char) -> Option<&'static str> {
     Some(match letter {
         'M' => "MOSFET",
-        'J' => "JFET",
         'S' => "voltage-controlled switch",
         'W' => "current-controlled switch",
         'T' | 'O' | 'U' | 'Y' => "transmission line",

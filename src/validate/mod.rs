@@ -476,6 +476,14 @@ pub fn netlist_ref_tmax(text: &str) -> Option<f64> {
     netlist_validate_setting(text, "ref-tmax=")
 }
 
+/// The absolute current tolerance a netlist asks the reference run to use
+/// instead of 1e-15, in a comment (`* kausal-validate: ref-abstol=1e-12`):
+/// for circuits where ngspice cannot take a step at 1e-15 ("timestep too
+/// small" from the first steps, at every reltol).
+pub fn netlist_ref_abstol(text: &str) -> Option<f64> {
+    netlist_validate_setting(text, "ref-abstol=")
+}
+
 fn netlist_validate_setting(text: &str, key: &str) -> Option<f64> {
     text.lines().find_map(|l| {
         let rest = l
@@ -493,7 +501,8 @@ fn netlist_validate_setting(text: &str, key: &str) -> Option<f64> {
 /// "timestep too small") at ten and a hundred times looser; then the same
 /// with Gear's method, whose damping gets through where the trapezoidal
 /// rule's ringing keeps cutting the step.
-/// `tran` is a `.tran` line replacing the netlist's, or empty.
+/// `tran` is a `.tran` line replacing the netlist's and `.options` lines
+/// overriding the tight ones, or empty.
 fn reference_run_with(
     path: &Path,
     reltol: f64,
@@ -545,7 +554,12 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
         ),
         _ => String::new(),
     };
-    let (reference, ref_tol) = reference_run_with(path, asked, &saves, &tran_line)?;
+    // A later `.options` line overrides the tight options' ABSTOL.
+    let abstol_line = netlist_ref_abstol(&text)
+        .map(|a| format!(".options abstol={a:e}\n"))
+        .unwrap_or_default();
+    let (reference, ref_tol) =
+        reference_run_with(path, asked, &saves, &format!("{tran_line}{abstol_line}"))?;
     let ref_reltol = ref_tol.reltol;
     // kausal at ngspice's own time points, and just before each source
     // corner the reference steps on: a signal that jumps there (an inductor

@@ -102,6 +102,8 @@ fn generated_rust_and_c_agree_with_the_evaluator() {
         // resistance, a PNP mirror.
         "bjt_ce_amp",
         "bjt_diff_pair",
+        // A JFET's drain current: regions as choices, both channel types.
+        "jfet_amp",
         // Generated: its repeated sections become loops in the source.
         "rlc_ladder_60",
     ] {

@@ -67,7 +67,7 @@ impl<'a> Parser<'a> {
             E | G => self.voltage_controlled(&mut c, name, span)?,
             F | H => self.current_controlled(&mut c, name, span)?,
             D => self.diode(&mut c, name, span)?,
-            Q => self.device(&mut c),
+            Q | J => self.device(&mut c),
             B => self.behavioural_source(&mut c, name, span)?,
             X => unreachable!("instances are read by Parser::instance"),
         };
