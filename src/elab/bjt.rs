@@ -34,6 +34,12 @@ use crate::ir::{Cmp, DiodeParams, DiodePart, Func};
 /// mode needs the diodes' larger one.
 const TRANSIT_CAPACITANCE_FLOOR: f64 = 1e-17;
 
+/// Volts per ampere of the excess-phase network's signal (1 mA is 1 V), and
+/// its resistance: currents of milliamperes, capacitances of 1e-13 F for a
+/// picosecond delay, so that its states' tolerances are the circuit's.
+const EXCESS_SCALE: f64 = 1e3;
+const EXCESS_RESISTANCE: f64 = 1e3;
+
 /// ngspice's GMIN, in parallel with each junction.
 const GMIN: f64 = 1e-12;
 
@@ -81,6 +87,8 @@ pub(super) struct BjtModel {
     fc: f64,
     /// Vertical (1) or lateral (-1); by default NPNs are vertical, PNPs lateral.
     subs: Option<f64>,
+    /// Excess phase at 1/(2π TF), degrees.
+    ptf: f64,
 }
 
 impl BjtModel {
@@ -126,6 +134,7 @@ impl BjtModel {
             mjs: 0.0,
             fc: 0.5,
             subs: None,
+            ptf: 0.0,
         }
     }
 
@@ -142,7 +151,7 @@ const BJT_PARAMS: &[&str] = &[
     "is", "ibe", "ibc", "bf", "nf", "vaf", "va", "ikf", "ik", "ise", "c2", "ne", "br", "nr", "var",
     "vb", "ikr", "isc", "c4", "nc", "nkf", "rb", "irb", "rbm", "re", "rc", "cje", "vje", "pe",
     "mje", "me", "tf", "xtf", "vtf", "itf", "ptf", "cjc", "vjc", "pc", "mjc", "mc", "xcjc", "tr",
-    "cjs", "csub", "ccs", "vjs", "ps", "mjs", "ms", "fc", "subs", "level", "npn", "pnp",
+    "cjs", "csub", "ccs", "vjs", "ps", "mjs", "ms", "fc", "subs", "ptf", "level", "npn", "pnp",
 ];
 /// ngspice BJT parameters that do not change kausal's transient result at
 /// the nominal temperature (temperature coefficients, noise, safe operating
@@ -160,7 +169,6 @@ const BJT_IGNORED: &[&str] = &[
 ];
 /// Parameters whose effect kausal does not model: refused when not zero.
 const BJT_REFUSED: &[(&str, &str)] = &[
-    ("ptf", "excess phase (PTF)"),
     ("iss", "a substrate junction current (ISS)"),
     ("rco", "Kull's quasi-saturation (RCO)"),
     ("qco", "Kull's quasi-saturation (QCO)"),
@@ -207,7 +215,7 @@ impl Elab {
                         span: p.name.span,
                         model: def.name.text.to_string(),
                         what: format!("a BJT with {what}"),
-                        help: "kausal models ngspice's level-1 BJT without excess phase, substrate current or quasi-saturation; remove the parameter (or set it to 0) to simulate without it",
+                        help: "kausal models ngspice's level-1 BJT without a substrate current or quasi-saturation; remove the parameter (or set it to 0) to simulate without it",
                     });
                     ok = false;
                 }
@@ -273,6 +281,7 @@ impl Elab {
                 "mjs" | "ms" => m.mjs = v.min(0.999),
                 "fc" => m.fc = v.min(0.9999),
                 "subs" => m.subs = Some(v),
+                "ptf" => m.ptf = v,
                 "level" if v != 1.0 => {
                     self.errors.push(ElabError::UnsupportedModel {
                         span: p.value.span(),
@@ -626,16 +635,48 @@ impl Elab {
             g.scaled(x, r)
         });
         add(self, "bc", bc_nodes, Some(bc_current), bc_charge);
+        // Excess phase (PTF): the forward transport current ibe/qb through
+        // the second-order lowpass of Weil's approximation, `td² x″ + 3 td x′
+        // + 3 x = 3 ibe/qb` with `td = PTF·TF` (PTF in radians), which
+        // ngspice discretizes with its own backward-Euler step. Here it is a
+        // network of its own: a source of EXCESS_SCALE·ibe/qb volts, then R,
+        // L and C with `RC = td` and `LC = td²/3`; `x` is the capacitor's
+        // voltage over EXCESS_SCALE, and at DC it is ibe/qb.
+        let td = md.ptf.to_radians() * md.tf;
+        let excess = (td > 0.0).then(|| {
+            let mut node = |tag: &str| {
+                let n = format!("{name}#{tag}").to_ascii_lowercase();
+                let id = self.circuit.nodes.push(super::Node {
+                    name: n.clone(),
+                    span,
+                    internal: true,
+                });
+                self.node_map.insert(n, id);
+                id
+            };
+            [node("xp1"), node("xp2"), node("xp3")]
+        });
         // ce: the transport current (ibe − ibc)/qb.
         let ce_current = {
             let mut x = Ex::default();
             let vbe = g.vbe(&mut x);
             let vbc = g.vbc(&mut x);
-            let ibe = x.junction(j0, DiodePart::Current, vbe);
             let ibc = x.junction(j0 + 2, DiodePart::Current, vbc);
-            let d = x.arith(Arith::Sub, ibe, ibc);
             let qb = g.qb(&mut x, vbe, vbc);
-            let r = x.arith(Arith::Div, d, qb);
+            let r = match excess {
+                None => {
+                    let ibe = x.junction(j0, DiodePart::Current, vbe);
+                    let d = x.arith(Arith::Sub, ibe, ibc);
+                    x.arith(Arith::Div, d, qb)
+                }
+                Some([_, _, out]) => {
+                    let v = x.push(BNode::Pot(out));
+                    let k = x.num(1.0 / EXCESS_SCALE);
+                    let fwd = x.arith(Arith::Mul, v, k);
+                    let rev = x.arith(Arith::Div, ibc, qb);
+                    x.arith(Arith::Sub, fwd, rev)
+                }
+            };
             g.scaled(x, r)
         };
         add(self, "ce", ce_nodes, Some(ce_current), None);
@@ -674,6 +715,54 @@ impl Elab {
         }
         resistor(self, "rc", c, cp, md.rc);
         resistor(self, "re", e, ep, md.re);
+        if let Some([p1, p2, p3]) = excess {
+            let mut x = Ex::default();
+            let vbe = g.vbe(&mut x);
+            let vbc = g.vbc(&mut x);
+            let ibe = x.junction(j0, DiodePart::Current, vbe);
+            let qb = g.qb(&mut x, vbe, vbc);
+            let u = x.arith(Arith::Div, ibe, qb);
+            let k = x.num(EXCESS_SCALE);
+            x.arith(Arith::Mul, u, k);
+            let mut controls = Vec::new();
+            let expr = Box::new(x.finish(&mut controls));
+            let r = EXCESS_RESISTANCE;
+            for (tag, kind, nodes) in [
+                (
+                    "xv",
+                    ElementKind::Behavioural {
+                        current: false,
+                        expr,
+                        controls,
+                    },
+                    [p1, super::GROUND],
+                ),
+                ("xr", ElementKind::Resistor { r }, [p1, p2]),
+                (
+                    "xl",
+                    ElementKind::Inductor {
+                        l: td * r / 3.0,
+                        ic: None,
+                    },
+                    [p2, p3],
+                ),
+                (
+                    "xc",
+                    ElementKind::Capacitor {
+                        c: td / r,
+                        ic: None,
+                    },
+                    [p3, super::GROUND],
+                ),
+            ] {
+                self.circuit.elements.push(Element {
+                    name: format!("{name}:{tag}"),
+                    kind,
+                    nodes: nodes.to_vec(),
+                    span,
+                });
+            }
+        }
     }
 }
 

@@ -275,9 +275,12 @@ impl<'a> Parser<'a> {
         let directive = name_of(&c.toks[0]);
         let mut analysis = None;
         if let Some(t) = c.peek()
-            && ["tran", "ac", "dc", "op", "noise"]
-                .iter()
-                .any(|a| t.is_word(a))
+            && [
+                "tran", "ac", "dc", "op", "noise", "homotopy", "sens", "pz", "disto", "tf", "sp",
+                "pss",
+            ]
+            .iter()
+            .any(|a| t.is_word(a))
         {
             analysis = Some(name_of(t));
             c.next();
