@@ -354,12 +354,14 @@ impl Elab {
         };
         let text = |w: &Value<'_>| -> Option<(String, crate::diag::Span)> {
             match w {
-                Value::Ident(n) => Some((n.key(), n.span)),
-                Value::Num { text, span, .. } => Some((text.to_ascii_lowercase(), *span)),
+                Value::Ident(n) => Some((n.text.to_string(), n.span)),
+                Value::Num { text, span, .. } => Some((text.to_string(), *span)),
                 Value::Expr { .. } => None,
             }
         };
-        let names_model = |w: &Value<'_>| text(w).is_some_and(|(k, _)| scope.model(&k).is_some());
+        let names_model = |w: &Value<'_>| {
+            text(w).is_some_and(|(k, _)| scope.model(&k.to_ascii_lowercase()).is_some())
+        };
         let at = words.iter().take(2).position(names_model);
         let Some(at) = at else {
             // The word that should have named a model: the second of
