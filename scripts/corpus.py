@@ -890,6 +890,7 @@ def main():
     ap.add_argument("--kausal")
     ap.add_argument("--out", required=True)
     ap.add_argument("--only", help="only entries whose repo:path contains this")
+    ap.add_argument("--list", help="only the entries named in this file (repo:path, one a line)")
     ap.add_argument("--resume", action="store_true", help="keep entries already run")
     ap.add_argument("--accepted", action="store_true",
                     help="run again only the entries kausal accepted last time (after a change to "
@@ -902,10 +903,14 @@ def main():
     os.makedirs(os.path.join(args.out, "entries"), exist_ok=True)
     os.makedirs(os.path.join(args.out, "logs"), exist_ok=True)
     if args.command == "run":
-        if not (args.only or args.resume or args.accepted):
+        if not (args.only or args.list or args.resume or args.accepted):
             for name in os.listdir(os.path.join(args.out, "entries")):
                 os.remove(os.path.join(args.out, "entries", name))
         todo = [(r, p) for r, p in entries if not args.only or args.only in "%s:%s" % (r, p)]
+        if args.list:
+            with open(args.list, encoding="utf-8") as f:
+                named = {line.strip() for line in f if line.strip()}
+            todo = [(r, p) for r, p in todo if "%s:%s" % (r, p) in named]
         info = {"ngspice": version(["ngspice", "--version"], r"ngspice-\S+"),
                 "kausal": version([args.kausal, "--version"], r"\S+$"),
                 "started": time.strftime("%Y-%m-%d %H:%M")}

@@ -14,7 +14,7 @@
 # target/corpus/logs/ and one JSON record per netlist under target/corpus/entries/; with
 # --write, replaces the generated section of VALIDATION.md (its explanation column is kept).
 #
-# Usage: scripts/corpus.sh [--write] [--summary-only] [--resume] [--accepted] [--only TEXT]
+# Usage: scripts/corpus.sh [--write] [--summary-only] [--resume] [--accepted] [--only TEXT] [--list FILE]
 #                          [CORPUS_DIR [MANIFEST [KAUSAL_BIN]]]
 #   CORPUS_DIR  default $KAUSAL_CORPUS, else ../corpus next to the repository root
 #               (laid out by scripts/corpus-fetch.sh: CORPUS_DIR/<owner>+<name>/<path>)
@@ -27,6 +27,7 @@
 #                   the simulator or validate; refusals and ngspice's own runs are kept)
 #   --only TEXT     run only the netlists whose `repo:path` contains TEXT (the summary still covers
 #                   every entry run so far)
+#   --list FILE     run only the netlists named in FILE (`repo:path`, one a line)
 # Limits (seconds): CORPUS_NGSPICE_TIMEOUT=60 CORPUS_CHECK_TIMEOUT=60 CORPUS_SIM_TIMEOUT=120
 #   CORPUS_VALIDATE_TIMEOUT=120; CORPUS_MEM_LIMIT_GB=8 (address space of each process).
 # ngspice runs each netlist as its authors wrote it, `.control` section included, and some of
@@ -47,6 +48,7 @@ while [[ $# -gt 0 ]]; do
         --resume) extra+=(--resume) ;;
         --accepted) extra+=(--accepted) ;;
         --only) extra+=(--only "$2"); shift ;;
+        --list) extra+=(--list "$(cd "$(dirname "$2")" && pwd)/$(basename "$2")"); shift ;;
         -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
         --) shift; pos+=("$@"); break ;;
         -*) echo "corpus.sh: unknown option '$1'" >&2; exit 2 ;;

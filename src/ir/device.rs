@@ -126,9 +126,14 @@ impl DiodeParams {
 
     /// `[q, q' = capacitance, q'']` at `v`.
     pub fn charge(&self, v: f64) -> [f64; 3] {
-        let [id, gd, gd2] = self.current(v);
         let (cjo, vj, m, fc, tt) = (self.cjo, self.vj, self.m, self.fc, self.tt);
-        let mut q = [tt * id, tt * gd, tt * gd2];
+        // A depletion charge alone (a transistor's) needs no exponential.
+        let mut q = if tt != 0.0 {
+            let [id, gd, gd2] = self.current(v);
+            [tt * id, tt * gd, tt * gd2]
+        } else {
+            [0.0; 3]
+        };
         if cjo == 0.0 {
             return q;
         }
