@@ -427,3 +427,45 @@ fn stray_plus_and_a_lone_closing_paren_in_a_model_are_read_as_ngspice_reads_them
         .expect("the diode");
     assert_eq!((model.is, model.n, model.rs), (1e-14, 2.0, 3.0));
 }
+
+/// The transistor lines and model cards of others' netlists: SPICE2's
+/// `.model Q1 NPN BF 20` (names and values without `=`), parameters after
+/// the closing parenthesis, a model name that starts with a digit, a
+/// substrate node told from the model by which word names a model, and
+/// `IC=VBE, VCE` read past.
+#[test]
+fn transistor_lines_and_model_cards_are_read_as_ngspice_reads_them() {
+    let text = "t\nV1 1 0 5\nR1 1 2 1k\n\
+        Q1 1 2 0 2n_old\nQ2 1 2 0 sub qnew 2 off ic=0.6, 5\nJ1 1 2 0 jmod\n\
+        .model 2n_old NPN BF 20 RB 100 TF .1NS CJC 2PF\n\
+        .model qnew PNP(BF=20 IS=1e-15)\n+ CJE=1p, VAF=50 CJS=1p)\n.model jmod NJF(VTO=-1)\n\
+        .tran 1u 10u\n.end\n";
+    let path = std::path::Path::new("mem.cir");
+    let el = match kausal::pipeline::elaborate_text("mem.cir", path, text.to_string(), &FsLoader) {
+        Ok(el) => el,
+        Err(f) => panic!("{:?}", f.errors().map(|d| &d.message).collect::<Vec<_>>()),
+    };
+    let c = &el.circuit;
+    let names: Vec<&str> = c.elements.values().map(|e| e.name.as_str()).collect();
+    for branch in [
+        "Q1:be", "Q1:bc", "Q1:ce", "Q1:rb", "Q2:be", "Q2:cs", "J1:gs", "J1:ds",
+    ] {
+        assert!(names.contains(&branch), "{branch} in {names:?}");
+    }
+    // Q2's substrate is node `sub`, its area 2: twice the saturation current
+    // of its base-emitter junction; the PNP's branch runs from E' to B'.
+    let sub = c.find_node("sub").expect("the substrate node");
+    let cs = c.elements.values().find(|e| e.name == "Q2:cs").unwrap();
+    assert!(cs.nodes.contains(&sub));
+    let be = c.junctions.iter().find(|j| j.name == "Q2.be").unwrap();
+    assert_eq!(be.is, 2e-15);
+    // SPICE2's card: BF 20 and TF 0.1 ns reached the transit-time charge.
+    let q1be = c.elements.values().find(|e| e.name == "Q1:be").unwrap();
+    assert!(matches!(
+        &q1be.kind,
+        kausal::elab::ElementKind::DeviceBranch {
+            charge: Some(_),
+            ..
+        }
+    ));
+}

@@ -92,6 +92,9 @@ impl<'a> Parser<'a> {
                 // More parameters after the closing parenthesis (a
                 // continuation line after `…)`), as ngspice reads them.
                 TokKind::RParen if paren && !closed => closed = true,
+                // `(… NE=2)` then `+ CJE=… TR=159N)`: the continuation's own
+                // closing parenthesis.
+                TokKind::RParen if closed => {}
                 // SPICE2's `BF 20 RB 100`: a name, then its value.
                 TokKind::Word if c.peek_at(1).is_some_and(super::is_value_token) => {
                     c.next();

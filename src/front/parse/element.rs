@@ -352,7 +352,22 @@ impl<'a> Parser<'a> {
         if c.peek().is_some_and(|t| t.is_word("off")) {
             c.next();
         }
-        let params = self.assigns(c);
+        // `IC=VBE, VCE` (the comma is a separator): the values after the
+        // first are read past, as the initial condition itself is (kausal's
+        // operating point does not take it).
+        let mut params = Vec::new();
+        loop {
+            params.extend(self.assigns(c));
+            let after_ic = params.last().is_some_and(|p: &Assign<'_>| p.name.is("ic"));
+            if !(after_ic && c.peek().is_some_and(is_value_token)) {
+                break;
+            }
+            while c.peek().is_some_and(is_value_token)
+                && !c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq)
+            {
+                c.next();
+            }
+        }
         self.rest_unexpected(c);
         ElementBody::Device { words, params }
     }
