@@ -46,6 +46,20 @@ impl Elab {
         let nodes: Vec<NodeId> = el.nodes.iter().map(|n| self.node(n, scope)).collect();
         // A transistor's terminals may share a node (a diode-connected BJT).
         let device = matches!(el.body, ElementBody::Device { .. });
+        // A resistor, capacitor, inductor or diode with both terminals on one
+        // node carries no current: ngspice keeps it, kausal leaves it out.
+        let passive = matches!(
+            el.body,
+            ElementBody::Passive { .. } | ElementBody::Diode { .. }
+        );
+        if passive && nodes.len() >= 2 && nodes[0] == nodes[1] {
+            self.errors.push(ElabError::ShortedElement {
+                span: el.nodes[0].span.to(el.nodes[1].span),
+                name: name.clone(),
+                node: self.circuit.nodes[nodes[0]].name.clone(),
+            });
+            return;
+        }
         if !device && nodes.len() >= 2 && nodes[0] == nodes[1] {
             self.errors.push(ElabError::SingleNode {
                 span: el.nodes[0].span.to(el.nodes[1].span),

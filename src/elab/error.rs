@@ -36,6 +36,12 @@ pub enum ElabError {
         element: String,
         why: String,
     },
+    #[error("`{name}` has both terminals on node `{node}`: it carries no current and is left out")]
+    ShortedElement {
+        span: Span,
+        name: String,
+        node: String,
+    },
     #[error("subcircuit `{name}` is not defined")]
     UndefinedSubckt { span: Span, name: String },
     #[error("subcircuit `{name}` instantiates itself ({chain})")]
@@ -217,6 +223,7 @@ impl ElabError {
             | WrongModelType { span, .. }
             | UnsupportedModel { span, .. }
             | BadDevice { span, .. }
+            | ShortedElement { span, .. }
             | UndefinedSubckt { span, .. }
             | RecursiveSubckt { span, .. }
             | DeepHierarchy { span, .. }
@@ -260,7 +267,8 @@ impl ElabError {
             | TinyTmax { .. }
             | TemperatureUnscaled { .. }
             | PwlParamOnCurrent { .. }
-            | TransitTimeWithoutCapacitance { .. } => Severity::Warning,
+            | TransitTimeWithoutCapacitance { .. }
+            | ShortedElement { .. } => Severity::Warning,
             _ => Severity::Error,
         }
     }
@@ -275,6 +283,7 @@ impl ToDiagnostic for ElabError {
             UndefinedModel { .. } => (codes::UNDEFINED_MODEL, "no such model", "add `.model NAME D(...)` or fix the name".into()),
             WrongModelType { expected, .. } => (codes::WRONG_MODEL_TYPE, "wrong model type", format!("this element needs a model of type `{expected}`")),
             UnsupportedModel { help, .. } => (codes::UNSUPPORTED_MODEL, "not modelled", (*help).into()),
+            ShortedElement { .. } => (codes::SHORTED_ELEMENT, "both terminals here", "ngspice keeps it, and it changes nothing: remove it, or connect it where it was meant to be".into()),
             BadDevice { .. } => (codes::BAD_DEVICE, "here", "write `Qname collector base emitter [substrate] model [area] [m=…]`".into()),
             UndefinedSubckt { .. } => (codes::UNDEFINED_SUBCKT, "no such subcircuit", "define it with `.subckt NAME ports ... .ends`".into()),
             RecursiveSubckt { .. } => (codes::RECURSIVE_SUBCKT, "recursive instance", "a subcircuit may not contain itself, directly or indirectly".into()),
