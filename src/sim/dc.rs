@@ -128,11 +128,78 @@ where
         warnings.extend(held.warnings);
     }
     let r = tape.in_mode(Mode::Dc, || dc_point::<M>(ode, t0, y, atol));
+    // Where no operating point is found from zero, the transistors are
+    // started conducting, as ngspice starts them (each base-emitter
+    // junction at its critical voltage, the others at 0 V), and the solve
+    // is tried again from there.
+    let r = match r {
+        Err(e) => match transistors_on(sorted, &tape.states) {
+            Some(start) => tape
+                .in_mode(Mode::Dc, || dc_point::<M>(ode, t0, start, atol))
+                .map_err(|_| e),
+            None => Err(e),
+        },
+        ok => ok,
+    };
     Ok(Start {
         y: r.map_err(|e| name_dc_failure(c, e))?,
         warnings,
         row: None,
     })
+}
+
+/// The states with every BJT's base-emitter junction at its critical voltage
+/// `vt ln(vt / (√2 IS))` (ngspice's first iterate) and every other junction
+/// at 0 V: each junction charge from its law. `None` without transistors.
+fn transistors_on(sorted: &Sorted, states: &[VarId]) -> Option<Vec<f64>> {
+    let c = &sorted.elaborated.circuit;
+    let sys = &sorted.built.system;
+    let mut vals = vec![0.0; sys.vars.len()];
+    let mut any = false;
+    for (id, e) in c.elements.iter() {
+        let Some(device) = e.name.strip_suffix(":be") else {
+            continue;
+        };
+        if !matches!(e.kind, ElementKind::DeviceBranch { .. }) {
+            continue;
+        }
+        let Some(p) = c.junctions.iter().find(|j| {
+            j.name.len() == device.len() + 3
+                && j.name.starts_with(device)
+                && j.name.ends_with(".be")
+                && j.is > 0.0
+        }) else {
+            continue;
+        };
+        let Some(ev) = sorted.built.elem_vars.get(id.0 as usize).copied().flatten() else {
+            continue;
+        };
+        vals[ev.u.0 as usize] = p.vte * (p.vte / (std::f64::consts::SQRT_2 * p.is)).ln();
+        any = true;
+    }
+    if !any {
+        return None;
+    }
+    // Each charge state from its law `q = Q(…)` at those voltages.
+    let law: HashMap<VarId, crate::ir::ExprId> = sys
+        .eqs
+        .values()
+        .filter_map(|eq| match sys.exprs.get(eq.lhs) {
+            crate::ir::Expr::Var(v) if sys.vars[v].kind == crate::ir::VarKind::Charge => {
+                Some((v, eq.rhs))
+            }
+            _ => None,
+        })
+        .collect();
+    Some(
+        states
+            .iter()
+            .map(|s| match law.get(s) {
+                Some(&q) => crate::back::interp::eval(sys, &sys.exprs, q, &vals, 0.0),
+                None => 0.0,
+            })
+            .collect(),
+    )
 }
 
 /// For each node, a representative of the nodes that the elements `joins`
