@@ -221,21 +221,7 @@ impl Elab {
                 }
                 continue;
             }
-            if !BJT_PARAMS.contains(&key.as_str()) {
-                if first_use {
-                    self.errors.push(if BJT_IGNORED.contains(&key.as_str()) {
-                        ElabError::IgnoredModelParam {
-                            span: p.name.span,
-                            name: p.name.text.to_string(),
-                        }
-                    } else {
-                        ElabError::UnknownModelParam {
-                            span: p.name.span,
-                            name: p.name.text.to_string(),
-                            model: def.name.text.to_string(),
-                        }
-                    });
-                }
+            if self.unread_model_param(p, &key, BJT_PARAMS, BJT_IGNORED, def, first_use) {
                 continue;
             }
             let Some(v) = self.value(&p.value, scope) else {
@@ -401,39 +387,11 @@ impl Elab {
         let Some((model_key, model_span)) = text(&words[at]) else {
             return;
         };
-        let rest = &words[at + 1..];
-        if rest.len() > 1 {
-            self.errors.push(ElabError::BadDevice {
-                span: rest[1].span(),
-                element: name.to_string(),
-                why: "unexpected word after the area".into(),
-            });
+        let Some((area, m)) =
+            self.device_scale(el, name, &words[at + 1..], params, inherited, scope)
+        else {
             return;
-        }
-        let mut area = match rest.first() {
-            Some(a) => self.value(a, scope),
-            None => Some(1.0),
         };
-        let mut m = inherited;
-        for p in params {
-            if p.name.is("area") {
-                area = self.value(&p.value, scope);
-            } else if p.name.is("m") {
-                m *= self.multiplier(p, name, scope).unwrap_or(f64::NAN);
-            } else {
-                self.ignored_param(p, name);
-            }
-        }
-        let Some(area) = area else { return };
-        if !(area > 0.0 && area.is_finite() && m.is_finite()) {
-            self.errors.push(ElabError::BadElementValue {
-                span: el.span,
-                element: name.to_string(),
-                what: "area",
-                value: area,
-            });
-            return;
-        }
         let model_name = ast::Name {
             text: &model_key,
             span: model_span,
@@ -465,16 +423,10 @@ impl Elab {
         // Internal nodes where a resistance separates them from the terminal.
         let internal = |this: &mut Elab, node: NodeId, r: f64, tag: &str| -> NodeId {
             if r == 0.0 {
-                return node;
+                node
+            } else {
+                this.internal_node(name, tag, span)
             }
-            let n = format!("{name}#{tag}").to_ascii_lowercase();
-            let id = this.circuit.nodes.push(super::Node {
-                name: n.clone(),
-                span,
-                internal: true,
-            });
-            this.node_map.insert(n, id);
-            id
         };
         let cp = internal(self, c, md.rc, "c");
         let bp = internal(self, b, md.rb, "b");
@@ -570,22 +522,17 @@ impl Elab {
                    nodes: Option<[NodeId; 2]>,
                    current: Option<Ex>,
                    charge: Option<Ex>| {
-            let Some(nodes) = nodes else { return };
-            let mut controls = Vec::new();
-            let mut fin = |x: Option<Ex>| x.map(|x| Box::new(x.finish(&mut controls)));
-            let (current, charge) = (fin(current), fin(charge));
-            this.circuit.elements.push(Element {
-                name: format!("{name}:{tag}"),
-                kind: ElementKind::DeviceBranch {
-                    device: ElementLetter::Q,
-                    controlled: tag == "ce",
-                    current,
-                    charge,
-                    controls,
-                },
-                nodes: nodes.to_vec(),
+            let controlled = tag == "ce";
+            this.push_branch(
+                ElementLetter::Q,
+                name,
+                tag,
+                nodes,
+                controlled,
+                current,
+                charge,
                 span,
-            });
+            );
         };
         // be: ibe/BF + iben, and qbe = TF·ibe·(1 + XTF·…)/qb + depletion.
         let be_current = {
@@ -645,19 +592,8 @@ impl Elab {
         // L and C with `RC = td` and `LC = td²/3`; `x` is the capacitor's
         // voltage over EXCESS_SCALE, and at DC it is ibe/qb.
         let td = md.ptf.to_radians() * md.tf;
-        let excess = (td > 0.0).then(|| {
-            let mut node = |tag: &str| {
-                let n = format!("{name}#{tag}").to_ascii_lowercase();
-                let id = self.circuit.nodes.push(super::Node {
-                    name: n.clone(),
-                    span,
-                    internal: true,
-                });
-                self.node_map.insert(n, id);
-                id
-            };
-            [node("xp1"), node("xp2"), node("xp3")]
-        });
+        let excess = (td > 0.0)
+            .then(|| ["xp1", "xp2", "xp3"].map(|tag| self.internal_node(name, tag, span)));
         // ce: the transport current (ibe − ibc)/qb.
         let ce_current = {
             let mut x = Ex::default();
@@ -765,6 +701,107 @@ impl Elab {
                 });
             }
         }
+    }
+}
+
+impl Elab {
+    /// A device's area (`rest`: at most one word after the model, or
+    /// `area=`) and multiplier (`m=`, times the enclosing instances'
+    /// `inherited`); other instance parameters are ignored with a warning.
+    /// `None` (reported) for a stray word or an area that is not positive.
+    pub(super) fn device_scale(
+        &mut self,
+        el: &ast::Element<'_>,
+        name: &str,
+        rest: &[Value<'_>],
+        params: &[ast::Assign<'_>],
+        inherited: f64,
+        scope: &Scope<'_, '_>,
+    ) -> Option<(f64, f64)> {
+        if let Some(extra) = rest.get(1) {
+            self.errors.push(ElabError::BadDevice {
+                span: extra.span(),
+                element: name.to_string(),
+                why: "unexpected word after the area".into(),
+            });
+            return None;
+        }
+        let mut area = match rest.first() {
+            Some(a) => self.value(a, scope),
+            None => Some(1.0),
+        };
+        let mut m = inherited;
+        for p in params {
+            if p.name.is("area") {
+                area = self.value(&p.value, scope);
+            } else if p.name.is("m") {
+                m *= self.multiplier(p, name, scope).unwrap_or(f64::NAN);
+            } else {
+                self.ignored_param(p, name);
+            }
+        }
+        let area = area?;
+        if !(area > 0.0 && area.is_finite() && m.is_finite()) {
+            self.errors.push(ElabError::BadElementValue {
+                span: el.span,
+                element: name.to_string(),
+                what: "area",
+                value: area,
+            });
+            return None;
+        }
+        Some((area, m))
+    }
+
+    /// A device's internal node `device#tag` (lower-case; not among the
+    /// default output vectors).
+    pub(super) fn internal_node(
+        &mut self,
+        device: &str,
+        tag: &str,
+        span: crate::diag::Span,
+    ) -> NodeId {
+        let n = format!("{device}#{tag}").to_ascii_lowercase();
+        let id = self.circuit.nodes.push(super::Node {
+            name: n.clone(),
+            span,
+            internal: true,
+        });
+        self.node_map.insert(n, id);
+        id
+    }
+
+    /// A device's branch `device:tag` from `nodes[0]` to `nodes[1]`, its
+    /// expressions finished over one list of controls; nothing when the
+    /// branch's ends are one node (`None`).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn push_branch(
+        &mut self,
+        letter: ElementLetter,
+        device: &str,
+        tag: &str,
+        nodes: Option<[NodeId; 2]>,
+        controlled: bool,
+        current: Option<Ex>,
+        charge: Option<Ex>,
+        span: crate::diag::Span,
+    ) {
+        let Some(nodes) = nodes else { return };
+        let mut controls = Vec::new();
+        let mut fin = |x: Option<Ex>| x.map(|x| Box::new(x.finish(&mut controls)));
+        let (current, charge) = (fin(current), fin(charge));
+        self.circuit.elements.push(Element {
+            name: format!("{device}:{tag}"),
+            kind: ElementKind::DeviceBranch {
+                device: letter,
+                controlled,
+                current,
+                charge,
+                controls,
+            },
+            nodes: nodes.to_vec(),
+            span,
+        });
     }
 }
 

@@ -98,21 +98,7 @@ impl Elab {
         let mut ok = true;
         for p in &def.params {
             let key = p.name.key();
-            if !JFET_PARAMS.contains(&key.as_str()) {
-                if first_use {
-                    self.errors.push(if JFET_IGNORED.contains(&key.as_str()) {
-                        ElabError::IgnoredModelParam {
-                            span: p.name.span,
-                            name: p.name.text.to_string(),
-                        }
-                    } else {
-                        ElabError::UnknownModelParam {
-                            span: p.name.span,
-                            name: p.name.text.to_string(),
-                            model: def.name.text.to_string(),
-                        }
-                    });
-                }
+            if self.unread_model_param(p, &key, JFET_PARAMS, JFET_IGNORED, def, first_use) {
                 continue;
             }
             let Some(v) = self.value(&p.value, scope) else {
@@ -174,38 +160,10 @@ impl Elab {
                 return;
             }
         };
-        if let Some(extra) = words.get(2) {
-            self.errors.push(ElabError::BadDevice {
-                span: extra.span(),
-                element: name.to_string(),
-                why: "unexpected word after the area".into(),
-            });
+        let Some((area, m)) = self.device_scale(el, name, &words[1..], params, inherited, scope)
+        else {
             return;
-        }
-        let mut area = match words.get(1) {
-            Some(a) => self.value(a, scope),
-            None => Some(1.0),
         };
-        let mut m = inherited;
-        for p in params {
-            if p.name.is("area") {
-                area = self.value(&p.value, scope);
-            } else if p.name.is("m") {
-                m *= self.multiplier(p, name, scope).unwrap_or(f64::NAN);
-            } else {
-                self.ignored_param(p, name);
-            }
-        }
-        let Some(area) = area else { return };
-        if !(area > 0.0 && area.is_finite() && m.is_finite()) {
-            self.errors.push(ElabError::BadElementValue {
-                span: el.span,
-                element: name.to_string(),
-                what: "area",
-                value: area,
-            });
-            return;
-        }
         let Some(model) = self.jfet_model(&model_name, name, scope) else {
             return;
         };
@@ -229,16 +187,10 @@ impl Elab {
         let (d, g, s) = (nodes[0], nodes[1], nodes[2]);
         let internal = |this: &mut Elab, node: NodeId, r: f64, tag: &str| -> NodeId {
             if r == 0.0 {
-                return node;
+                node
+            } else {
+                this.internal_node(name, tag, span)
             }
-            let n = format!("{name}#{tag}").to_ascii_lowercase();
-            let id = this.circuit.nodes.push(super::Node {
-                name: n.clone(),
-                span,
-                internal: true,
-            });
-            this.node_map.insert(n, id);
-            id
         };
         let dp = internal(self, d, md.rd, "d");
         let sp = internal(self, s, md.rs, "s");
@@ -286,22 +238,17 @@ impl Elab {
                    controlled: bool,
                    current: Ex,
                    charge: Option<Ex>| {
-            let Some(nodes) = nodes else { return };
-            let mut controls = Vec::new();
-            let current = Some(Box::new(current.finish(&mut controls)));
-            let charge = charge.map(|q| Box::new(q.finish(&mut controls)));
-            this.circuit.elements.push(Element {
-                name: format!("{name}:{tag}"),
-                kind: ElementKind::DeviceBranch {
-                    device: ElementLetter::J,
-                    controlled,
-                    current,
-                    charge,
-                    controls,
-                },
-                nodes: nodes.to_vec(),
+            let letter = ElementLetter::J;
+            this.push_branch(
+                letter,
+                name,
+                tag,
+                nodes,
+                controlled,
+                Some(current),
+                charge,
                 span,
-            });
+            );
         };
         // The gate junctions: current and depletion charge.
         for (tag, nodes, id, k, cj) in [

@@ -30,6 +30,38 @@ const DIODE_IGNORED: &[&str] = &[
 ];
 
 impl Elab {
+    /// Whether model parameter `p` (its key `key`) is not one of `known`:
+    /// then, on the model's first use, a warning that it is ignored (one of
+    /// `ignored`, which does not change the transient result) or unknown.
+    pub(super) fn unread_model_param(
+        &mut self,
+        p: &ast::Assign<'_>,
+        key: &str,
+        known: &[&str],
+        ignored: &[&str],
+        def: &ast::Model<'_>,
+        first_use: bool,
+    ) -> bool {
+        if known.contains(&key) {
+            return false;
+        }
+        if first_use {
+            self.errors.push(if ignored.contains(&key) {
+                ElabError::IgnoredModelParam {
+                    span: p.name.span,
+                    name: p.name.text.to_string(),
+                }
+            } else {
+                ElabError::UnknownModelParam {
+                    span: p.name.span,
+                    name: p.name.text.to_string(),
+                    model: def.name.text.to_string(),
+                }
+            });
+        }
+        true
+    }
+
     pub(super) fn diode_model(
         &mut self,
         model: &ast::Name<'_>,
@@ -67,21 +99,7 @@ impl Elab {
         };
         for p in &def.params {
             let key = p.name.key();
-            if !DIODE_PARAMS.contains(&key.as_str()) {
-                if first_use {
-                    self.errors.push(if DIODE_IGNORED.contains(&key.as_str()) {
-                        ElabError::IgnoredModelParam {
-                            span: p.name.span,
-                            name: p.name.text.to_string(),
-                        }
-                    } else {
-                        ElabError::UnknownModelParam {
-                            span: p.name.span,
-                            name: p.name.text.to_string(),
-                            model: def.name.text.to_string(),
-                        }
-                    });
-                }
+            if self.unread_model_param(p, &key, DIODE_PARAMS, DIODE_IGNORED, def, first_use) {
                 continue;
             }
             let v = self.value(&p.value, scope)?;
