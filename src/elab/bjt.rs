@@ -420,23 +420,11 @@ impl Elab {
         let (c, b, e) = (nodes[0], nodes[1], nodes[2]);
         let s = substrate.unwrap_or(super::GROUND);
         let rbm = md.rbm.unwrap_or(md.rb);
-        // Internal nodes where a resistance separates them from the terminal.
-        let internal = |this: &mut Elab, node: NodeId, r: f64, tag: &str| -> NodeId {
-            if r == 0.0 {
-                node
-            } else {
-                this.internal_node(name, tag, span)
-            }
-        };
-        let cp = internal(self, c, md.rc, "c");
-        let bp = internal(self, b, md.rb, "b");
-        let ep = internal(self, e, md.re, "e");
-        let pnp = md.pnp;
-        // A branch from `a` to `b` for an NPN (reversed for a PNP); `None`
-        // when both ends are one node (its voltage is then 0).
-        let orient = |a: NodeId, b: NodeId| -> Option<[NodeId; 2]> {
-            (a != b).then_some(if pnp { [b, a] } else { [a, b] })
-        };
+        let cp = self.behind(c, md.rc, name, "c", span);
+        let bp = self.behind(b, md.rb, name, "b", span);
+        let ep = self.behind(e, md.re, name, "e", span);
+        // Branches from `a` to `b` for an NPN, reversed for a PNP.
+        let orient = |a, b| oriented(md.pnp, a, b);
         let be_nodes = orient(bp, ep);
         let bc_nodes = orient(bp, cp);
         let ce_nodes = orient(cp, ep);
@@ -445,20 +433,14 @@ impl Elab {
         // ngspice's substrate voltage is `type · (v(s) − v(s'))`.
         let cs_nodes = orient(s, sub_to).filter(|_| md.cjs > 0.0);
         // The ids the branches will get, in the order they are pushed.
-        let mut next = self.circuit.elements.len() as u32;
-        let mut take = |present: bool| -> Option<ElemId> {
-            present.then(|| {
-                next += 1;
-                ElemId(next - 1)
-            })
-        };
-        let be_id = take(be_nodes.is_some());
-        let bc_id = take(bc_nodes.is_some());
-        let _ce = take(ce_nodes.is_some());
-        let bx_id = take(bx_nodes.is_some());
-        let cs_id = take(cs_nodes.is_some());
+        let mut ids = NextIds(self.circuit.elements.len() as u32);
+        let be_id = ids.take(be_nodes.is_some());
+        let bc_id = ids.take(bc_nodes.is_some());
+        let _ce = ids.take(ce_nodes.is_some());
+        let bx_id = ids.take(bx_nodes.is_some());
+        let cs_id = ids.take(cs_nodes.is_some());
         let nonlinear_rb = md.rb > 0.0 && (md.irb > 0.0 || rbm != md.rb);
-        let rb_id = take(nonlinear_rb);
+        let rb_id = ids.take(nonlinear_rb);
 
         // Junction functions, area applied (ngspice's bjttemp.c: the B-C
         // saturation current is IS·area, again times the base area, which
@@ -753,6 +735,23 @@ impl Elab {
         Some((area, m))
     }
 
+    /// `node`, or where a resistance `r` separates the device from it, its
+    /// internal node `device#tag`.
+    pub(super) fn behind(
+        &mut self,
+        node: NodeId,
+        r: f64,
+        device: &str,
+        tag: &str,
+        span: crate::diag::Span,
+    ) -> NodeId {
+        if r == 0.0 {
+            node
+        } else {
+            self.internal_node(device, tag, span)
+        }
+    }
+
     /// A device's internal node `device#tag` (lower-case; not among the
     /// default output vectors).
     pub(super) fn internal_node(
@@ -802,6 +801,26 @@ impl Elab {
             nodes: nodes.to_vec(),
             span,
         });
+    }
+}
+
+/// A branch from `a` to `b`, or from `b` to `a` for a device of the other
+/// polarity (PNP, P-channel), so that its voltage is ngspice's `type · v`;
+/// `None` when both ends are one node (its voltage is then 0).
+pub(super) fn oriented(reversed: bool, a: NodeId, b: NodeId) -> Option<[NodeId; 2]> {
+    (a != b).then_some(if reversed { [b, a] } else { [a, b] })
+}
+
+/// The ids a device's branches will get, in the order they are pushed.
+pub(super) struct NextIds(pub(super) u32);
+
+impl NextIds {
+    /// The next id if the branch is `present`.
+    pub(super) fn take(&mut self, present: bool) -> Option<ElemId> {
+        present.then(|| {
+            self.0 += 1;
+            ElemId(self.0 - 1)
+        })
     }
 }
 

@@ -14,7 +14,7 @@
 //! expressions over both gate voltages, its regions as choices. A P-channel
 //! device's branches point the other way.
 
-use super::bjt::Ex;
+use super::bjt::{Ex, NextIds, oriented};
 use super::{Arith, BNode, Elab, ElabError, ElemId, Element, ElementKind, NodeId, Scope};
 use crate::front::ast::{self, ElementLetter, Value};
 use crate::ir::{Cmp, DiodeParams, DiodePart};
@@ -185,31 +185,14 @@ impl Elab {
     ) {
         let span = el.span;
         let (d, g, s) = (nodes[0], nodes[1], nodes[2]);
-        let internal = |this: &mut Elab, node: NodeId, r: f64, tag: &str| -> NodeId {
-            if r == 0.0 {
-                node
-            } else {
-                this.internal_node(name, tag, span)
-            }
-        };
-        let dp = internal(self, d, md.rd, "d");
-        let sp = internal(self, s, md.rs, "s");
-        let pch = md.pchannel;
-        let orient = |a: NodeId, b: NodeId| -> Option<[NodeId; 2]> {
-            (a != b).then_some(if pch { [b, a] } else { [a, b] })
-        };
-        let gs_nodes = orient(g, sp);
-        let gd_nodes = orient(g, dp);
-        let ds_nodes = orient(dp, sp);
-        let mut next = self.circuit.elements.len() as u32;
-        let mut take = |present: bool| -> Option<ElemId> {
-            present.then(|| {
-                next += 1;
-                ElemId(next - 1)
-            })
-        };
-        let gs_id = take(gs_nodes.is_some());
-        let gd_id = take(gd_nodes.is_some());
+        let dp = self.behind(d, md.rd, name, "d", span);
+        let sp = self.behind(s, md.rs, name, "s", span);
+        let gs_nodes = oriented(md.pchannel, g, sp);
+        let gd_nodes = oriented(md.pchannel, g, dp);
+        let ds_nodes = oriented(md.pchannel, dp, sp);
+        let mut ids = NextIds(self.circuit.elements.len() as u32);
+        let gs_id = ids.take(gs_nodes.is_some());
+        let gd_id = ids.take(gd_nodes.is_some());
 
         let j0 = self.circuit.junctions.len() as u32;
         let junction = |suffix: &str, cj: f64| DiodeParams {
@@ -321,18 +304,21 @@ fn drain_current(x: &mut Ex, md: &JfetModel, scale: f64, vgs: u32, vgd: u32) {
         let bn = x.num(beta);
         x.arith(Arith::Mul, bn, t)
     };
-    let lin_n = {
-        // vds (vds (Bfac vds − B) + vgst (2B + 3 Bfac (vgst − vds)))
-        let d = x.arith(Arith::Sub, vgst, vds);
-        let t = x.arith(Arith::Mul, three_bf, d);
+    // The linear region's cubic `d (d (Bfac d − B) + v (2B + 3 Bfac (v − d)))`
+    // of the gate overdrive `v` and the drain-source voltage `d` seen from
+    // the source (the normal mode's `vds`, the inverse mode's `−vds`).
+    let cubic = |x: &mut Ex, v: u32, d: u32| {
+        let t = x.arith(Arith::Sub, v, d);
+        let t = x.arith(Arith::Mul, three_bf, t);
         let apart = x.arith(Arith::Add, two_b, t);
-        let t = x.arith(Arith::Mul, bf, vds);
+        let t = x.arith(Arith::Mul, bf, d);
         let t = x.arith(Arith::Sub, t, b);
-        let t = x.arith(Arith::Mul, vds, t);
-        let u = x.arith(Arith::Mul, vgst, apart);
+        let t = x.arith(Arith::Mul, d, t);
+        let u = x.arith(Arith::Mul, v, apart);
         let t = x.arith(Arith::Add, t, u);
-        x.arith(Arith::Mul, vds, t)
+        x.arith(Arith::Mul, d, t)
     };
+    let lin_n = cubic(x, vgst, vds);
     let sat_n = sat(x, vgst);
     let c = x.push(BNode::Cmp(Cmp::Ge, vgst, vds));
     let cpart_n = x.push(BNode::Select(c, lin_n, sat_n));
@@ -348,15 +334,11 @@ fn drain_current(x: &mut Ex, md: &JfetModel, scale: f64, vgs: u32, vgd: u32) {
     };
     let s = x.arith(Arith::Add, vgdt, vds);
     let lin_i = {
-        // vds (vds (Bfac vds + B) + vgdt (2B + 3 Bfac (vgdt + vds)))
-        let t = x.arith(Arith::Mul, three_bf, s);
-        let apart = x.arith(Arith::Add, two_b, t);
-        let t = x.arith(Arith::Mul, bf, vds);
-        let t = x.arith(Arith::Add, t, b);
-        let t = x.arith(Arith::Mul, vds, t);
-        let u = x.arith(Arith::Mul, vgdt, apart);
-        let t = x.arith(Arith::Add, t, u);
-        let cpart = x.arith(Arith::Mul, vds, t);
+        // ngspice's `vds (vds (Bfac vds + B) + vgdt (2B + 3 Bfac (vgdt + vds)))`,
+        // the normal mode's cubic seen from the drain, negated.
+        let sd = x.push(BNode::Neg(vds));
+        let c = cubic(x, vgdt, sd);
+        let cpart = x.push(BNode::Neg(c));
         x.arith(Arith::Mul, betap_i, cpart)
     };
     let sat_i = {
