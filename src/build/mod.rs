@@ -87,6 +87,7 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
             .collect(),
         reduced: coupling::singular_groups(circuit),
         fluxes: Vec::new(),
+        intermediates: HashMap::new(),
     };
     let elem_vars = b.element_vars();
     let node_pot = match opts.kvl {
@@ -119,6 +120,8 @@ struct Builder<'c> {
     names: Vec<Name>,
     reduced: Vec<coupling::Reduced>,
     fluxes: Vec<Vec<VarId>>,
+    /// The variable of each device intermediate, by element.
+    intermediates: HashMap<ElemId, VarId>,
 }
 
 impl Builder<'_> {
@@ -140,6 +143,14 @@ impl Builder<'_> {
                 out.push(None);
                 continue;
             }
+            if let ElementKind::Intermediate { .. } = e.kind {
+                let v =
+                    self.sys
+                        .add_var(e.name.clone(), VarKind::BranchVoltage, self.elem_origin(id));
+                self.intermediates.insert(id, v);
+                out.push(None);
+                continue;
+            }
             let origin = self.elem_origin(id);
             let u = self.sys.add_var(
                 joined(&["u_", &e.name]),
@@ -150,7 +161,11 @@ impl Builder<'_> {
                 .sys
                 .add_var(joined(&["i_", &e.name]), VarKind::BranchCurrent, origin);
             match e.kind {
-                ElementKind::Capacitor { .. } => {
+                ElementKind::Capacitor { .. }
+                | ElementKind::DeviceBranch {
+                    capacitance: Some(_),
+                    ..
+                } => {
                     self.sys.add_state(u);
                 }
                 ElementKind::Inductor { .. } if !self.in_reduced(id) => {
@@ -300,6 +315,12 @@ impl Builder<'_> {
             }
         }
         for (id, e) in self.c.elements.iter() {
+            if let ElementKind::Intermediate { expr, controls, .. } = &e.kind {
+                let rhs = self.behavioural(id, expr, controls, vars, pots);
+                let lhs = self.sys.exprs.var(self.intermediates[&id]);
+                self.sys.add_eq(lhs, rhs, self.elem_origin(id));
+                continue;
+            }
             let Some(ev) = vars[id.0 as usize] else {
                 continue;
             };
@@ -373,14 +394,14 @@ impl Builder<'_> {
                 ElementKind::DeviceBranch {
                     current,
                     charge,
+                    capacitance,
                     controls,
                     ..
                 } => {
                     self.device_branch(
                         id,
                         ev,
-                        current.as_deref(),
-                        charge.as_deref(),
+                        [current, charge, capacitance].map(|x| x.as_deref()),
                         controls,
                         vars,
                         pots,
@@ -388,6 +409,7 @@ impl Builder<'_> {
                     continue;
                 }
                 ElementKind::Coupling { .. } => continue,
+                ElementKind::Intermediate { .. } => continue,
             };
             self.sys.add_eq(lhs, rhs, self.elem_origin(id));
         }
@@ -414,9 +436,13 @@ impl Builder<'_> {
                 BNode::Pot(node) => pots[node.0 as usize],
                 BNode::Current(k) => self.ctrl_current(vars, controls[k as usize]),
                 BNode::Volt(k) => {
-                    match vars.get(controls[k as usize].0 as usize).copied().flatten() {
+                    let ctrl = controls[k as usize];
+                    match vars.get(ctrl.0 as usize).copied().flatten() {
                         Some(cv) => self.sys.exprs.var(cv.u),
-                        None => self.sys.exprs.constant(0.0),
+                        None => match self.intermediates.get(&ctrl) {
+                            Some(&v) => self.sys.exprs.var(v),
+                            None => self.sys.exprs.constant(0.0),
+                        },
                     }
                 }
                 BNode::Junction {
@@ -467,14 +493,14 @@ impl Builder<'_> {
     }
 
     /// A transistor's branch: `i = I + der(q)` and `q = Q`, the charge `q`
-    /// its state (as a diode's junction charge, see [`Builder::diode`]).
-    #[allow(clippy::too_many_arguments)]
+    /// its state (as a diode's junction charge, see [`Builder::diode`]);
+    /// with a capacitance `C`, `i = I + C·der(u)`, the branch voltage `u`
+    /// its state (as a capacitor's).
     fn device_branch(
         &mut self,
         id: ElemId,
         ev: ElemVars,
-        current: Option<&crate::elab::BExpr>,
-        charge: Option<&crate::elab::BExpr>,
+        [current, charge, capacitance]: [Option<&crate::elab::BExpr>; 3],
         controls: &[ElemId],
         vars: &[Option<ElemVars>],
         pots: &[ExprId],
@@ -493,6 +519,12 @@ impl Builder<'_> {
             let (qx, dq) = (x.var(qv), x.var(der));
             rhs = x.add(rhs, dq);
             self.sys.add_eq(qx, law, origin.clone());
+        }
+        if let Some(c) = capacitance {
+            let c = self.behavioural(id, c, controls, vars, pots);
+            let du = self.der_of(ev.u);
+            let t = self.sys.exprs.mul(c, du);
+            rhs = self.sys.exprs.add(rhs, t);
         }
         let i = self.sys.exprs.var(ev.i);
         self.sys.add_eq(i, rhs, origin);

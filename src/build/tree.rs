@@ -14,7 +14,11 @@ fn rank(k: &ElementKind) -> u8 {
         ElementKind::Vcvs { .. }
         | ElementKind::Ccvs { .. }
         | ElementKind::Behavioural { current: false, .. } => 1,
-        ElementKind::Capacitor { .. } => 2,
+        ElementKind::Capacitor { .. }
+        | ElementKind::DeviceBranch {
+            capacitance: Some(_),
+            ..
+        } => 2,
         ElementKind::Resistor { .. } | ElementKind::Diode { .. } => 3,
         // A transistor's junction (and charge) branches are as diodes; its
         // transport current, a current alone, is never in the tree.
@@ -30,7 +34,7 @@ fn rank(k: &ElementKind) -> u8 {
         | ElementKind::Vccs { .. }
         | ElementKind::Cccs { .. }
         | ElementKind::Behavioural { current: true, .. } => 5,
-        ElementKind::Coupling { .. } => 6,
+        ElementKind::Coupling { .. } | ElementKind::Intermediate { .. } => 6,
     }
 }
 

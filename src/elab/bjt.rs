@@ -796,6 +796,7 @@ impl Elab {
                 controlled,
                 current,
                 charge,
+                capacitance: None,
                 controls,
             },
             nodes: nodes.to_vec(),

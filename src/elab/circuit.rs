@@ -133,6 +133,18 @@ pub enum ElementKind {
         controlled: bool,
         current: Option<Box<BExpr>>,
         charge: Option<Box<BExpr>>,
+        /// A capacitance over the device's voltages (Meyer's gate
+        /// capacitances): `i = C·du/dt`, the branch voltage `u` a state.
+        capacitance: Option<Box<BExpr>>,
+        controls: Vec<ElemId>,
+    },
+    /// A device's named intermediate quantity (a MOSFET's threshold
+    /// `M1:von`): one variable and its defining expression, read by the
+    /// device's branches (and other intermediates) through
+    /// [`BNode::Volt`]. No terminals: no branch, no current.
+    Intermediate {
+        device: ElementLetter,
+        expr: Box<BExpr>,
         controls: Vec<ElemId>,
     },
 }
@@ -190,7 +202,8 @@ impl ElementKind {
                 std::slice::from_mut(ctrl)
             }
             ElementKind::Behavioural { controls, .. }
-            | ElementKind::DeviceBranch { controls, .. } => controls,
+            | ElementKind::DeviceBranch { controls, .. }
+            | ElementKind::Intermediate { controls, .. } => controls,
             _ => &mut [],
         }
     }
@@ -221,7 +234,9 @@ impl ElementKind {
             ElementKind::Ccvs { .. } => ElementLetter::H,
             ElementKind::Diode { .. } => ElementLetter::D,
             ElementKind::Behavioural { .. } => ElementLetter::B,
-            ElementKind::DeviceBranch { device, .. } => *device,
+            ElementKind::DeviceBranch { device, .. } | ElementKind::Intermediate { device, .. } => {
+                *device
+            }
         }
     }
 }

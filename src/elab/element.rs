@@ -73,10 +73,10 @@ impl Elab {
                 return;
             };
             let first = self.circuit.elements.len();
-            if el.letter == ElementLetter::J {
-                self.jfet(el, &name, &nodes, inherited, scope);
-            } else {
-                self.bjt(el, &name, &nodes, inherited, scope);
+            match el.letter {
+                ElementLetter::J => self.jfet(el, &name, &nodes, inherited, scope),
+                ElementLetter::M => self.mosfet(el, &name, &nodes, inherited, scope),
+                _ => self.bjt(el, &name, &nodes, inherited, scope),
             }
             if first < self.circuit.elements.len() {
                 self.elem_map

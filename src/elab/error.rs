@@ -284,7 +284,7 @@ impl ToDiagnostic for ElabError {
             WrongModelType { expected, .. } => (codes::WRONG_MODEL_TYPE, "wrong model type", format!("this element needs a model of type `{expected}`")),
             UnsupportedModel { help, .. } => (codes::UNSUPPORTED_MODEL, "not modelled", (*help).into()),
             ShortedElement { .. } => (codes::SHORTED_ELEMENT, "both terminals here", "ngspice keeps it, and it changes nothing: remove it, or connect it where it was meant to be".into()),
-            BadDevice { .. } => (codes::BAD_DEVICE, "here", "write `Qname collector base emitter [substrate] model [area] [m=…]`".into()),
+            BadDevice { element, .. } => (codes::BAD_DEVICE, "here", device_usage(element).into()),
             UndefinedSubckt { .. } => (codes::UNDEFINED_SUBCKT, "no such subcircuit", "define it with `.subckt NAME ports ... .ends`".into()),
             RecursiveSubckt { .. } => (codes::RECURSIVE_SUBCKT, "recursive instance", "a subcircuit may not contain itself, directly or indirectly".into()),
             DeepHierarchy { .. } => (codes::DEEP_HIERARCHY, "too deep", "flatten some levels of the hierarchy".into()),
@@ -326,5 +326,18 @@ impl ToDiagnostic for ElabError {
             _ => {}
         }
         d
+    }
+}
+
+/// How a device line is written, by the device's letter (the last path
+/// segment's first character).
+fn device_usage(element: &str) -> &'static str {
+    let name = element.rsplit('.').next().unwrap_or(element);
+    match name.chars().next().map(|c| c.to_ascii_uppercase()) {
+        Some('M') => {
+            "write `Mname drain gate source bulk model [L=…] [W=…] [AD=…] [AS=…] [PD=…] [PS=…] [NRD=…] [NRS=…] [m=…]`"
+        }
+        Some('J') => "write `Jname drain gate source model [area] [m=…]`",
+        _ => "write `Qname collector base emitter [substrate] model [area] [m=…]`",
     }
 }

@@ -11,6 +11,7 @@ mod element;
 mod error;
 mod jfet;
 mod model;
+mod mos;
 pub mod topology;
 
 use std::collections::{HashMap, HashSet};
@@ -55,6 +56,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         model_cache: HashMap::new(),
         bjt_cache: HashMap::new(),
         jfet_seen: HashSet::new(),
+        mos_cache: HashMap::new(),
         tstep: 1.0,
         tstop: 1.0,
         globals: FxHashSet::default(),
@@ -177,6 +179,8 @@ struct Elab {
     bjt_cache: HashMap<(u32, u32, String), Option<bjt::BjtModel>>,
     /// JFET model definitions already read (their warnings are given once).
     jfet_seen: HashSet<(u32, u32)>,
+    /// MOS models read, as `bjt_cache`.
+    mos_cache: HashMap<(u32, u32, String), Option<mos::MosModel>>,
     tstep: f64,
     tstop: f64,
     /// `.global` node names (case-folded): top-level nodes in every scope.
@@ -614,9 +618,9 @@ impl Elab {
                         self.elem_map.get(&vsrc).map(|&(id, _)| id).filter(|&id| {
                             match self.circuit.elements[id].kind {
                                 ElementKind::VSource { .. } => true,
-                                ElementKind::Coupling { .. } | ElementKind::DeviceBranch { .. } => {
-                                    false
-                                }
+                                ElementKind::Coupling { .. }
+                                | ElementKind::DeviceBranch { .. }
+                                | ElementKind::Intermediate { .. } => false,
                                 _ => any,
                             }
                         });
@@ -695,7 +699,8 @@ impl Elab {
         let bad = |k: &ElementKind| match k {
             ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => ctrl.0 == u32::MAX,
             ElementKind::Behavioural { controls, .. }
-            | ElementKind::DeviceBranch { controls, .. } => {
+            | ElementKind::DeviceBranch { controls, .. }
+            | ElementKind::Intermediate { controls, .. } => {
                 controls.iter().any(|c| c.0 == u32::MAX)
             }
             ElementKind::Coupling { l1, l2, .. } => l1.0 == u32::MAX || l2.0 == u32::MAX,

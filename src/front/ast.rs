@@ -182,6 +182,8 @@ pub enum ElementLetter {
     Q,
     /// Junction field-effect transistor.
     J,
+    /// MOSFET.
+    M,
     /// Subcircuit instance.
     X,
 }
@@ -206,6 +208,7 @@ impl ElementLetter {
             'B' => B,
             'Q' => Q,
             'J' => J,
+            'M' => M,
             'X' => X,
             _ => return None,
         })
@@ -229,13 +232,14 @@ impl ElementLetter {
             B => 'B',
             Q => 'Q',
             J => 'J',
+            M => 'M',
             X => 'X',
         }
     }
 
     /// How many nodes follow the name: four for the voltage-controlled
-    /// sources, three for Q (a fourth, the substrate, is one of its words),
-    /// none for K, two for the others; `None` for X, whose nodes end where
+    /// sources and M, three for Q (a fourth, the substrate, is one of its
+    /// words) and J, none for K, two for the others; `None` for X, whose nodes end where
     /// its subcircuit's name stands.
     pub fn n_nodes(self) -> Option<usize> {
         use ElementLetter::*;
@@ -243,6 +247,7 @@ impl ElementLetter {
             R | C | L | V | I | F | H | D | B => Some(2),
             E | G => Some(4),
             Q | J => Some(3),
+            M => Some(4),
             K => Some(0),
             X => None,
         }
@@ -254,7 +259,6 @@ impl ElementLetter {
 /// does not know either. `letter` is upper-case.
 pub fn unsupported_kind(letter: char) -> Option<&'static str> {
     Some(match letter {
-        'M' => "MOSFET",
         'S' => "voltage-controlled switch",
         'W' => "current-controlled switch",
         'T' | 'O' | 'U' | 'Y' => "transmission line",

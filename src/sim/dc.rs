@@ -85,7 +85,11 @@ where
             match el.kind {
                 ElementKind::Capacitor { ic: Some(v), .. }
                 | ElementKind::Inductor { ic: Some(v), .. } => y[k] = v,
-                ElementKind::Capacitor { ic: None, .. } => {
+                ElementKind::Capacitor { ic: None, .. }
+                | ElementKind::DeviceBranch {
+                    capacitance: Some(_),
+                    ..
+                } => {
                     let named = |node| node != GROUND && c.ics.iter().any(|i| i.node == node);
                     if named(el.nodes[0]) || named(el.nodes[1]) {
                         y[k] = ic_node(el.nodes[0]) - ic_node(el.nodes[1]);

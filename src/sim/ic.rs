@@ -83,6 +83,22 @@ fn dc_image(
                 continue;
             }
             ElementKind::Capacitor { .. } => ElementKind::ISource { wave: zero() },
+            // A capacitance branch is open in DC: its current alone.
+            ElementKind::DeviceBranch {
+                device,
+                controlled,
+                current,
+                charge,
+                capacitance: Some(_),
+                controls,
+            } => ElementKind::DeviceBranch {
+                device: *device,
+                controlled: *controlled,
+                current: current.clone(),
+                charge: charge.clone(),
+                capacitance: None,
+                controls: controls.clone(),
+            },
             ElementKind::Inductor { .. } => ElementKind::VSource { wave: zero() },
             k => k.clone(),
         };
@@ -204,7 +220,11 @@ pub(super) fn held_operating_point(
         let e = *owner.get(&s).ok_or_else(|| unmapped(s))?;
         let el = &c.elements[e];
         let out = match el.kind {
-            ElementKind::Capacitor { .. } => Output::Voltage {
+            ElementKind::Capacitor { .. }
+            | ElementKind::DeviceBranch {
+                capacitance: Some(_),
+                ..
+            } => Output::Voltage {
                 pos: el.nodes[0],
                 neg: el.nodes[1],
             },

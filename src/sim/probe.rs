@@ -26,7 +26,10 @@ pub(super) fn resolve_probe(c: &Circuit, probe: &str) -> Result<Output, SimError
     }
     if let Some(name) = inner("i(") {
         let e = c.find_element(name.trim()).ok_or_else(bad)?;
-        if matches!(c.elements[e].kind, ElementKind::Coupling { .. }) {
+        if matches!(
+            c.elements[e].kind,
+            ElementKind::Coupling { .. } | ElementKind::Intermediate { .. }
+        ) {
             return Err(bad());
         }
         return Ok(Output::Current { elem: e });

@@ -104,6 +104,10 @@ fn generated_rust_and_c_agree_with_the_evaluator() {
         "bjt_diff_pair",
         // A JFET's drain current: regions as choices, both channel types.
         "jfet_amp",
+        // MOSFETs: Meyer's capacitances over the frame of the moment, level
+        // 3's short-channel current, terminal resistances.
+        "mos_current_mirror",
+        "mos3_inverter_chain",
         // Generated: its repeated sections become loops in the source.
         "rlc_ladder_60",
     ] {

@@ -469,3 +469,43 @@ fn transistor_lines_and_model_cards_are_read_as_ngspice_reads_them() {
         }
     ));
 }
+
+#[test]
+fn mosfet_lines_read_their_geometry_and_the_model_its_level() {
+    // M1: geometry, RSH times NRS (an internal source node), no drain
+    // resistance; M2 inside a subcircuit with `m=` on both; a P-channel
+    // device's branches point from source to drain.
+    let text = "t\nV1 1 0 5\nM1 1 1 0 0 nm L=2u W=10u AD=20p AS=20p PD=14u PS=14u NRS=2 off\n\
+        M2 0 1 1 1 pm w=4u l=1u\nX1 1 0 half m=2\n\
+        .subckt half a b\nM3 a a b b nm l=1u w=1u m=3\n.ends\n\
+        .model nm nmos (level=1 vto=0.7 kp=1e-4 tox=10n cj=1e-4 rsh=50)\n\
+        .model pm pmos level=3 vto=-0.7\n.tran 1u 10u\n.end\n";
+    let path = std::path::Path::new("mem.cir");
+    let el = match kausal::pipeline::elaborate_text("mem.cir", path, text.to_string(), &FsLoader) {
+        Ok(el) => el,
+        Err(f) => panic!("{:?}", f.errors().map(|d| &d.message).collect::<Vec<_>>()),
+    };
+    let c = &el.circuit;
+    let names: Vec<&str> = c.elements.values().map(|e| e.name.as_str()).collect();
+    for branch in [
+        "M1:ds", "M1:bd", "M1:gs", "M1:gb", "M1:rs", "M2:ds", "X1.M3:ds",
+    ] {
+        assert!(names.contains(&branch), "{branch} in {names:?}");
+    }
+    // RSH·NRD with the default NRD = 1 gives a drain resistance too, so the
+    // gate (on the drain's node) meets the channel through one.
+    let rd = c.elements.values().find(|e| e.name == "M1:rd").unwrap();
+    assert!(matches!(rd.kind, kausal::elab::ElementKind::Resistor { r } if r == 50.0));
+    assert!(names.contains(&"M1:gd"), "{names:?}");
+    let rs = c.elements.values().find(|e| e.name == "M1:rs").unwrap();
+    assert!(matches!(rs.kind, kausal::elab::ElementKind::Resistor { r } if r == 100.0));
+    // CJ times AD: the bottom junction's capacitance.
+    let bd = c.junctions.iter().find(|j| j.name == "M1.bd").unwrap();
+    assert!((bd.cjo - 2e-15).abs() < 1e-27, "{}", bd.cjo);
+    // The multipliers of the instance and of the device: 2 · 3.
+    let bd3 = c.junctions.iter().find(|j| j.name == "X1.M3.bd").unwrap();
+    assert!((bd3.is - 6e-14).abs() < 1e-26, "{}", bd3.is);
+    // The PMOS runs its channel branch from source (node 1) to drain (0).
+    let ds = c.elements.values().find(|e| e.name == "M2:ds").unwrap();
+    assert_eq!(ds.nodes[0], c.find_node("1").unwrap());
+}

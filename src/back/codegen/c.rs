@@ -111,7 +111,7 @@ impl Syntax for C {
             sig: format!(
                 "static void block_{k}(double t, const double *y, const double *p, double *v)"
             ),
-            call: format!("newton({n}, tears, t, y, p, v, resid_{k});"),
+            call: format!("newton({n}, tears, t, y, p, v, resid_{k}, resid_{k}_tan, N_VARS);"),
         }
     }
 
@@ -120,7 +120,7 @@ impl Syntax for C {
             sig: format!(
                 "static void block_{k}_tan(double t, const double *y, const double *p, const double *v, double *dv)"
             ),
-            call: format!("tangent_solve({n}, tears, t, y, p, v, dv, resid_{k}_tan);"),
+            call: format!("tangent_solve({n}, tears, t, y, p, v, dv, resid_{k}_tan, N_VARS);"),
         }
     }
 

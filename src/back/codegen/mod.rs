@@ -389,7 +389,12 @@ impl Gen<'_> {
             let _ = writeln!(out, "    r[{i}] = {} - {};", self.expr(*l), self.expr(*r));
         }
         let _ = writeln!(out, "}}\n");
+        // Its tangent residual before the drivers: Newton's Jacobian and
+        // the tangent solve both read it.
+        self.resid_tan_fn(&parts, k, out);
         let driver = self.syn.block_fn(k, parts.tears.len());
+        self.block_driver(out, driver, &parts.tears);
+        let driver = self.syn.block_tan_fn(k, parts.tears.len());
         self.block_driver(out, driver, &parts.tears);
     }
 
@@ -406,10 +411,9 @@ impl Gen<'_> {
         let _ = writeln!(out, "{sig} {{\n    {table}\n    {call}\n}}\n");
     }
 
-    /// The tangent of a block: the tangents of its assignments and
-    /// residuals (`resid_k_tan`), and their solve (`block_k_tan`).
-    fn block_tan_fns(&self, step: &Step, k: usize, out: &mut String) {
-        let parts = self.block_parts(step);
+    /// The tangents of a block's assignments and residuals
+    /// (`resid_k_tan`), affine in its tears' tangents.
+    fn resid_tan_fn(&self, parts: &BlockParts, k: usize, out: &mut String) {
         out.push_str(&self.syn.resid_tan_head(k));
         for a in &parts.inner {
             if let Solved::Explicit(e) = a.solved {
@@ -431,8 +435,6 @@ impl Gen<'_> {
             );
         }
         let _ = writeln!(out, "}}\n");
-        let driver = self.syn.block_tan_fn(k, parts.tears.len());
-        self.block_driver(out, driver, &parts.tears);
     }
 
     /// The source function of every independent source.
@@ -542,7 +544,6 @@ impl Gen<'_> {
             if is_block {
                 out.push('\n');
                 self.block_fns(step, k, out);
-                self.block_tan_fns(step, k, out);
             }
         }
     }

@@ -90,19 +90,24 @@ static inline void lin_solve(int n, double *a, double *b) {
     for (int k = n - 1; k >= 0; k--) { double s = b[k]; for (int j = k + 1; j < n; j++) s -= a[k * n + j] * b[j]; b[k] = s / a[k * n + k]; }
 }
 
-/* Damped Newton on the tearing variables (finite-difference Jacobian). */
-static inline void newton(int n, const int *tears, double t, const double *y, const double *p, double *v, resid_fn f) {
+typedef void (*tan_fn)(double, const double *, const double *, const double *, double *, double *);
+
+/* Damped Newton on the tearing variables. The Jacobian is exact: `tan` gives
+   the residuals' tangents along one tear at a time (a finite difference loses
+   a femtofarad capacitance's column to rounding); `nv` is the number of
+   variables, the size of its tangent scratch. */
+static inline void newton(int n, const int *tears, double t, const double *y, const double *p, double *v, resid_fn f, tan_fn tan, int nv) {
     double *r = malloc(sizeof(double) * (size_t)(4 * n + n * n));
-    if (!r) { for (int j = 0; j < n; j++) v[tears[j]] = NAN; return; }
+    double *dv = calloc((size_t)nv, sizeof(double));
+    if (!r || !dv) { free(r); free(dv); for (int j = 0; j < n; j++) v[tears[j]] = NAN; return; }
     double *r1 = r + n, *dx = r + 2 * n, *x0 = r + 3 * n, *a = r + 4 * n;
     for (int it = 0; it < 100; it++) {
         f(t, y, p, v, r);
         double base = 0.0; for (int i = 0; i < n; i++) base += r[i] * r[i];
         if (base == 0.0) break;
         for (int j = 0; j < n; j++) {
-            double xj = v[tears[j]], h = 1e-7 * (1.0 + fabs(xj));
-            v[tears[j]] = xj + h; f(t, y, p, v, r1); v[tears[j]] = xj;
-            for (int i = 0; i < n; i++) a[i * n + j] = (r1[i] - r[i]) / h;
+            dv[tears[j]] = 1.0; tan(t, y, p, v, dv, r1); dv[tears[j]] = 0.0;
+            for (int i = 0; i < n; i++) a[i * n + j] = r1[i];
         }
         memcpy(dx, r, sizeof(double) * (size_t)n);
         lin_solve(n, a, dx);
@@ -119,25 +124,28 @@ static inline void newton(int n, const int *tears, double t, const double *y, co
         if (small) break;
     }
     free(r);
+    free(dv);
 }
-
-typedef void (*tan_fn)(double, const double *, const double *, const double *, double *, double *);
 
 /* The tangents of a loop's unknowns by implicit differentiation: f writes the
    tangents inside the loop and of its residuals, which are affine in the
    tears' tangents; they are solved for dr = 0. */
-static inline void tangent_solve(int n, const int *tears, double t, const double *y, const double *p, const double *v, double *dv, tan_fn f) {
+static inline void tangent_solve(int n, const int *tears, double t, const double *y, const double *p, const double *v, double *dv, tan_fn f, int nv) {
     double *b = malloc(sizeof(double) * (size_t)(2 * n + n * n));
-    if (!b) { for (int j = 0; j < n; j++) dv[tears[j]] = NAN; return; }
+    double *z = calloc((size_t)nv, sizeof(double));
+    if (!b || !z) { free(b); free(z); for (int j = 0; j < n; j++) dv[tears[j]] = NAN; return; }
     double *c = b + n, *a = b + 2 * n;
     for (int j = 0; j < n; j++) dv[tears[j]] = 0.0;
     f(t, y, p, v, dv, b);
+    /* The coefficients from a scratch with no input tangents (a difference
+       with the inputs' residual would cancel them to rounding). */
     for (int j = 0; j < n; j++) {
-        dv[tears[j]] = 1.0; f(t, y, p, v, dv, c); dv[tears[j]] = 0.0;
-        for (int i = 0; i < n; i++) a[i * n + j] = c[i] - b[i];
+        z[tears[j]] = 1.0; f(t, y, p, v, z, c); z[tears[j]] = 0.0;
+        for (int i = 0; i < n; i++) a[i * n + j] = c[i];
     }
     lin_solve(n, a, b);
     for (int j = 0; j < n; j++) dv[tears[j]] = -b[j];
     f(t, y, p, v, dv, c);
     free(b);
+    free(z);
 }

@@ -88,10 +88,21 @@ fn lin_solve(n: usize, a: &mut [f64], b: &mut [f64]) {
     for k in (0..n).rev() { let mut s = b[k]; for j in k + 1..n { s -= a[k * n + j] * b[j]; } b[k] = s / a[k * n + k]; }
 }
 
-/// Damped Newton on `tears` (finite-difference Jacobian, dense solve).
-fn newton(tears: &[usize], v: &mut [f64], f: &mut dyn FnMut(&mut [f64], &mut [f64])) {
+/// A loop's tangent residual: values, tangents in and out, residual tangents.
+type TanFn<'a> = dyn FnMut(&[f64], &mut [f64], &mut [f64]) + 'a;
+
+/// Damped Newton on `tears` (dense solve). The Jacobian is exact: `tan`
+/// gives the residuals' tangents along one tear at a time (a finite
+/// difference loses a femtofarad capacitance's column to rounding).
+fn newton(
+    tears: &[usize],
+    v: &mut [f64],
+    f: &mut dyn FnMut(&mut [f64], &mut [f64]),
+    tan: &mut TanFn<'_>,
+) {
     let n = tears.len();
     let (mut r, mut r1) = (vec![0.0; n], vec![0.0; n]);
+    let mut dv = vec![0.0; v.len()];
     let norm = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
     for _ in 0..100 {
         f(v, &mut r);
@@ -99,12 +110,10 @@ fn newton(tears: &[usize], v: &mut [f64], f: &mut dyn FnMut(&mut [f64], &mut [f6
         if base == 0.0 { return; }
         let mut a = vec![0.0; n * n];
         for j in 0..n {
-            let x0 = v[tears[j]];
-            let h = 1e-7 * (1.0 + x0.abs());
-            v[tears[j]] = x0 + h;
-            f(v, &mut r1);
-            v[tears[j]] = x0;
-            for i in 0..n { a[i * n + j] = (r1[i] - r[i]) / h; }
+            dv[tears[j]] = 1.0;
+            tan(v, &mut dv, &mut r1);
+            dv[tears[j]] = 0.0;
+            for i in 0..n { a[i * n + j] = r1[i]; }
         }
         let mut dx = r.clone();
         lin_solve(n, &mut a, &mut dx);
@@ -123,16 +132,19 @@ fn newton(tears: &[usize], v: &mut [f64], f: &mut dyn FnMut(&mut [f64], &mut [f6
 /// The tangents of a loop's unknowns `tears` by implicit differentiation:
 /// `f(dv, dr)` writes the tangents inside the loop and of its residuals,
 /// which are affine in the tears' tangents; they are solved for dr = 0.
+/// The coefficients come from a scratch with no input tangents (a
+/// difference with the inputs' residual would cancel them to rounding).
 fn tangent_solve(tears: &[usize], dv: &mut [f64], f: &mut dyn FnMut(&mut [f64], &mut [f64])) {
     let n = tears.len();
     let (mut b, mut c, mut a) = (vec![0.0; n], vec![0.0; n], vec![0.0; n * n]);
     for &k in tears { dv[k] = 0.0; }
     f(dv, &mut b);
+    let mut z = vec![0.0; dv.len()];
     for j in 0..n {
-        dv[tears[j]] = 1.0;
-        f(dv, &mut c);
-        dv[tears[j]] = 0.0;
-        for i in 0..n { a[i * n + j] = c[i] - b[i]; }
+        z[tears[j]] = 1.0;
+        f(&mut z, &mut c);
+        z[tears[j]] = 0.0;
+        for i in 0..n { a[i * n + j] = c[i]; }
     }
     lin_solve(n, &mut a, &mut b);
     for j in 0..n { dv[tears[j]] = -b[j]; }

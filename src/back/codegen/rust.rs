@@ -118,7 +118,7 @@ impl Syntax for Rust {
         Driver {
             sig: format!("fn block_{k}(t: f64, y: &[f64], p: &[f64; NP], v: &mut [f64; N_VARS])"),
             call: format!(
-                "newton(&TEARS, v, &mut |v: &mut [f64], r: &mut [f64]| resid_{k}(t, y, p, v, r));"
+                "newton(&TEARS, v, &mut |v: &mut [f64], r: &mut [f64]| resid_{k}(t, y, p, v, r), &mut |v: &[f64], dv: &mut [f64], dr: &mut [f64]| resid_{k}_tan(t, y, p, v, dv, dr));"
             ),
         }
     }

@@ -67,7 +67,7 @@ impl<'a> Parser<'a> {
             E | G => self.voltage_controlled(&mut c, name, span)?,
             F | H => self.current_controlled(&mut c, name, span)?,
             D => self.diode(&mut c, name, span)?,
-            Q | J => self.device(&mut c),
+            Q | J | M => self.device(&mut c),
             B => self.behavioural_source(&mut c, name, span)?,
             X => unreachable!("instances are read by Parser::instance"),
         };
@@ -332,8 +332,8 @@ impl<'a> Parser<'a> {
         })
     }
 
-    /// Q: the bare words after the terminals (up to `off` or the first
-    /// `name=value`), then the `name=value`s. Which word is the model is
+    /// Q, J and M: the bare words after the terminals (up to `off` or the
+    /// first `name=value`), then the `name=value`s (and `off` among them). Which word is the model is
     /// decided where models are known.
     fn device(&mut self, c: &mut Cursor<'_, 'a>) -> ElementBody<'a> {
         let mut words = Vec::new();
@@ -358,6 +358,11 @@ impl<'a> Parser<'a> {
         let mut params = Vec::new();
         loop {
             params.extend(self.assigns(c));
+            // `off` may also follow the parameters (`M1 d g s b n W=1u off`).
+            if c.peek().is_some_and(|t| t.is_word("off")) {
+                c.next();
+                continue;
+            }
             let after_ic = params.last().is_some_and(|p: &Assign<'_>| p.name.is("ic"));
             if !(after_ic && c.peek().is_some_and(is_value_token)) {
                 break;
