@@ -410,6 +410,13 @@ impl Builder<'_> {
                 }
                 ElementKind::Coupling { .. } => continue,
                 ElementKind::Intermediate { .. } => continue,
+                // i = g·u, the conductance g a register the simulator sets.
+                ElementKind::Switch { sw, .. } => {
+                    let g = if sw.initially_on { sw.ron } else { sw.roff };
+                    let p = self.sys.add_switch_param(joined(&["g_", &e.name]), 1.0 / g);
+                    let g = self.sys.exprs.param(p);
+                    (i, self.sys.exprs.mul(g, u))
+                }
             };
             self.sys.add_eq(lhs, rhs, self.elem_origin(id));
         }

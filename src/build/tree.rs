@@ -19,7 +19,7 @@ fn rank(k: &ElementKind) -> u8 {
             capacitance: Some(_),
             ..
         } => 2,
-        ElementKind::Resistor { .. } | ElementKind::Diode { .. } => 3,
+        ElementKind::Resistor { .. } | ElementKind::Diode { .. } | ElementKind::Switch { .. } => 3,
         // A transistor's junction (and charge) branches are as diodes; its
         // transport current, a current alone, is never in the tree.
         ElementKind::DeviceBranch { controlled, .. } => {

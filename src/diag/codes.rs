@@ -134,6 +134,7 @@ codes! {
     FIXED_STEP_BOUND = "K0414", "A fixed-step method's stability bound, and where the step stands.";
     BLEW_UP = "K0415", "A fixed-step run blew up: its step is past the stability bound.";
     FIXED_STEP = "K0416", "A step length given to a method that has none, or missing where needed.";
+    SWITCH_METHOD = "K0417", "Switch events are located by the adaptive diffsol methods only.";
     VALIDATE_FAILED = "K0500", "Validation against ngspice failed.";
 }
 

@@ -138,6 +138,15 @@ pub enum ElementKind {
         capacitance: Option<Box<BExpr>>,
         controls: Vec<ElemId>,
     },
+    /// S, W: a resistance of RON or ROFF as the switch's state says; the
+    /// state is a run-time register the simulator sets when the control
+    /// (S: the voltage from node 2 to node 3; W: the current of `ctrl`)
+    /// crosses VT + VH upwards (on) or VT − VH downwards (off).
+    Switch {
+        sw: Box<SwitchModel>,
+        /// W's controlling V source.
+        ctrl: Option<ElemId>,
+    },
     /// A device's named intermediate quantity (a MOSFET's threshold
     /// `M1:von`): one variable and its defining expression, read by the
     /// device's branches (and other intermediates) through
@@ -147,6 +156,41 @@ pub enum ElementKind {
         expr: Box<BExpr>,
         controls: Vec<ElemId>,
     },
+}
+
+/// A switch's model (ngspice's SW and CSW): the threshold and hysteresis
+/// of its control (volts for S, amperes for W), its two resistances, and the
+/// state it starts the operating point in (`on`; off by default).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SwitchModel {
+    pub vt: f64,
+    pub vh: f64,
+    pub ron: f64,
+    pub roff: f64,
+    pub initially_on: bool,
+}
+
+impl SwitchModel {
+    /// The state after the control `x` from state `on`: on above VT + VH,
+    /// off below VT − VH, unchanged in between.
+    pub fn next(&self, on: bool, x: f64) -> bool {
+        if x > self.vt + self.vh {
+            true
+        } else if x < self.vt - self.vh {
+            false
+        } else {
+            on
+        }
+    }
+
+    /// The control value at which state `on` changes.
+    pub fn threshold(&self, on: bool) -> f64 {
+        if on {
+            self.vt - self.vh
+        } else {
+            self.vt + self.vh
+        }
+    }
 }
 
 /// A B source's expression with its names resolved: parameters and `.func`
@@ -204,6 +248,7 @@ impl ElementKind {
             ElementKind::Behavioural { controls, .. }
             | ElementKind::DeviceBranch { controls, .. }
             | ElementKind::Intermediate { controls, .. } => controls,
+            ElementKind::Switch { ctrl: Some(c), .. } => std::slice::from_mut(c),
             _ => &mut [],
         }
     }
@@ -234,6 +279,13 @@ impl ElementKind {
             ElementKind::Ccvs { .. } => ElementLetter::H,
             ElementKind::Diode { .. } => ElementLetter::D,
             ElementKind::Behavioural { .. } => ElementLetter::B,
+            ElementKind::Switch { ctrl, .. } => {
+                if ctrl.is_some() {
+                    ElementLetter::W
+                } else {
+                    ElementLetter::S
+                }
+            }
             ElementKind::DeviceBranch { device, .. } | ElementKind::Intermediate { device, .. } => {
                 *device
             }

@@ -76,6 +76,7 @@ impl Elab {
             match el.letter {
                 ElementLetter::J => self.jfet(el, &name, &nodes, inherited, scope),
                 ElementLetter::M => self.mosfet(el, &name, &nodes, inherited, scope),
+                ElementLetter::S | ElementLetter::W => self.switch(el, &name, &nodes, scope),
                 _ => self.bjt(el, &name, &nodes, inherited, scope),
             }
             if first < self.circuit.elements.len() {

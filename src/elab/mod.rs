@@ -12,6 +12,7 @@ mod error;
 mod jfet;
 mod model;
 mod mos;
+mod switch;
 pub mod topology;
 
 use std::collections::{HashMap, HashSet};
@@ -57,6 +58,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         bjt_cache: HashMap::new(),
         jfet_seen: HashSet::new(),
         mos_cache: HashMap::new(),
+        switch_seen: HashSet::new(),
         tstep: 1.0,
         tstop: 1.0,
         globals: FxHashSet::default(),
@@ -181,6 +183,8 @@ struct Elab {
     jfet_seen: HashSet<(u32, u32)>,
     /// MOS models read, as `bjt_cache`.
     mos_cache: HashMap<(u32, u32, String), Option<mos::MosModel>>,
+    /// Switch model definitions already read (their warnings are given once).
+    switch_seen: HashSet<(u32, u32)>,
     tstep: f64,
     tstop: f64,
     /// `.global` node names (case-folded): top-level nodes in every scope.
@@ -697,7 +701,11 @@ impl Elab {
         // Elements whose references failed are removed from the circuit so
         // that later stages never see a dangling id.
         let bad = |k: &ElementKind| match k {
-            ElementKind::Cccs { ctrl, .. } | ElementKind::Ccvs { ctrl, .. } => ctrl.0 == u32::MAX,
+            ElementKind::Cccs { ctrl, .. }
+            | ElementKind::Ccvs { ctrl, .. }
+            | ElementKind::Switch {
+                ctrl: Some(ctrl), ..
+            } => ctrl.0 == u32::MAX,
             ElementKind::Behavioural { controls, .. }
             | ElementKind::DeviceBranch { controls, .. }
             | ElementKind::Intermediate { controls, .. } => {

@@ -126,7 +126,7 @@ pub enum ElementBody<'a> {
         text: String,
         span: Span,
     },
-    /// Q and J: after the terminals, the bare words (Q's `[substrate] model
+    /// Q, J, M, S and W: after the terminals, the bare words (Q's `[substrate] model
     /// [area]`, told apart by which word names a model; J's `model [area]`),
     /// then `name=value`s.
     Device {
@@ -184,6 +184,10 @@ pub enum ElementLetter {
     J,
     /// MOSFET.
     M,
+    /// Voltage-controlled switch.
+    S,
+    /// Current-controlled switch.
+    W,
     /// Subcircuit instance.
     X,
 }
@@ -209,6 +213,8 @@ impl ElementLetter {
             'Q' => Q,
             'J' => J,
             'M' => M,
+            'S' => S,
+            'W' => W,
             'X' => X,
             _ => return None,
         })
@@ -233,6 +239,8 @@ impl ElementLetter {
             Q => 'Q',
             J => 'J',
             M => 'M',
+            S => 'S',
+            W => 'W',
             X => 'X',
         }
     }
@@ -244,8 +252,8 @@ impl ElementLetter {
     pub fn n_nodes(self) -> Option<usize> {
         use ElementLetter::*;
         match self {
-            R | C | L | V | I | F | H | D | B => Some(2),
-            E | G => Some(4),
+            R | C | L | V | I | F | H | D | B | W => Some(2),
+            E | G | S => Some(4),
             Q | J => Some(3),
             M => Some(4),
             K => Some(0),
@@ -259,8 +267,6 @@ impl ElementLetter {
 /// does not know either. `letter` is upper-case.
 pub fn unsupported_kind(letter: char) -> Option<&'static str> {
     Some(match letter {
-        'S' => "voltage-controlled switch",
-        'W' => "current-controlled switch",
         'T' | 'O' | 'U' | 'Y' => "transmission line",
         'Z' => "MESFET",
         'N' => "OSDI device",

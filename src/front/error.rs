@@ -171,7 +171,7 @@ impl ParseError {
             Unterminated { close, .. } => (codes::UNTERMINATED, "opened here", format!("close the expression with `{close}`")),
             Unexpected { .. } => (codes::UNEXPECTED, "unexpected", "remove it or check the element's syntax in the ngspice manual".into()),
             UnknownElement { .. } => (codes::UNKNOWN_ELEMENT, "unknown element", "element names start with R, C, L, K, V, I, E, F, G, H, D or X".into()),
-            UnsupportedElement { .. } => (codes::UNSUPPORTED_ELEMENT, "not supported", "kausal supports R, C, L, K, V, I, E, F, G, H, D and X elements".into()),
+            UnsupportedElement { .. } => (codes::UNSUPPORTED_ELEMENT, "not supported", "kausal supports R, C, L, K, V, I, E, F, G, H, D, B, Q, J, M, S, W and X elements".into()),
             MissingNode { expected, .. } => (codes::MISSING_NODE, "missing node", format!("write {expected} node names after the element name")),
             MissingValue { .. } => (codes::MISSING_VALUE, "value missing", "add the value after the nodes, e.g. `R1 a b 1k`".into()),
             BadNumber { .. } => (codes::BAD_NUMBER, "bad number", "numbers look like `10`, `1.5e-3`, `4.7k`, `10uF` or `3meg`".into()),

@@ -143,6 +143,9 @@ pub struct Param {
     pub value: f64,
     /// The value of an independent DC source (ramped by source stepping).
     pub source: bool,
+    /// A switch's conductance, which the simulator sets as the switch's
+    /// state changes (a register of its own, never a constant).
+    pub switch: bool,
 }
 
 /// A waveform of an independent source (ngspice semantics, defaults resolved).
@@ -538,6 +541,7 @@ impl EquationSystem {
             name,
             value,
             source: false,
+            switch: false,
         })
     }
 
@@ -547,6 +551,17 @@ impl EquationSystem {
             name,
             value,
             source: true,
+            switch: false,
+        })
+    }
+
+    /// A parameter holding a switch's conductance (its state).
+    pub fn add_switch_param(&mut self, name: String, value: f64) -> ParamId {
+        self.params.push(Param {
+            name,
+            value,
+            source: false,
+            switch: true,
         })
     }
 

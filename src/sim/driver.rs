@@ -58,6 +58,7 @@ pub(super) struct Job<'a> {
     pub(super) outputs: &'a [Output],
     pub(super) opts: &'a Options,
     pub(super) method: Method,
+    pub(super) switches: &'a super::events::Switches,
 }
 
 impl Method {
@@ -90,6 +91,7 @@ where
         outputs,
         opts,
         method,
+        switches,
     } = *job;
     let sys = sorted.system();
     let sparse = tape.states.len() > DENSE_STATES;
@@ -97,7 +99,18 @@ where
     let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; tape.states.len()], sparse);
     let c = &sorted.elaborated.circuit;
     let atol = atols(sys, &tape.states, opts, c);
-    let start = initial_state::<M>(sorted, &ode, t0, &atol, outputs, opts)?;
+    switches.apply(&ode);
+    let mut start = initial_state::<M>(sorted, &ode, t0, &atol, outputs, opts)?;
+    // The switches' states at the operating point: each from its control
+    // there (as ngspice iterates them), solved again until none changes.
+    if !switches.is_empty() && !tran.uic {
+        for _ in 0..20 {
+            if !switches.settle(&ode, t0, &start.y)? {
+                break;
+            }
+            start = initial_state::<M>(sorted, &ode, t0, &atol, outputs, opts)?;
+        }
+    }
     // f must be defined where the run starts: diffsol sizes its first step
     // from f(t0, y0), and a NaN there (a loop that is singular at t0 while
     // the `.ic` operating point is not) would make every step size NaN,
@@ -151,7 +164,7 @@ where
         ode: &problem.eqn,
         grid: output_grid(opts, tran),
         next: 0,
-        rows: Rows::new(tape.out_regs.len(), sink),
+        rows: Rows::new(outputs.len(), sink),
         out: vec![0.0; tape.out_regs.len()],
         dc_start: !tran.uic,
         first: start.row,
@@ -171,6 +184,7 @@ where
         opts,
         method,
         tmax,
+        switches,
     };
     let mut stats = Stats::default();
     // The steps a stalled BDF took before ESDIRK34 took over.
@@ -281,6 +295,7 @@ where
     }
     let mut w = rec.rows.into_waveforms(stats);
     w.warnings = warnings;
+    w.events = switches.events.take();
     Ok(w)
 }
 
@@ -446,6 +461,7 @@ where
     pub(super) method: Method,
     /// The longest step (the `.tran` card's TMAX).
     pub(super) tmax: Option<f64>,
+    pub(super) switches: &'p super::events::Switches,
 }
 
 /// How [`drive`] ended: at the end of the run, or (BDF only) stalled, with
@@ -551,6 +567,7 @@ where
         opts,
         method,
         tmax,
+        switches,
     } = *stops_at;
     let order = method.start_order();
     let t_end = rec.grid.last().unwrap_or(0.0);
@@ -623,6 +640,22 @@ where
                 // with a smaller step; it is reported only if the solver gives up.
                 if r.is_ok() {
                     problem.eqn.error.borrow_mut().take();
+                }
+                // A switch whose control crossed its threshold within the
+                // step: the outputs up to the crossing from this step's
+                // interpolant, then a restart there with the new state.
+                if r.is_ok()
+                    && let Some(c) =
+                        switches.locate(&problem.eqn, &solver, t_before, solver.state().t)?
+                {
+                    let (t_ev, y_ev) = (c.t, c.y);
+                    emit_grid(&solver, &mut rec, t_ev, false)?;
+                    switches.commit(&problem.eqn, t_ev, &c.controls);
+                    budget.step(t_ev, t_ev - t_before)?;
+                    stats.restarts += 1;
+                    solver = restart_at(problem, solver, &make, t_ev, &y_ev, stats, order)?;
+                    solver.set_stop_time(set).map_err(|e| solver_err(set, e))?;
+                    continue;
                 }
                 match r {
                     Ok(OdeSolverStopReason::InternalTimestep) => {
@@ -845,6 +878,40 @@ where
     problem
         .eqn
         .eval(t, &y, &mut dy)
+        .map_err(|error| SimError::Eval { error })?;
+    common.dy.slice_mut().copy_from_slice(&dy);
+    let mut state = T::State::new_from_common(common);
+    state
+        .as_mut()
+        .set_step_size(problem.h0, &problem.atol, problem.rtol, &problem.eqn, order);
+    make(problem, state).map_err(|e| solver_err(t, e))
+}
+
+/// [`restart`] from `(t, y)`, a point inside the step just taken (a
+/// located switch event).
+pub(super) fn restart_at<'p, M, S, T>(
+    problem: &'p OdeSolverProblem<CircuitOde<M>>,
+    solver: S,
+    make: &impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, T::State) -> Result<T, diffsol::DiffsolError>,
+    t: f64,
+    y: &[f64],
+    stats: &mut Stats,
+    order: usize,
+) -> Result<T, SimError>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+    T: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    add_solver_stats(stats, &solver);
+    let mut common = solver.into_state().into_common();
+    common.t = t;
+    common.y.slice_mut().copy_from_slice(y);
+    let mut dy = vec![0.0; y.len()];
+    problem
+        .eqn
+        .eval(t, y, &mut dy)
         .map_err(|error| SimError::Eval { error })?;
     common.dy.slice_mut().copy_from_slice(&dy);
     let mut state = T::State::new_from_common(common);

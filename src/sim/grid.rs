@@ -105,6 +105,7 @@ impl<'s> Rows<'s> {
 
     pub(super) fn push(&mut self, t: f64, out: &[f64]) -> Result<(), SimError> {
         self.last = Some(t);
+        let out = &out[..self.data.len().min(out.len())];
         match &mut self.sink {
             Some(sink) => sink(t, out).map_err(|e| SimError::Write {
                 path: None,
@@ -127,6 +128,7 @@ impl<'s> Rows<'s> {
             data: self.data,
             stats,
             warnings: Vec::new(),
+            events: Vec::new(),
         }
     }
 }

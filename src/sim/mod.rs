@@ -11,6 +11,7 @@ mod budget;
 mod circuit;
 mod dc;
 mod driver;
+mod events;
 mod fixed;
 mod grid;
 mod ic;
@@ -42,6 +43,7 @@ use ode::{CircuitOde, EvalCounts, HostVec, Regs};
 
 use dc::*;
 use driver::*;
+pub use events::SwitchEvent;
 use grid::*;
 use modes::*;
 use record::*;
@@ -171,6 +173,8 @@ pub struct Waveforms {
     pub stats: Stats,
     /// What the run could not do as asked (an `.ic` it could not hold).
     pub warnings: Vec<crate::diag::Diagnostic>,
+    /// The switches' changes of state, in time order.
+    pub events: Vec<SwitchEvent>,
 }
 
 /// Why a simulation stopped. Errors of diffsol and of writing are kept as
@@ -246,6 +250,8 @@ pub enum SimError {
     },
     #[error("{0}")]
     FixedStep(String),
+    #[error("{0}")]
+    SwitchMethod(String),
     #[error("{what} is {value}; it must be {range}")]
     BadTolerance {
         what: &'static str,
@@ -355,6 +361,10 @@ impl crate::diag::ToDiagnostic for SimError {
                 codes::FIXED_STEP,
                 "--step goes with --method euler, rk2 or rk4, which need it",
             ),
+            SimError::SwitchMethod(_) => (
+                codes::SWITCH_METHOD,
+                "use --method bdf (the default), tr-bdf2, esdirk34 or tsit5",
+            ),
         };
         crate::diag::Diagnostic::error(code, self.to_string()).with_help(help)
     }
@@ -426,7 +436,30 @@ fn simulate_rows(
     }
     let sys = sorted.system();
     let list = output_list(c, &opts.probes)?;
-    let refs: Vec<OutputRef> = list.iter().map(|o| output_ref(&sorted.built, o)).collect();
+    // The switches' controls are outputs too, after the user's.
+    let (switch_list, controls) = events::Switches::of(c);
+    let refs: Vec<OutputRef> = list
+        .iter()
+        .chain(&controls)
+        .map(|o| output_ref(&sorted.built, o))
+        .collect();
+    let switches = events::Switches::new(switch_list, list.len(), refs.len());
+    if !switches.is_empty() {
+        let why = if matches!(
+            method,
+            Method::Circuit | Method::Euler | Method::Rk2 | Method::Rk4
+        ) {
+            Some(format!(
+                "--method {} does not locate switch events",
+                method.name()
+            ))
+        } else {
+            None
+        };
+        if let Some(why) = why {
+            return Err(SimError::SwitchMethod(why));
+        }
+    }
     let tape = Rc::new(tape::compile(
         sys,
         &sorted.causal.graph,
@@ -441,8 +474,14 @@ fn simulate_rows(
         outputs: &list,
         opts,
         method,
+        switches: &switches,
     };
     let mut w = if n == 0 {
+        if !switches.is_empty() {
+            return Err(SimError::SwitchMethod(
+                "a circuit with switches and no capacitor, inductor or junction charge has no integration to locate their events in".into(),
+            ));
+        }
         algebraic(sorted, tape.clone(), &tran, &list, opts, sink)?
     } else if method == Method::Circuit && n > DENSE_STATES {
         return Err(SimError::TooManyStates {

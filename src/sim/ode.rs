@@ -172,6 +172,13 @@ where
             .jacobian_columns(&mut regs, &mut mregs, t, y, cols, jac, dy)
     }
 
+    /// Set switch `k`'s conductance (its state) in both register sets.
+    pub fn set_switch(&self, k: usize, g: f64) {
+        self.tape.set_switch(&mut self.regs.borrow_mut(), k, g);
+        self.tape.set_switch(&mut self.side_regs.borrow_mut(), k, g);
+        self.tangents.borrow_mut().valid = false;
+    }
+
     /// Scale every independent source by `s` (source stepping; 1 restores).
     pub fn scale_sources(&self, s: f64) {
         self.tape.scale_sources(&mut self.regs.borrow_mut(), s);

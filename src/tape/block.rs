@@ -691,6 +691,7 @@ mod tests {
             source_scale: std::cell::Cell::new(1.0),
             gmin_step: std::cell::Cell::new(0.0),
             source_params: Vec::new(),
+            switch_regs: Vec::new(),
             source_memo: Vec::new(),
         }
     }

@@ -76,11 +76,16 @@ impl Compiler<'_> {
         r
     }
 
-    /// The value of a constant or parameter expression.
+    /// The value of a constant or parameter expression (not of a
+    /// parameter the simulator sets).
     fn constant(&self, e: ExprId) -> Option<f64> {
         match self.sched.exprs.get(e) {
             Expr::Const(b) => Some(f64::from_bits(b)),
-            Expr::Param(p) => Some(self.sys.params[p].value),
+            // Sources' and switches' values change at run time.
+            Expr::Param(p) => {
+                let p = &self.sys.params[p];
+                (!p.source && !p.switch).then_some(p.value)
+            }
             _ => None,
         }
     }
@@ -151,7 +156,7 @@ impl Compiler<'_> {
                     let param = &self.sys.params[p];
                     // A source's value gets a register of its own (source
                     // stepping scales it); other parameters share constants.
-                    self.param_reg[k] = if param.source {
+                    self.param_reg[k] = if param.source || param.switch {
                         self.reg(param.value)
                     } else {
                         self.const_reg(param.value)
@@ -586,7 +591,20 @@ pub fn compile(
         &[&code, &out_code],
         &[&deriv_regs, &out_regs],
     );
-    set_constant_jacobians(&mut c.blocks, &[&code, &out_code], &state_regs);
+    // Switch conductances change between runs of the code: never constants.
+    let switch_regs: Vec<Reg> = sys
+        .params
+        .iter()
+        .zip(&c.param_reg)
+        .filter(|((_, p), _)| p.switch)
+        .map(|(_, &r)| r)
+        .collect();
+    let varying: Vec<Reg> = state_regs
+        .iter()
+        .chain(switch_regs.iter().filter(|&&r| r != NONE))
+        .copied()
+        .collect();
+    set_constant_jacobians(&mut c.blocks, &[&code, &out_code], &varying);
     c.set_charge_inverses();
     let memo_links = memo_links(&c.blocks, &code, &out_code);
     let n_in_f = count(&in_f);
@@ -622,6 +640,7 @@ pub fn compile(
         source_scale: std::cell::Cell::new(1.0),
         gmin_step: std::cell::Cell::new(0.0),
         source_params,
+        switch_regs,
         source_memo: vec![std::cell::Cell::new((f64::NAN, 0.0)); sys.sources.len()],
     }
 }

@@ -54,6 +54,15 @@ impl Tape {
         }
     }
 
+    /// Set switch `k`'s conductance in `regs`.
+    pub fn set_switch(&self, regs: &mut [f64], k: usize, g: f64) {
+        if let Some(&r) = self.switch_regs.get(k)
+            && r != NONE
+        {
+            regs[r] = g;
+        }
+    }
+
     /// Scale every independent source by `s`: the waveforms (through
     /// `source_scale`) and the DC values held in `regs`.
     pub fn scale_sources(&self, regs: &mut [f64], s: f64) {
@@ -102,7 +111,8 @@ impl Tape {
         Ok(())
     }
 
-    /// The outputs at `(t, y)` (independent of [`Tape::rhs`]).
+    /// The outputs at `(t, y)` (independent of [`Tape::rhs`]), as many as
+    /// `out` holds.
     pub fn outputs(
         &self,
         regs: &mut [f64],
@@ -120,8 +130,10 @@ impl Tape {
             }
         }
         self.run(&self.out_code, regs, t)?;
-        for (k, &o) in self.out_regs.iter().enumerate() {
-            out[k] = regs[o];
+        // A shorter `out` takes the first outputs (the user's, without the
+        // switches' controls after them).
+        for (o, &r) in out.iter_mut().zip(&self.out_regs) {
+            *o = regs[r];
         }
         Ok(())
     }

@@ -193,6 +193,9 @@ pub struct Tape {
     pub gmin_step: std::cell::Cell<f64>,
     /// The registers of DC sources' values, and the values.
     pub source_params: Vec<(Reg, f64)>,
+    /// Each switch's conductance register (in element order; `NONE` where
+    /// no code reads it).
+    pub switch_regs: Vec<Reg>,
     /// Each source's last `(t, value)` (unscaled, order 0): the Newton
     /// iterations of an implicit stage evaluate `f` at one time again and
     /// again, and a transcendental source (SIN) is then computed once.

@@ -607,8 +607,42 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
     times.dedup();
     let mut so = opts.sim.clone();
     so.probes = names.clone();
-    so.times = Some(times);
-    let w = sim::simulate(sorted, &so)?;
+    so.times = Some(times.clone());
+    let mut w = sim::simulate(sorted, &so)?;
+    // Switch events: kausal locates each crossing; ngspice changes a
+    // switch's state at one of its own time points (early, after a rejected
+    // step, or late), so at the reference's points next to an event either
+    // of kausal's one-sided values is taken, as at a source corner. The run
+    // is repeated with those values on its grid.
+    let events: Vec<f64> = w.events.iter().map(|e| e.t).collect();
+    if !events.is_empty() {
+        times.extend(events.iter().flat_map(|&t| [t - delta, t + delta]));
+        times.retain(|&t| t >= 0.0 && t <= tran.tstop);
+        times.sort_by(f64::total_cmp);
+        times.dedup();
+        so.times = Some(times);
+        w = sim::simulate(sorted, &so)?;
+    }
+    // The event next to each reference point: within twice the longest of
+    // the reference's steps around it (ngspice's steps shrink after the
+    // step its switch changed in, and may be rejected across it).
+    let rt = &reference.time;
+    let window = |e: f64| {
+        let at = rt.partition_point(|&x| x < e);
+        (at.saturating_sub(5)..(at + 5).min(rt.len().saturating_sub(1)))
+            .map(|j| rt[j + 1] - rt[j])
+            .fold(0.0f64, f64::max)
+            * 2.0
+    };
+    let event_near = |i: usize| -> Option<f64> {
+        let t = rt[i];
+        let k = events.partition_point(|&e| e < t);
+        [k.checked_sub(1), Some(k)]
+            .into_iter()
+            .flatten()
+            .filter_map(|j| events.get(j).copied())
+            .find(|&e| (t - e).abs() <= window(e))
+    };
     let default_run = if opts.ngspice_default {
         run_ngspice_saving(path, None, &saves).ok()
     } else {
@@ -624,8 +658,17 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
             .time
             .iter()
             .zip(r)
-            .map(|(&t, &rv)| {
+            .enumerate()
+            .map(|(i, (&t, &rv))| {
                 let at = interp(&w.time, &w.data[k], within(t)).unwrap_or(f64::NAN);
+                if let Some(e) = event_near(i) {
+                    let closest = [e - delta, e + delta]
+                        .into_iter()
+                        .filter_map(|x| interp(&w.time, &w.data[k], x))
+                        .chain([at])
+                        .min_by(|a, b| (a - rv).abs().total_cmp(&(b - rv).abs()));
+                    return closest.unwrap_or(at);
+                }
                 if corners.binary_search_by(|b| b.total_cmp(&t)).is_ok()
                     && let Some(before) = interp(&w.time, &w.data[k], t - delta)
                     && (before - rv).abs() < (at - rv).abs()

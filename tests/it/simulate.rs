@@ -960,3 +960,43 @@ fn ddt_in_a_b_source_is_the_exact_derivative() {
         .fold(0.0, f64::max);
     assert!(err < 1e-6, "{err}");
 }
+
+/// A switch never steps over a threshold crossing: a 1 kHz sine is above
+/// the switch's threshold (0.99 V) for 4.5 % of each period, a window the
+/// integrator's steps would straddle; each of its ten crossings is an event
+/// at the analytic time, to 1e-9 of the span, and each changes the switch's
+/// state (the capacitor charges only inside the windows).
+#[test]
+fn switch_events_land_on_every_threshold_crossing() {
+    let s = sort_file("switch_narrow_window.cir");
+    let w = sim::simulate(&s, &sim::Options::default()).unwrap_or_else(|e| panic!("{e}"));
+    let (f, vt, span) = (1e3, 0.99f64, 5e-3);
+    let phase = vt.asin();
+    let exact: Vec<(f64, bool)> = (0..5)
+        .flat_map(|k| {
+            let base = k as f64 / f;
+            [
+                (base + phase / (2.0 * std::f64::consts::PI * f), true),
+                (
+                    base + (std::f64::consts::PI - phase) / (2.0 * std::f64::consts::PI * f),
+                    false,
+                ),
+            ]
+        })
+        .collect();
+    assert_eq!(w.events.len(), exact.len(), "{:?}", w.events);
+    for (e, (t, on)) in w.events.iter().zip(&exact) {
+        assert_eq!(e.on, *on, "{e:?}");
+        assert!(
+            (e.t - t).abs() <= 1e-9 * span,
+            "{} at {:e}, the crossing is at {t:e}",
+            e.switch,
+            e.t
+        );
+    }
+    // Between windows the capacitor only discharges through its 1 MΩ: its
+    // voltage after the last window is what five windows of charging give.
+    let x = w.names.iter().position(|n| n == "v(x)").unwrap();
+    let last = *w.data[x].last().unwrap();
+    assert!(last > 4.0 && last < 5.0, "v(x) = {last}");
+}

@@ -51,6 +51,10 @@ pub struct Args {
     /// Also output every accepted step.
     #[arg(long)]
     all_steps: bool,
+    /// List the switches' state events (time, switch, control, new state)
+    /// on standard error.
+    #[arg(long)]
+    events: bool,
     /// The most steps the run may take; a run whose pace would need more
     /// stops early with a diagnostic (default 5e7).
     #[arg(long, value_name = "N")]
@@ -118,6 +122,7 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
     write_files(&sorted, &waves, csv, &args)?;
     print_diags(&sorted.elaborated.sources, &waves.warnings);
     print_stats(&waves.stats);
+    print_events(&waves.events, args.events);
     Ok(ExitCode::SUCCESS)
 }
 
@@ -184,6 +189,29 @@ fn print_stats(s: &sim::Stats) {
         "assignments: {} in f, {} at output points only, {} pruned",
         s.in_f, s.at_outputs, s.unused
     );
+}
+
+/// The switches' events: a count, and with `--events` each of them.
+fn print_events(events: &[sim::SwitchEvent], list: bool) {
+    if events.is_empty() {
+        return;
+    }
+    eprintln!(
+        "switch events: {}{}",
+        events.len(),
+        if list { "" } else { " (--events lists them)" }
+    );
+    if list {
+        for e in events {
+            eprintln!(
+                "  t = {:.9e}  {}  {}  (control {:.6e})",
+                e.t,
+                e.switch,
+                if e.on { "on" } else { "off" },
+                e.control
+            );
+        }
+    }
 }
 
 /// The progress bar of a long simulation, created on its first report.

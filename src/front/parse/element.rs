@@ -68,6 +68,7 @@ impl<'a> Parser<'a> {
             F | H => self.current_controlled(&mut c, name, span)?,
             D => self.diode(&mut c, name, span)?,
             Q | J | M => self.device(&mut c),
+            S | W => self.switch(&mut c),
             B => self.behavioural_source(&mut c, name, span)?,
             X => unreachable!("instances are read by Parser::instance"),
         };
@@ -373,6 +374,26 @@ impl<'a> Parser<'a> {
                 c.next();
             }
         }
+        self.rest_unexpected(c);
+        ElementBody::Device { words, params }
+    }
+
+    /// S and W: the words after the terminals (W's controlling source, the
+    /// model, `on` or `off`), then any `name=value`s.
+    fn switch(&mut self, c: &mut Cursor<'_, 'a>) -> ElementBody<'a> {
+        let mut words = Vec::new();
+        while let Some(t) = c.peek() {
+            if c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq) {
+                break;
+            }
+            c.next();
+            match super::value_of(t) {
+                Ok(v) => words.push(v),
+                Err(_) if t.kind == TokKind::Word => words.push(Value::Ident(name_of(t))),
+                Err(e) => self.errors.push(e),
+            }
+        }
+        let params = self.assigns(c);
         self.rest_unexpected(c);
         ElementBody::Device { words, params }
     }

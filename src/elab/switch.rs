@@ -1,0 +1,179 @@
+//! S and W: ngspice's voltage- and current-controlled switches (models SW
+//! and CSW), a resistance of RON or ROFF by the switch's state. The state is
+//! not an equation: the simulator keeps it, changes it where the control
+//! crosses a threshold (a state event, located in time), and restarts the
+//! integration there.
+
+use super::{
+    Elab, ElabError, Element, ElementKind, NodeId, Pending, PendingRef, Scope, SwitchModel,
+};
+use crate::front::ast::{self, ElementLetter, Value};
+
+/// Switch-model parameters kausal reads, and those it ignores.
+const SW_PARAMS: &[&str] = &["vt", "vh", "it", "ih", "ron", "roff", "sw", "csw"];
+const SW_IGNORED: &[&str] = &["kf", "af", "lser"];
+
+impl Elab {
+    /// S `n+ n- nc+ nc- model [on|off]`, W `n+ n- vctrl model [on|off]`.
+    pub(super) fn switch(
+        &mut self,
+        el: &ast::Element<'_>,
+        name: &str,
+        nodes: &[NodeId],
+        scope: &Scope<'_, '_>,
+    ) {
+        let ast::ElementBody::Device { words, params } = &el.body else {
+            return;
+        };
+        let current = el.letter == ElementLetter::W;
+        let mut rest = words.iter();
+        let vsrc = if current { word(rest.next()) } else { None };
+        let model = word(rest.next());
+        let usage = if current {
+            "`Wname n+ n- vcontrol model [on|off]`"
+        } else {
+            "`Sname n+ n- nc+ nc- model [on|off]`"
+        };
+        let (Some(model), true) = (model, !current || vsrc.is_some()) else {
+            self.errors.push(ElabError::BadDevice {
+                span: el.span,
+                element: name.to_string(),
+                why: format!("no model name: write {usage}"),
+            });
+            return;
+        };
+        let mut on = false;
+        for w in rest {
+            match word(Some(w)) {
+                Some(n) if n.is("on") => on = true,
+                Some(n) if n.is("off") => on = false,
+                _ => {
+                    self.errors.push(ElabError::BadDevice {
+                        span: w.span(),
+                        element: name.to_string(),
+                        why: format!("unexpected word after the model: write {usage}"),
+                    });
+                    return;
+                }
+            }
+        }
+        for p in params {
+            self.ignored_param(p, name);
+        }
+        let Some(mut sw) = self.switch_model(&model, name, current, scope) else {
+            return;
+        };
+        sw.initially_on = on;
+        let id = self.circuit.elements.push(Element {
+            name: name.to_string(),
+            kind: ElementKind::Switch {
+                sw: Box::new(sw),
+                ctrl: current.then_some(super::ElemId(u32::MAX)),
+            },
+            nodes: nodes.to_vec(),
+            span: el.span,
+        });
+        if let Some(vsrc) = vsrc {
+            self.pending.push(Pending {
+                elem: id,
+                what: PendingRef::Control {
+                    vsrc: format!("{}{}", scope.prefix, vsrc.text).to_ascii_lowercase(),
+                    index: 0,
+                },
+                spans: [vsrc.span, vsrc.span],
+            });
+        }
+    }
+
+    /// An SW (S) or CSW (W) model: VT/VH or IT/IH, RON (1 Ω) and ROFF
+    /// (1/GMIN, 10^12 Ω), as ngspice defaults them.
+    fn switch_model(
+        &mut self,
+        model: &ast::Name<'_>,
+        element: &str,
+        current: bool,
+        scope: &Scope<'_, '_>,
+    ) -> Option<SwitchModel> {
+        let Some(def) = scope.model(&model.key()) else {
+            self.errors.push(ElabError::UndefinedModel {
+                span: model.span,
+                name: model.text.to_string(),
+            });
+            return None;
+        };
+        let (kind, expected) = if current {
+            ("csw", "CSW")
+        } else {
+            ("sw", "SW")
+        };
+        if !def.kind.is(kind) {
+            self.errors.push(ElabError::WrongModelType {
+                span: model.span,
+                name: model.text.to_string(),
+                found: def.kind.text.to_string(),
+                expected,
+                element: element.to_string(),
+            });
+            return None;
+        }
+        let mut sw = SwitchModel {
+            vt: 0.0,
+            vh: 0.0,
+            ron: 1.0,
+            roff: 1e12,
+            initially_on: false,
+        };
+        let first_use = self.switch_seen.insert((def.span.file.0, def.span.start));
+        let mut ok = true;
+        let (t, h) = if current { ("it", "ih") } else { ("vt", "vh") };
+        for p in &def.params {
+            let key = p.name.key();
+            if self.unread_model_param(p, &key, SW_PARAMS, SW_IGNORED, def, first_use) {
+                continue;
+            }
+            let Some(v) = self.value(&p.value, scope) else {
+                ok = false;
+                continue;
+            };
+            match key.as_str() {
+                k if k == t => sw.vt = v,
+                k if k == h => sw.vh = v,
+                "ron" => sw.ron = v,
+                "roff" => sw.roff = v,
+                _ => {}
+            }
+        }
+        if sw.vh < 0.0 {
+            self.errors.push(ElabError::UnsupportedModel {
+                span: model.span,
+                model: def.name.text.to_string(),
+                what: format!("a switch with negative hysteresis ({h} = {})", sw.vh),
+                help: "kausal's switches have VH ≥ 0: on above VT + VH, off below VT − VH",
+            });
+            ok = false;
+        }
+        for (what, r) in [("RON", sw.ron), ("ROFF", sw.roff)] {
+            if !(r > 0.0 && r.is_finite()) {
+                self.errors.push(ElabError::BadDevice {
+                    span: model.span,
+                    element: element.to_string(),
+                    why: format!(
+                        "model `{}` has {what} = {r}: it must be positive",
+                        def.name.text
+                    ),
+                });
+                ok = false;
+            }
+        }
+        ok.then_some(sw)
+    }
+}
+
+/// A bare word (a name, or a number-like name such as `2n`).
+fn word<'a>(w: Option<&Value<'a>>) -> Option<ast::Name<'a>> {
+    match w {
+        Some(Value::Ident(n)) => Some(*n),
+        Some(Value::Num { text, span, .. }) => Some(ast::Name { text, span: *span }),
+        _ => None,
+    }
+}
