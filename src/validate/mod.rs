@@ -87,6 +87,9 @@ pub struct RefTol {
     pub reltol: f64,
     /// Gear's method instead of ngspice's default trapezoidal rule.
     pub gear: bool,
+    /// ABSTOL: 1e-15, or ngspice's default 1e-12 where at 1e-15 its steps
+    /// collapse ("timestep too small", MOS circuits' femtoampere currents).
+    pub abstol: f64,
 }
 
 /// The netlist text for ngspice: `.include` and `.lib` paths made absolute
@@ -148,8 +151,9 @@ fn tight_options(t: RefTol) -> String {
     // A reference run: tight local error, tight absolute tolerances, and the
     // truncation-error tolerance at 1 (ngspice's default of 7 is loose).
     format!(
-        ".options reltol={:e} abstol=1e-15 vntol=1e-12 chgtol=1e-18 trtol=1{}\n",
+        ".options reltol={:e} abstol={:e} vntol=1e-12 chgtol=1e-18 trtol=1{}\n",
         t.reltol,
+        t.abstol,
         if t.gear { " method=gear" } else { "" }
     )
 }
@@ -429,6 +433,8 @@ pub struct Report {
     pub ref_reltol: f64,
     /// The reference used Gear's method (the trapezoidal rule failed).
     pub ref_gear: bool,
+    /// The reference's ABSTOL (see [`RefTol::abstol`]).
+    pub ref_abstol: f64,
     pub signals: Vec<SignalReport>,
     /// Hard breakpoints the reference did not step on.
     pub missed_breakpoints: Vec<f64>,
@@ -510,13 +516,15 @@ fn reference_run_with(
     tran: &str,
 ) -> Result<(RawData, RefTol), ValidateError> {
     let mut last = None;
-    for (gear, k) in [false, true]
-        .into_iter()
-        .flat_map(|g| (0..3).map(move |k| (g, k)))
-    {
+    for (abstol, gear, k) in [1e-15, 1e-12].into_iter().flat_map(|a| {
+        [false, true]
+            .into_iter()
+            .flat_map(move |g| (0..3).map(move |k| (a, g, k)))
+    }) {
         let tol = RefTol {
             reltol: reltol * 10f64.powi(k),
             gear,
+            abstol,
         };
         match run_ngspice_saving(path, Some(tol), &format!("{saves}{tran}")) {
             Ok(r) => return Ok((r, tol)),
@@ -528,7 +536,7 @@ fn reference_run_with(
             Err(e) => return Err(e),
         }
     }
-    Err(last.expect("six tries"))
+    Err(last.expect("twelve tries"))
 }
 
 /// Validate a sorted netlist read from `path` against ngspice.
@@ -706,6 +714,7 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
         tol: opts.tol,
         ref_reltol,
         ref_gear: ref_tol.gear,
+        ref_abstol: ref_tol.abstol,
         signals,
         missed_breakpoints: missed,
         pass,
@@ -743,9 +752,17 @@ fn sci(x: f64) -> String {
 pub fn table(r: &Report) -> String {
     let mut out = String::new();
     out.push_str(&format!(
-        "{}: kausal (default settings) against ngspice at reltol={:e}{}\n",
+        "{}: kausal (default settings) against ngspice at reltol={:e}{}{}\n",
         r.netlist,
         r.ref_reltol,
+        if r.ref_abstol > 1e-15 {
+            format!(
+                " and abstol={:e} (at 1e-15 its steps collapsed)",
+                r.ref_abstol
+            )
+        } else {
+            String::new()
+        },
         if r.ref_gear {
             " with method=gear (the trapezoidal rule gave up)"
         } else {
