@@ -182,21 +182,8 @@ impl Elab {
         element: &str,
         scope: &Scope<'_, '_>,
     ) -> Option<BjtModel> {
-        let def = scope.model(&model.key())?;
-        let pnp = if def.kind.is("npn") {
-            false
-        } else if def.kind.is("pnp") {
-            true
-        } else {
-            self.errors.push(ElabError::WrongModelType {
-                span: model.span,
-                name: model.text.to_string(),
-                found: def.kind.text.to_string(),
-                expected: "NPN or PNP",
-                element: element.to_string(),
-            });
-            return None;
-        };
+        let (def, kind) = self.typed_model(model, element, scope, &["npn", "pnp"], "NPN or PNP")?;
+        let pnp = kind == 1;
         let cache_key = (def.span.file.0, def.span.start, scope.prefix.clone());
         if let Some(m) = self.bjt_cache.get(&cache_key) {
             return m.clone();

@@ -58,27 +58,8 @@ impl Elab {
         element: &str,
         scope: &Scope<'_, '_>,
     ) -> Option<JfetModel> {
-        let Some(def) = scope.model(&model.key()) else {
-            self.errors.push(ElabError::UndefinedModel {
-                span: model.span,
-                name: model.text.to_string(),
-            });
-            return None;
-        };
-        let pchannel = if def.kind.is("njf") {
-            false
-        } else if def.kind.is("pjf") {
-            true
-        } else {
-            self.errors.push(ElabError::WrongModelType {
-                span: model.span,
-                name: model.text.to_string(),
-                found: def.kind.text.to_string(),
-                expected: "NJF or PJF",
-                element: element.to_string(),
-            });
-            return None;
-        };
+        let (def, kind) = self.typed_model(model, element, scope, &["njf", "pjf"], "NJF or PJF")?;
+        let pchannel = kind == 1;
         let first_use = self.jfet_seen.insert((def.span.file.0, def.span.start));
         let mut m = JfetModel {
             pchannel,

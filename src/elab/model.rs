@@ -62,12 +62,17 @@ impl Elab {
         true
     }
 
-    pub(super) fn diode_model(
+    /// The model `model` names, if it is of one of `kinds` (its index
+    /// there); an undefined model or one of another type is reported
+    /// (`expected` names the types `element` takes).
+    pub(super) fn typed_model<'s, 'a>(
         &mut self,
         model: &ast::Name<'_>,
         element: &str,
-        scope: &Scope<'_, '_>,
-    ) -> Option<DiodeModel> {
+        scope: &Scope<'s, 'a>,
+        kinds: &[&str],
+        expected: &'static str,
+    ) -> Option<(&'s ast::Model<'a>, usize)> {
         let Some(def) = scope.model(&model.key()) else {
             self.errors.push(ElabError::UndefinedModel {
                 span: model.span,
@@ -75,16 +80,28 @@ impl Elab {
             });
             return None;
         };
-        if !def.kind.is("d") {
-            self.errors.push(ElabError::WrongModelType {
-                span: model.span,
-                name: model.text.to_string(),
-                found: def.kind.text.to_string(),
-                expected: "D",
-                element: element.to_string(),
-            });
-            return None;
+        match kinds.iter().position(|k| def.kind.is(k)) {
+            Some(k) => Some((def, k)),
+            None => {
+                self.errors.push(ElabError::WrongModelType {
+                    span: model.span,
+                    name: model.text.to_string(),
+                    found: def.kind.text.to_string(),
+                    expected,
+                    element: element.to_string(),
+                });
+                None
+            }
         }
+    }
+
+    pub(super) fn diode_model(
+        &mut self,
+        model: &ast::Name<'_>,
+        element: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<DiodeModel> {
+        let (def, _) = self.typed_model(model, element, scope, &["d"], "D")?;
         let cache_key = (def.span.file.0, def.span.start, scope.prefix.clone());
         if let Some(m) = self.model_cache.get(&cache_key) {
             return Some(m.clone());

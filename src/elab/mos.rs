@@ -199,27 +199,9 @@ impl Elab {
         element: &str,
         scope: &Scope<'_, '_>,
     ) -> Option<MosModel> {
-        let Some(def) = scope.model(&model.key()) else {
-            self.errors.push(ElabError::UndefinedModel {
-                span: model.span,
-                name: model.text.to_string(),
-            });
-            return None;
-        };
-        let pchannel = if def.kind.is("nmos") {
-            false
-        } else if def.kind.is("pmos") {
-            true
-        } else {
-            self.errors.push(ElabError::WrongModelType {
-                span: model.span,
-                name: model.text.to_string(),
-                found: def.kind.text.to_string(),
-                expected: "NMOS or PMOS",
-                element: element.to_string(),
-            });
-            return None;
-        };
+        let (def, kind) =
+            self.typed_model(model, element, scope, &["nmos", "pmos"], "NMOS or PMOS")?;
+        let pchannel = kind == 1;
         let cache_key = (def.span.file.0, def.span.start, scope.prefix.clone());
         if let Some(m) = self.mos_cache.get(&cache_key) {
             return m.clone();

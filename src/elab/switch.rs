@@ -94,28 +94,12 @@ impl Elab {
         current: bool,
         scope: &Scope<'_, '_>,
     ) -> Option<SwitchModel> {
-        let Some(def) = scope.model(&model.key()) else {
-            self.errors.push(ElabError::UndefinedModel {
-                span: model.span,
-                name: model.text.to_string(),
-            });
-            return None;
-        };
         let (kind, expected) = if current {
             ("csw", "CSW")
         } else {
             ("sw", "SW")
         };
-        if !def.kind.is(kind) {
-            self.errors.push(ElabError::WrongModelType {
-                span: model.span,
-                name: model.text.to_string(),
-                found: def.kind.text.to_string(),
-                expected,
-                element: element.to_string(),
-            });
-            return None;
-        }
+        let (def, _) = self.typed_model(model, element, scope, &[kind], expected)?;
         let mut sw = SwitchModel {
             vt: 0.0,
             vh: 0.0,

@@ -870,21 +870,8 @@ where
     S: OdeSolverMethod<'p, CircuitOde<M>>,
     T: OdeSolverMethod<'p, CircuitOde<M>>,
 {
-    add_solver_stats(stats, &solver);
-    let mut common = solver.into_state().into_common();
-    common.t = t;
-    let y = common.y.slice().to_vec();
-    let mut dy = vec![0.0; y.len()];
-    problem
-        .eqn
-        .eval(t, &y, &mut dy)
-        .map_err(|error| SimError::Eval { error })?;
-    common.dy.slice_mut().copy_from_slice(&dy);
-    let mut state = T::State::new_from_common(common);
-    state
-        .as_mut()
-        .set_step_size(problem.h0, &problem.atol, problem.rtol, &problem.eqn, order);
-    make(problem, state).map_err(|e| solver_err(t, e))
+    let y = solver.state().y.slice().to_vec();
+    restart_at(problem, solver, make, t, &y, stats, order)
 }
 
 /// [`restart`] from `(t, y)`, a point inside the step just taken (a

@@ -337,19 +337,7 @@ impl<'a> Parser<'a> {
     /// first `name=value`), then the `name=value`s (and `off` among them). Which word is the model is
     /// decided where models are known.
     fn device(&mut self, c: &mut Cursor<'_, 'a>) -> ElementBody<'a> {
-        let mut words = Vec::new();
-        while let Some(t) = c.peek() {
-            if t.is_word("off") || c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq) {
-                break;
-            }
-            c.next();
-            match super::value_of(t) {
-                Ok(v) => words.push(v),
-                // A model or node name that starts with a digit (`2n3904`).
-                Err(_) if t.kind == TokKind::Word => words.push(Value::Ident(name_of(t))),
-                Err(e) => self.errors.push(e),
-            }
-        }
+        let words = self.bare_words(c, true);
         if c.peek().is_some_and(|t| t.is_word("off")) {
             c.next();
         }
@@ -381,9 +369,21 @@ impl<'a> Parser<'a> {
     /// S and W: the words after the terminals (W's controlling source, the
     /// model, `on` or `off`), then any `name=value`s.
     fn switch(&mut self, c: &mut Cursor<'_, 'a>) -> ElementBody<'a> {
+        let words = self.bare_words(c, false);
+        let params = self.assigns(c);
+        self.rest_unexpected(c);
+        ElementBody::Device { words, params }
+    }
+
+    /// The bare words up to the first `name=value` (or up to `off` when
+    /// `stop_at_off`): values, or names for words that are not numbers (a
+    /// model or node name that starts with a digit, `2n3904`).
+    fn bare_words(&mut self, c: &mut Cursor<'_, 'a>, stop_at_off: bool) -> Vec<Value<'a>> {
         let mut words = Vec::new();
         while let Some(t) = c.peek() {
-            if c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq) {
+            if (stop_at_off && t.is_word("off"))
+                || c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq)
+            {
                 break;
             }
             c.next();
@@ -393,9 +393,7 @@ impl<'a> Parser<'a> {
                 Err(e) => self.errors.push(e),
             }
         }
-        let params = self.assigns(c);
-        self.rest_unexpected(c);
-        ElementBody::Device { words, params }
+        words
     }
 
     /// B: `V=expr` or `I=expr`, the expression running to the end of the
