@@ -16,7 +16,7 @@
 
 use super::bjt::{Ex, NextIds, oriented};
 use super::{Arith, BNode, Elab, ElabError, ElemId, Element, ElementKind, NodeId, Scope};
-use crate::front::ast::{self, ElementLetter, Value};
+use crate::front::ast::{self, ElementLetter};
 use crate::ir::{Cmp, DiodeParams, DiodePart};
 
 /// ngspice's GMIN, in parallel with each gate junction.
@@ -127,19 +127,14 @@ impl Elab {
         let ast::ElementBody::Device { words, params } = &el.body else {
             return;
         };
-        let model_name = match words.first() {
-            Some(Value::Ident(n)) => *n,
-            Some(Value::Num { text, span, .. }) => ast::Name { text, span: *span },
-            _ => {
-                self.errors.push(ElabError::BadDevice {
-                    span: el.span,
-                    element: name.to_string(),
-                    why:
-                        "no model name after the terminals (`Jname drain gate source model [area]`)"
-                            .into(),
-                });
-                return;
-            }
+        let Some(model_name) = super::model::name_word(words.first()) else {
+            self.errors.push(ElabError::BadDevice {
+                span: el.span,
+                element: name.to_string(),
+                why: "no model name after the terminals (`Jname drain gate source model [area]`)"
+                    .into(),
+            });
+            return;
         };
         let Some((area, m)) = self.device_scale(el, name, &words[1..], params, inherited, scope)
         else {

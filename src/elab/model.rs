@@ -155,3 +155,13 @@ impl Elab {
         Some(m)
     }
 }
+
+/// A bare word as a name (a model's, or a node's), number-like ones such as
+/// `2n3904` included.
+pub(super) fn name_word<'a>(w: Option<&ast::Value<'a>>) -> Option<ast::Name<'a>> {
+    match w {
+        Some(ast::Value::Ident(n)) => Some(*n),
+        Some(ast::Value::Num { text, span, .. }) => Some(ast::Name { text, span: *span }),
+        _ => None,
+    }
+}

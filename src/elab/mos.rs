@@ -23,7 +23,7 @@
 
 use super::bjt::{Ex, NextIds, oriented};
 use super::{Arith, BNode, Elab, ElabError, ElemId, Element, ElementKind, NodeId, Scope};
-use crate::front::ast::{self, ElementLetter, Value};
+use crate::front::ast::{self, ElementLetter};
 use crate::ir::{Cmp, DiodeParams, DiodePart, Func};
 
 /// ngspice's GMIN, in parallel with each bulk junction.
@@ -316,17 +316,13 @@ impl Elab {
         let ast::ElementBody::Device { words, params } = &el.body else {
             return;
         };
-        let model_name = match words.first() {
-            Some(Value::Ident(n)) => *n,
-            Some(Value::Num { text, span, .. }) => ast::Name { text, span: *span },
-            _ => {
-                self.errors.push(ElabError::BadDevice {
-                    span: el.span,
-                    element: name.to_string(),
-                    why: "no model name after the four terminals".into(),
-                });
-                return;
-            }
+        let Some(model_name) = super::model::name_word(words.first()) else {
+            self.errors.push(ElabError::BadDevice {
+                span: el.span,
+                element: name.to_string(),
+                why: "no model name after the four terminals".into(),
+            });
+            return;
         };
         if let Some(extra) = words.get(1) {
             self.errors.push(ElabError::BadDevice {

@@ -4,10 +4,11 @@
 //! crosses a threshold (a state event, located in time), and restarts the
 //! integration there.
 
+use super::model::name_word;
 use super::{
     Elab, ElabError, Element, ElementKind, NodeId, Pending, PendingRef, Scope, SwitchModel,
 };
-use crate::front::ast::{self, ElementLetter, Value};
+use crate::front::ast::{self, ElementLetter};
 
 /// Switch-model parameters kausal reads, and those it ignores.
 const SW_PARAMS: &[&str] = &["vt", "vh", "it", "ih", "ron", "roff", "sw", "csw"];
@@ -27,8 +28,12 @@ impl Elab {
         };
         let current = el.letter == ElementLetter::W;
         let mut rest = words.iter();
-        let vsrc = if current { word(rest.next()) } else { None };
-        let model = word(rest.next());
+        let vsrc = if current {
+            name_word(rest.next())
+        } else {
+            None
+        };
+        let model = name_word(rest.next());
         let usage = if current {
             "`Wname n+ n- vcontrol model [on|off]`"
         } else {
@@ -44,7 +49,7 @@ impl Elab {
         };
         let mut on = false;
         for w in rest {
-            match word(Some(w)) {
+            match name_word(Some(w)) {
                 Some(n) if n.is("on") => on = true,
                 Some(n) if n.is("off") => on = false,
                 _ => {
@@ -150,14 +155,5 @@ impl Elab {
             }
         }
         ok.then_some(sw)
-    }
-}
-
-/// A bare word (a name, or a number-like name such as `2n`).
-fn word<'a>(w: Option<&Value<'a>>) -> Option<ast::Name<'a>> {
-    match w {
-        Some(Value::Ident(n)) => Some(*n),
-        Some(Value::Num { text, span, .. }) => Some(ast::Name { text, span: *span }),
-        _ => None,
     }
 }

@@ -7,6 +7,15 @@ use proptest::prelude::*;
 
 use crate::netlists;
 
+/// The netlist `text`, elaborated; its errors fail the test.
+fn elaborate(text: &str) -> kausal::pipeline::Elaborated {
+    let path = std::path::Path::new("mem.cir");
+    match kausal::pipeline::elaborate_text("mem.cir", path, text.to_string(), &FsLoader) {
+        Ok(el) => el,
+        Err(f) => panic!("{:?}", f.errors().map(|d| &d.message).collect::<Vec<_>>()),
+    }
+}
+
 fn parse_print(name: &str, path: &std::path::Path, text: String) -> (String, usize) {
     let (sources, load_errors) = front::load(name, path, text, &FsLoader);
     let (ast, errors) = front::parse(&sources);
@@ -411,11 +420,7 @@ fn temperatures_are_honoured_when_equal_and_flagged_when_not() {
 #[test]
 fn stray_plus_and_a_lone_closing_paren_in_a_model_are_read_as_ngspice_reads_them() {
     let text = "t\nV1 1 0 0.7\nD1 1 0 dm\n.model dm D(IS=1e-14    +    N=2\n+ RS=3\n)\n.tran 1u 10u\n.end\n";
-    let path = std::path::Path::new("mem.cir");
-    let el = match kausal::pipeline::elaborate_text("mem.cir", path, text.to_string(), &FsLoader) {
-        Ok(el) => el,
-        Err(f) => panic!("{:?}", f.errors().map(|d| &d.message).collect::<Vec<_>>()),
-    };
+    let el = elaborate(text);
     let model = el
         .circuit
         .elements
@@ -440,11 +445,7 @@ fn transistor_lines_and_model_cards_are_read_as_ngspice_reads_them() {
         .model 2n_old NPN BF 20 RB 100 TF .1NS CJC 2PF\n\
         .model qnew PNP(BF=20 IS=1e-15)\n+ CJE=1p, VAF=50 CJS=1p)\n.model jmod NJF(VTO=-1)\n\
         .tran 1u 10u\n.end\n";
-    let path = std::path::Path::new("mem.cir");
-    let el = match kausal::pipeline::elaborate_text("mem.cir", path, text.to_string(), &FsLoader) {
-        Ok(el) => el,
-        Err(f) => panic!("{:?}", f.errors().map(|d| &d.message).collect::<Vec<_>>()),
-    };
+    let el = elaborate(text);
     let c = &el.circuit;
     let names: Vec<&str> = c.elements.values().map(|e| e.name.as_str()).collect();
     for branch in [
@@ -480,11 +481,7 @@ fn mosfet_lines_read_their_geometry_and_the_model_its_level() {
         .subckt half a b\nM3 a a b b nm l=1u w=1u m=3\n.ends\n\
         .model nm nmos (level=1 vto=0.7 kp=1e-4 tox=10n cj=1e-4 rsh=50)\n\
         .model pm pmos level=3 vto=-0.7\n.tran 1u 10u\n.end\n";
-    let path = std::path::Path::new("mem.cir");
-    let el = match kausal::pipeline::elaborate_text("mem.cir", path, text.to_string(), &FsLoader) {
-        Ok(el) => el,
-        Err(f) => panic!("{:?}", f.errors().map(|d| &d.message).collect::<Vec<_>>()),
-    };
+    let el = elaborate(text);
     let c = &el.circuit;
     let names: Vec<&str> = c.elements.values().map(|e| e.name.as_str()).collect();
     for branch in [
