@@ -476,7 +476,18 @@ impl Builder<'_> {
                         Arith::Pow => x.pow(a, b),
                     }
                 }
-                BNode::Cmp(op, a, b) => self.sys.exprs.cmp(op, at(a), at(b)),
+                BNode::Cmp(op, a, b) => {
+                    let c = self.sys.exprs.cmp(op, at(a), at(b));
+                    let k = ids.len() as u32;
+                    if e.events.contains(&k)
+                        && matches!(self.sys.exprs.get(c), crate::ir::Expr::Cmp(..))
+                    {
+                        self.sys
+                            .events
+                            .push((c, self.names[elem.0 as usize].clone()));
+                    }
+                    c
+                }
                 BNode::Select(c, a, b) => self.sys.exprs.select(at(c), at(a), at(b)),
                 BNode::Call(f, a) => self.sys.exprs.call(f, at(a)),
                 // A state held equal to the operand: its derivative is the

@@ -135,6 +135,7 @@ codes! {
     BLEW_UP = "K0415", "A fixed-step run blew up: its step is past the stability bound.";
     FIXED_STEP = "K0416", "A step length given to a method that has none, or missing where needed.";
     SWITCH_METHOD = "K0417", "Switch events are located by the adaptive diffsol methods only.";
+    CHATTER = "K0418", "A B source's comparison chatters at its threshold (a sliding mode).";
     VALIDATE_FAILED = "K0500", "Validation against ngspice failed.";
 }
 

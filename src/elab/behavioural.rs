@@ -104,6 +104,13 @@ impl Lower<'_, '_, '_> {
         self.cmp(op, a, z)
     }
 
+    /// A comparison whose value jumps where it flips: a state event.
+    fn event(&mut self, c: Lowered) -> Lowered {
+        let c = c?;
+        self.out.events.push(c);
+        Ok(c)
+    }
+
     fn select(&mut self, c: N, a: N, b: N) -> Lowered {
         self.push(BNode::Select(c, a, b))
     }
@@ -122,7 +129,8 @@ impl Lower<'_, '_, '_> {
             }
             PExpr::Not(a) => {
                 let a = self.lower(a, env)?;
-                self.cmp0(Cmp::Eq, a)
+                let c = self.cmp0(Cmp::Eq, a);
+                self.event(c)
             }
             PExpr::Ternary(c, x, y) => {
                 let c = self.lower(c, env)?;
@@ -145,13 +153,19 @@ impl Lower<'_, '_, '_> {
             BinOp::Mul => self.arith(Arith::Mul, x, y),
             BinOp::Div => self.arith(Arith::Div, x, y),
             BinOp::Pow => self.arith(Arith::Pow, x, y),
-            BinOp::Cmp(op) => self.cmp(op, x, y),
+            BinOp::Cmp(op) => {
+                let c = self.cmp(op, x, y);
+                self.event(c)
+            }
             BinOp::And => {
-                let (ty, z) = (self.cmp0(Cmp::Ne, y)?, self.num(0.0)?);
+                let ty = self.cmp0(Cmp::Ne, y);
+                let (ty, z) = (self.event(ty)?, self.num(0.0)?);
                 self.select(x, ty, z)
             }
             BinOp::Or => {
-                let (one, ty) = (self.num(1.0)?, self.cmp0(Cmp::Ne, y)?);
+                let one = self.num(1.0)?;
+                let ty = self.cmp0(Cmp::Ne, y);
+                let ty = self.event(ty)?;
                 self.select(x, one, ty)
             }
         }
@@ -276,7 +290,8 @@ impl Lower<'_, '_, '_> {
             }
             // ngspice: 0 below zero, 1 above, 0.5 at zero.
             "u" | "step" => {
-                let (pos, negc) = (self.cmp0(Cmp::Gt, a[0])?, self.cmp0(Cmp::Lt, a[0])?);
+                let (pos, negc) = (self.cmp0(Cmp::Gt, a[0]), self.cmp0(Cmp::Lt, a[0]));
+                let (pos, negc) = (self.event(pos)?, self.event(negc)?);
                 let (one, zero, half) = (self.num(1.0)?, self.num(0.0)?, self.num(0.5)?);
                 let low = self.select(negc, zero, half)?;
                 self.select(pos, one, low)
@@ -286,7 +301,8 @@ impl Lower<'_, '_, '_> {
                 self.select(c, a[0], z)
             }
             "sgn" | "sign" => {
-                let (pos, negc) = (self.cmp0(Cmp::Gt, a[0])?, self.cmp0(Cmp::Lt, a[0])?);
+                let (pos, negc) = (self.cmp0(Cmp::Gt, a[0]), self.cmp0(Cmp::Lt, a[0]));
+                let (pos, negc) = (self.event(pos)?, self.event(negc)?);
                 let (one, minus, zero) = (self.num(1.0)?, self.num(-1.0)?, self.num(0.0)?);
                 let neg = self.select(negc, minus, zero)?;
                 self.select(pos, one, neg)

@@ -200,6 +200,10 @@ impl SwitchModel {
 #[derive(Clone, Debug, PartialEq, Default)]
 pub struct BExpr {
     pub nodes: Vec<BNode>,
+    /// The comparisons whose value jumps where they flip (`v(a) > 1`, `u()`,
+    /// `sgn()`): state events. Those inside `min`, `max`, `limit`, `pwl`
+    /// select between equal values there and are left out.
+    pub events: Vec<u32>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -452,6 +452,10 @@ pub struct EquationSystem {
     pub eliminated: Vec<String>,
     /// Diode models used by device functions.
     pub diodes: Vec<super::DiodeParams>,
+    /// The comparisons a user wrote in B sources, with their element: each
+    /// is a state event (its value held through a step, its crossing
+    /// located), where a device's region choices are evaluated as they fall.
+    pub events: Vec<(ExprId, Name)>,
     /// The variables of each equation, left to right without repeats, in
     /// compressed rows: computed once when the equation is added (its nodes
     /// are still in cache then), so that passes need not walk the DAGs.

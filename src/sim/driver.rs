@@ -111,6 +111,7 @@ where
             start = initial_state::<M>(sorted, &ode, t0, &atol, outputs, opts)?;
         }
     }
+    switches.hold(&ode, t0, &start.y)?;
     // f must be defined where the run starts: diffsol sizes its first step
     // from f(t0, y0), and a NaN there (a loop that is singular at t0 while
     // the `.ic` operating point is not) would make every step size NaN,
@@ -650,12 +651,25 @@ where
                 {
                     let (t_ev, y_ev) = (c.t, c.y);
                     emit_grid(&solver, &mut rec, t_ev, false)?;
-                    switches.commit(&problem.eqn, t_ev, &c.controls);
+                    switches.commit(&problem.eqn, t_ev, &c.controls)?;
                     budget.step(t_ev, t_ev - t_before)?;
                     stats.restarts += 1;
                     solver = restart_at(problem, solver, &make, t_ev, &y_ev, stats, order)?;
-                    solver.set_stop_time(set).map_err(|e| solver_err(set, e))?;
-                    continue;
+                    match solver.set_stop_time(set) {
+                        Ok(()) => continue,
+                        // The event fell within roundoff of the stop.
+                        Err(diffsol::DiffsolError::OdeSolverError(
+                            diffsol::error::OdeSolverError::StopTimeAtCurrentTime,
+                        )) if set == stop => break stop,
+                        // A soft stop there: the next pass sets the next one.
+                        Err(diffsol::DiffsolError::OdeSolverError(
+                            diffsol::error::OdeSolverError::StopTimeAtCurrentTime,
+                        )) => {
+                            set = f64::NAN;
+                            continue;
+                        }
+                        Err(e) => return Err(solver_err(set, e)),
+                    }
                 }
                 match r {
                     Ok(OdeSolverStopReason::InternalTimestep) => {

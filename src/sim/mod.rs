@@ -43,7 +43,7 @@ use ode::{CircuitOde, EvalCounts, HostVec, Regs};
 
 use dc::*;
 use driver::*;
-pub use events::SwitchEvent;
+pub use events::StateEvent;
 use grid::*;
 use modes::*;
 use record::*;
@@ -174,7 +174,7 @@ pub struct Waveforms {
     /// What the run could not do as asked (an `.ic` it could not hold).
     pub warnings: Vec<crate::diag::Diagnostic>,
     /// The switches' changes of state, in time order.
-    pub events: Vec<SwitchEvent>,
+    pub events: Vec<StateEvent>,
 }
 
 /// Why a simulation stopped. Errors of diffsol and of writing are kept as
@@ -252,6 +252,16 @@ pub enum SimError {
     FixedStep(String),
     #[error("{0}")]
     SwitchMethod(String),
+    #[error(
+        "`{condition}` in {element} flipped {flips} times in a row, each within {steps} steps of the last, up to t = {t:e}: its output drives its own input back across the threshold (a sliding mode), which no step can follow"
+    )]
+    Chatter {
+        element: String,
+        condition: String,
+        flips: u32,
+        steps: u64,
+        t: f64,
+    },
     #[error("{what} is {value}; it must be {range}")]
     BadTolerance {
         what: &'static str,
@@ -365,6 +375,10 @@ impl crate::diag::ToDiagnostic for SimError {
                 codes::SWITCH_METHOD,
                 "use --method bdf (the default), tr-bdf2, esdirk34 or tsit5",
             ),
+            SimError::Chatter { .. } => (
+                codes::CHATTER,
+                "give the comparison hysteresis (an S switch with VH, or a threshold that moves with the output), or a continuous law (tanh) in place of the jump",
+            ),
         };
         crate::diag::Diagnostic::error(code, self.to_string()).with_help(help)
     }
@@ -443,7 +457,13 @@ fn simulate_rows(
         .chain(&controls)
         .map(|o| output_ref(&sorted.built, o))
         .collect();
-    let switches = events::Switches::new(switch_list, list.len(), refs.len());
+    // The B sources' comparisons are held and located as events where the
+    // method locates events.
+    let locates = !matches!(
+        method,
+        Method::Circuit | Method::Euler | Method::Rk2 | Method::Rk4
+    );
+    let switches = events::Switches::new(switch_list, (list.len(), refs.len()), locates);
     if !switches.is_empty() {
         let why = if matches!(
             method,

@@ -692,6 +692,7 @@ mod tests {
             gmin_step: std::cell::Cell::new(0.0),
             source_params: Vec::new(),
             switch_regs: Vec::new(),
+            modes: Vec::new(),
             source_memo: Vec::new(),
         }
     }

@@ -18,6 +18,15 @@ pub(super) struct Compiler<'a> {
     consts: HashMap<u64, Reg>,
     reg_var: Vec<Option<VarId>>,
     blocks: Vec<TapeBlock>,
+    /// The comparisons written in B sources (index in the system's
+    /// `events`), and the mode each got in `code`: the output program's copy
+    /// of a comparison reads the same mode; one that `code` never evaluates
+    /// changes no state and gets none.
+    events: HashMap<ExprId, usize>,
+    mode_of: HashMap<ExprId, u32>,
+    modes: Vec<HeldCmp>,
+    /// Whether `code` (not the output program) is being compiled.
+    in_code: bool,
 }
 
 impl Compiler<'_> {
@@ -245,6 +254,7 @@ impl Compiler<'_> {
                         op,
                         a: ra,
                         b: rb,
+                        m: self.mode(e, op),
                     },
                     _ => Instr::Pow { d, a: ra, b: rb },
                 });
@@ -253,6 +263,26 @@ impl Compiler<'_> {
         };
         self.memo.insert(e, r);
         r
+    }
+
+    /// The held mode of comparison `e` (see [`HeldCmp`]), or [`NO_MODE`].
+    fn mode(&mut self, e: ExprId, op: crate::ir::Cmp) -> u32 {
+        if let Some(&m) = self.mode_of.get(&e) {
+            return m;
+        }
+        let Some(&k) = self.events.get(&e).filter(|_| self.in_code) else {
+            return NO_MODE;
+        };
+        let m = self.modes.len() as u32;
+        self.modes.push(HeldCmp {
+            op,
+            element: self.sys.events[k].1.to_string(),
+            text: crate::ir::print::expr(self.sys, e),
+            held: std::cell::Cell::new(f64::NAN),
+            control: std::cell::Cell::new(f64::NAN),
+        });
+        self.mode_of.insert(e, m);
+        m
     }
 
     /// Find a block's junction tears; diode thermal voltages get registers.
@@ -524,6 +554,15 @@ pub fn compile(
         consts: HashMap::new(),
         reg_var: Vec::new(),
         blocks: Vec::new(),
+        events: sys
+            .events
+            .iter()
+            .enumerate()
+            .map(|(k, &(e, _))| (e, k))
+            .collect(),
+        mode_of: HashMap::new(),
+        modes: Vec::new(),
+        in_code: true,
     };
     let state_regs: Vec<Reg> = states.iter().map(|&s| c.var_reg_new(s)).collect();
     // Which steps the derivatives need: walk the schedule backwards.
@@ -564,6 +603,7 @@ pub fn compile(
         }
     }
     let mut out_code = Vec::new();
+    c.in_code = false;
     for (k, step) in sched.steps.iter().enumerate() {
         if for_out[k] {
             c.step(step, &mut out_code);
@@ -641,6 +681,7 @@ pub fn compile(
         gmin_step: std::cell::Cell::new(0.0),
         source_params,
         switch_regs,
+        modes: c.modes,
         source_memo: vec![std::cell::Cell::new((f64::NAN, 0.0)); sys.sources.len()],
     }
 }

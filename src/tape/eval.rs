@@ -54,6 +54,19 @@ impl Tape {
         }
     }
 
+    /// A comparison's value: as it falls, or the one its mode `m` holds
+    /// (its operands' difference noted for the event search).
+    #[inline]
+    pub(super) fn compare(&self, op: crate::ir::Cmp, m: u32, a: f64, b: f64) -> f64 {
+        if m == NO_MODE {
+            return op.apply(a, b);
+        }
+        let mode = &self.modes[m as usize];
+        mode.control.set(a - b);
+        let held = mode.held.get();
+        if held.is_nan() { op.apply(a, b) } else { held }
+    }
+
     /// Set switch `k`'s conductance in `regs`.
     pub fn set_switch(&self, regs: &mut [f64], k: usize, g: f64) {
         if let Some(&r) = self.switch_regs.get(k)
@@ -82,7 +95,7 @@ impl Tape {
                 Instr::Div { d, a, b } => r[d] = r[a] / r[b],
                 Instr::Pow { d, a, b } => r[d] = r[a].powf(r[b]),
                 Instr::Call { d, f, a } => r[d] = f.apply(r[a]),
-                Instr::Cmp { d, op, a, b } => r[d] = op.apply(r[a], r[b]),
+                Instr::Cmp { d, op, a, b, m } => r[d] = self.compare(op, m, r[a], r[b]),
                 Instr::Select { d, c, a, b } => r[d] = crate::ir::select(r[c], r[a], r[b]),
                 Instr::Device { d, f, a } => r[d] = self.device(f, r[a]).0,
                 Instr::Src { d, s, order } => r[d] = self.source(s, t, order),

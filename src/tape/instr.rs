@@ -94,12 +94,14 @@ pub enum Instr {
         f: Func,
         a: Reg,
     },
-    /// 1 where `a op b` holds, else 0.
+    /// 1 where `a op b` holds, else 0; with a held mode `m` (not
+    /// [`NO_MODE`]), the value the mode holds (see [`HeldCmp`]).
     Cmp {
         d: Reg,
         op: Cmp,
         a: Reg,
         b: Reg,
+        m: u32,
     },
     /// `a` where `c` is not 0, else `b`.
     Select {
@@ -125,6 +127,9 @@ pub enum Instr {
 
 /// No register: the destination of a [`Instr::Block`].
 pub(super) const NONE: Reg = Reg(u32::MAX);
+
+/// A comparison with no held mode: evaluated as it falls.
+pub const NO_MODE: u32 = u32::MAX;
 
 /// The registers an instruction reads (at most three), without allocating.
 #[derive(Clone, Copy, Debug)]

@@ -26,7 +26,7 @@ mod instr;
 mod tangent;
 
 pub use compile::compile;
-pub use instr::{Instr, Reg};
+pub use instr::{Instr, NO_MODE, Reg};
 pub use tangent::TangentCache;
 
 use analyze::*;
@@ -196,10 +196,37 @@ pub struct Tape {
     /// Each switch's conductance register (in element order; `NONE` where
     /// no code reads it).
     pub switch_regs: Vec<Reg>,
+    /// The comparisons written in B sources, each a state event: its value
+    /// held through a step (see [`HeldCmp`]).
+    pub modes: Vec<HeldCmp>,
     /// Each source's last `(t, value)` (unscaled, order 0): the Newton
     /// iterations of an implicit stage evaluate `f` at one time again and
     /// again, and a transcendental source (SIN) is then computed once.
     source_memo: Vec<std::cell::Cell<(f64, f64)>>,
+}
+
+/// A comparison a user wrote (`v(a) > 1`, `u(x)`): while `held` is a value
+/// (0 or 1) every evaluation reads it, so a step sees no jump; the event
+/// search reads `control`, the difference of the operands at the last
+/// evaluation, and flips `held` where the comparison's own value differs.
+/// NaN `held`: evaluated as it falls (a method that locates no events, the
+/// operating point's Newton).
+#[derive(Clone, Debug)]
+pub struct HeldCmp {
+    pub op: crate::ir::Cmp,
+    /// The B source it is written in.
+    pub element: String,
+    /// The comparison as the listing prints it.
+    pub text: String,
+    pub held: std::cell::Cell<f64>,
+    pub control: std::cell::Cell<f64>,
+}
+
+impl HeldCmp {
+    /// The value the comparison takes with the operands' difference `x`.
+    pub fn value(&self, x: f64) -> f64 {
+        self.op.apply(x, 0.0)
+    }
 }
 
 /// How many of the schedule's assignments the tape evaluates where.

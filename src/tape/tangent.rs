@@ -96,8 +96,8 @@ impl Tape {
                     r[d] = fx;
                     dr[d] = f.derivative(x, fx) * dr[a];
                 }
-                Instr::Cmp { d, op, a, b } => {
-                    r[d] = op.apply(r[a], r[b]);
+                Instr::Cmp { d, op, a, b, m } => {
+                    r[d] = self.compare(op, m, r[a], r[b]);
                     dr[d] = 0.0;
                 }
                 Instr::Select { d, c, a, b } => {
@@ -286,8 +286,14 @@ impl Tape {
                     r[d] = fx;
                     lin(dr, m, d, (a, f.derivative(x, fx)), None);
                 }
-                Instr::Cmp { d, op, a, b } => {
-                    r[d] = op.apply(r[a], r[b]);
+                Instr::Cmp {
+                    d,
+                    op,
+                    a,
+                    b,
+                    m: mode,
+                } => {
+                    r[d] = self.compare(op, mode, r[a], r[b]);
                     dr[d.idx() * m..(d.idx() + 1) * m].fill(0.0);
                 }
                 Instr::Select { d, c, a, b } => {

@@ -961,6 +961,77 @@ fn ddt_in_a_b_source_is_the_exact_derivative() {
     assert!(err < 1e-6, "{err}");
 }
 
+/// A comparison written in a B source is a state event: it holds its value
+/// through a step, and its crossings are located. A 1 kHz sine is above
+/// 0.999 V for 14 us of each period, narrower than the steps the RC between
+/// the windows allows; every crossing is an event at the analytic time, and
+/// the capacitor's voltage is what the windows' charge gives. Evaluated as it
+/// falls, the comparison was stepped over in four windows of five (v(x)
+/// 14.2 mV at the end, not 71.0 mV).
+#[test]
+fn b_source_comparisons_are_located_events() {
+    let s = sort_file("hard/b_narrow_window.cir");
+    let w = sim::simulate(&s, &sim::Options::default()).unwrap_or_else(|e| panic!("{e}"));
+    let (f, vt, span) = (1e3, 0.999f64, 5e-3);
+    let phase = vt.asin();
+    let windows: Vec<(f64, f64)> = (0..5)
+        .map(|k| {
+            let base = k as f64 / f;
+            let w = 2.0 * std::f64::consts::PI * f;
+            (base + phase / w, base + (std::f64::consts::PI - phase) / w)
+        })
+        .collect();
+    let exact: Vec<(f64, bool)> = windows
+        .iter()
+        .flat_map(|&(a, b)| [(a, true), (b, false)])
+        .collect();
+    assert_eq!(w.events.len(), exact.len(), "{:?}", w.events);
+    for (e, (t, on)) in w.events.iter().zip(&exact) {
+        assert_eq!(e.on, *on, "{e:?}");
+        assert_eq!(e.element, "b1");
+        assert!(
+            (e.t - t).abs() <= 1e-9 * span,
+            "{:?} at {:e}, the crossing is at {t:e}",
+            e.condition,
+            e.t
+        );
+    }
+    // 1 mA into 1 uF inside the windows, decaying through 1 Mohm (1 s).
+    let (i_c, tau) = (1e-3 / 1e-6, 1.0);
+    let exact_last: f64 = windows
+        .iter()
+        .map(|&(a, b)| i_c * tau * ((-(span - b) / tau).exp() - (-(span - a) / tau).exp()))
+        .sum();
+    let x = w.names.iter().position(|n| n == "v(x)").unwrap();
+    let last = *w.data[x].last().unwrap();
+    assert!(
+        (last - exact_last).abs() <= 1e-4 * exact_last,
+        "v(x) = {last}, the windows give {exact_last}"
+    );
+}
+
+/// A comparator that drives its own input back across its threshold (no
+/// hysteresis) slides along it: ngspice takes 7.5e5 steps there. The run
+/// stops at once with a diagnostic naming the comparison and its element.
+#[test]
+fn a_sliding_comparison_ends_with_a_diagnostic() {
+    let s = sort_text(
+        "sliding mode\nv1 in 0 pulse(0 5 10u 1u 1u 1 2)\nr1 in x 1k\nb1 x 0 i = v(x) > 2.5 ? 4m : 0\nc1 x 0 1n\n.tran 1u 1m\n.end\n",
+    );
+    match sim::simulate(&s, &sim::Options::default()) {
+        Err(e @ sim::SimError::Chatter { .. }) => {
+            let text = e.to_string();
+            assert!(text.contains("`v(x) > 2.5` in b1"), "{text}");
+            let sim::SimError::Chatter { t, .. } = e else {
+                unreachable!()
+            };
+            // v(x) reaches 2.5 V near 11.2 us.
+            assert!((t - 1.1234e-5).abs() < 1e-8, "{t:e}");
+        }
+        other => panic!("expected a chatter diagnostic, got {other:?}"),
+    }
+}
+
 /// A switch never steps over a threshold crossing: a 1 kHz sine is above
 /// the switch's threshold (0.99 V) for 4.5 % of each period, a window the
 /// integrator's steps would straddle; each of its ten crossings is an event
@@ -990,7 +1061,7 @@ fn switch_events_land_on_every_threshold_crossing() {
         assert!(
             (e.t - t).abs() <= 1e-9 * span,
             "{} at {:e}, the crossing is at {t:e}",
-            e.switch,
+            e.element,
             e.t
         );
     }

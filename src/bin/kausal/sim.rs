@@ -51,7 +51,7 @@ pub struct Args {
     /// Also output every accepted step.
     #[arg(long)]
     all_steps: bool,
-    /// List the switches' state events (time, switch, control, new state)
+    /// List the state events (time, switch or B source, control, new state)
     /// on standard error.
     #[arg(long)]
     events: bool,
@@ -191,24 +191,27 @@ fn print_stats(s: &sim::Stats) {
     );
 }
 
-/// The switches' events: a count, and with `--events` each of them.
-fn print_events(events: &[sim::SwitchEvent], list: bool) {
+/// The state events (switches, B sources' comparisons): a count, and with
+/// `--events` each of them.
+fn print_events(events: &[sim::StateEvent], list: bool) {
     if events.is_empty() {
         return;
     }
     eprintln!(
-        "switch events: {}{}",
+        "state events: {}{}",
         events.len(),
         if list { "" } else { " (--events lists them)" }
     );
     if list {
         for e in events {
+            let now = match (&e.condition, e.on) {
+                (None, true) => "on".to_string(),
+                (None, false) => "off".to_string(),
+                (Some(c), holds) => format!("`{c}` {holds}"),
+            };
             eprintln!(
-                "  t = {:.9e}  {}  {}  (control {:.6e})",
-                e.t,
-                e.switch,
-                if e.on { "on" } else { "off" },
-                e.control
+                "  t = {:.9e}  {}  {now}  (control {:.6e})",
+                e.t, e.element, e.control
             );
         }
     }
