@@ -395,15 +395,18 @@ where
         let op = ode.rhs();
         let ctx = ode.context().clone();
         let mut jm = M::new_from_sparsity(n, n, op.jacobian_sparsity(), ctx.clone());
-        Box::new(move |y: &[f64]| {
+        Box::new(move |y: &[f64], shift: f64| {
             let yv = M::V::from_vec(y.to_vec(), ctx.clone());
             op.jacobian_inplace(&yv, t0, &mut jm);
             if let Some(error) = ode.error.borrow_mut().take() {
                 return Err(SimError::Eval { error });
             }
             let (at, vals) = jm.triplet_iter();
-            let entries: Vec<(usize, usize, f64)> =
+            let mut entries: Vec<(usize, usize, f64)> =
                 at.zip(vals).map(|((i, j), v)| (i, j, v)).collect();
+            if shift != 0.0 {
+                entries.extend((0..n).map(|k| (k, k, -shift)));
+            }
             TripletLu::new(n, entries)
                 .map(Factored::Sparse)
                 .ok_or_else(singular)
@@ -411,9 +414,12 @@ where
     } else {
         let (mut cols, mut fy) = (vec![0.0; n * n], vec![0.0; n]);
         let all: Vec<usize> = (0..n).collect();
-        Box::new(move |y: &[f64]| {
+        Box::new(move |y: &[f64], shift: f64| {
             ode.jacobian_columns(Regs::Solver, t0, y, &all, &mut cols, &mut fy)
                 .map_err(|error| SimError::Eval { error })?;
+            for k in 0..n {
+                cols[k * n + k] -= shift;
+            }
             match cols.iter().all(|v| v.is_finite()) {
                 true => DenseLu::new(n, cols.clone())
                     .map(Factored::Dense)
@@ -423,8 +429,10 @@ where
         })
     };
     let solve = &mut *jacobian;
+    let y0 = y.clone();
+    let mut rough: Rough = None;
     let first = if direct_dc() {
-        dc_newton(y.clone(), &resid, solve, &mut limit, atol)
+        dc_newton(y.clone(), &resid, solve, &mut limit, atol, &mut rough)
     } else {
         Err(SimError::DcFailed {
             reason: DcFailure::NotTried,
@@ -442,12 +450,14 @@ where
         let stepped = (|| {
             let mut g = 1e-2f64;
             ode.set_gmin_step(g);
-            let mut at = dc_newton(y.clone(), &resid, solve, &mut limit, atol)?;
+            let mut at = dc_newton(y.clone(), &resid, solve, &mut limit, atol, &mut None)?;
             let mut factor = 10.0f64;
             loop {
                 let next = if g / factor < 1e-13 { 0.0 } else { g / factor };
                 ode.set_gmin_step(next);
-                match dc_newton(at.clone(), &resid, solve, &mut limit, atol) {
+                // Only the last stage is the circuit itself.
+                let stage_rough = if next == 0.0 { &mut rough } else { &mut None };
+                match dc_newton(at.clone(), &resid, solve, &mut limit, atol, stage_rough) {
                     Ok(found) => {
                         at = found;
                         if next == 0.0 {
@@ -474,11 +484,12 @@ where
     let mut inc = 0.1f64;
     ode.scale_sources(0.0);
     let result = (|| {
-        y = dc_newton(y.clone(), &resid, solve, &mut limit, atol)?;
+        y = dc_newton(y.clone(), &resid, solve, &mut limit, atol, &mut None)?;
         while at < 1.0 {
             let next = (at + inc).min(1.0);
             ode.scale_sources(next);
-            match dc_newton(y.clone(), &resid, solve, &mut limit, atol) {
+            let stage_rough = if next == 1.0 { &mut rough } else { &mut None };
+            match dc_newton(y.clone(), &resid, solve, &mut limit, atol, stage_rough) {
                 Ok(found) => {
                     y = found;
                     at = next;
@@ -491,10 +502,137 @@ where
         Ok(y.clone())
     })();
     ode.scale_sources(1.0);
+    if result.is_ok() {
+        return result;
+    }
+    // Pseudo-transient continuation: the circuit itself, its sources held at
+    // their values at t0, integrated towards its equilibrium. Not where the
+    // DC Jacobian is singular: a node without a DC path has no operating
+    // point, and the integration would only pick one of many.
+    if !matches!(error, SimError::DcSingular)
+        && let Ok(found) = pseudo_transient(y0.clone(), &resid, solve, &mut limit, atol, &mut rough)
+    {
+        return Ok(found);
+    }
+    // A point where Newton stalled with its correction within ngspice's
+    // convergence tolerances, where nothing converged further.
+    if let Some((_, y)) = rough {
+        return Ok(y);
+    }
     // Report the direct attempt's failure, which names what went wrong at
     // the full sources.
-    result.map_err(|_| error)
+    Err(error)
 }
+
+/// Pseudo-transient continuation (Kelley and Keyes, "Convergence analysis of
+/// pseudo-transient continuation", SIAM J. Numer. Anal. 35, 1998): backward
+/// Euler steps of the circuit's own `y' = f(y)`, one linearized step each
+/// (`(J − I/h) d = f`, `y ← y − d`), from `y` towards the equilibrium that its
+/// transient would reach. The pseudo-time step `h` grows as the scaled rate
+/// `‖f‖` falls (switched evolution relaxation: `h ← h·‖f‖old/‖f‖new`); a step
+/// that cannot be evaluated or that raises the rate tenfold is retried at a
+/// quarter of `h`. Once `h` is long beside every time constant the step is
+/// Newton's, and [`dc_newton`] finishes from there.
+///
+/// This finds operating points that Newton, GMIN and source stepping miss
+/// where the equilibrium is stable (a bipolar op-amp's bias network whose
+/// Newton iterates wander among the junctions' exponentials); it cannot find
+/// an unstable one (an oscillator's), which the others may.
+pub(super) fn pseudo_transient(
+    mut y: Vec<f64>,
+    resid: &Residual<'_>,
+    jacobian: &mut JacobianAt<'_>,
+    limit: &mut dyn FnMut(&[f64], &mut [f64]) -> bool,
+    atol: &[f64],
+    rough: &mut Rough,
+) -> Result<Vec<f64>, SimError> {
+    let n = y.len();
+    // The root-mean-square rate of change of the states relative to their
+    // own scales (1/s): a maximum would let one reverse-biased junction's
+    // femtocoulomb charge, moving at rounding level, hold the whole step.
+    let rate = |f: &[f64], y: &[f64]| {
+        ((0..n)
+            .map(|k| (f[k] / (y[k].abs() + 1e6 * atol[k])).powi(2))
+            .sum::<f64>()
+            / n as f64)
+            .sqrt()
+    };
+    let mut f = vec![0.0; n];
+    let mut ft = vec![0.0; n];
+    let mut trial = vec![0.0; n];
+    resid(&y, &mut f)?;
+    let mut r = rate(&f, &y);
+    let mut h = 1e-9f64;
+    // The rate where Newton was last tried: it is tried again from a point
+    // whose rate is ten times lower.
+    let mut newton_rate = f64::INFINITY;
+    for _ in 0..PTC_STEPS {
+        // Where the pseudo-time step reaches far beyond the rate's time
+        // scale, the state is near an equilibrium: Newton from here.
+        if (h * r < 1e-3 || h > 1e6) && r < 0.1 * newton_rate {
+            newton_rate = r;
+            if let Ok(found) = dc_newton(y.clone(), resid, jacobian, limit, atol, rough) {
+                return Ok(found);
+            }
+        }
+        if !(1e-15..=1e12).contains(&h) {
+            break;
+        }
+        let step = jacobian(&y, 1.0 / h).ok().and_then(|jac| jac.solve(&f));
+        let Some(mut step) = step else {
+            h *= 0.25;
+            continue;
+        };
+        limit(&y, &mut step);
+        for k in 0..n {
+            trial[k] = y[k] - step[k];
+        }
+        // A step that cannot be evaluated, or that speeds the states up
+        // tenfold (beyond a rate of 1/s, which rounding can reach), is
+        // taken again shorter.
+        let rt = match resid(&trial, &mut ft) {
+            Ok(norm) if norm.is_finite() => rate(&ft, &trial),
+            _ => f64::INFINITY,
+        };
+        if !(rt <= 10.0 * r.max(1.0)) {
+            h *= 0.25;
+            continue;
+        }
+        // Switched evolution relaxation, and at least doubling where the
+        // step changed no state by a fifth of its scale.
+        let change = (0..n)
+            .map(|k| step[k].abs() / (y[k].abs() + 1e6 * atol[k]))
+            .fold(0.0, f64::max);
+        let mut grow = if rt > 0.0 { r / rt } else { 10.0 };
+        if change < 0.2 {
+            grow = grow.max(2.0);
+        }
+        h *= grow.clamp(0.5, 10.0);
+        std::mem::swap(&mut y, &mut trial);
+        std::mem::swap(&mut f, &mut ft);
+        r = rt;
+    }
+    if r < newton_rate {
+        return dc_newton(y, resid, jacobian, limit, atol, rough);
+    }
+    Err(SimError::DcFailed {
+        reason: DcFailure::NotTried,
+    })
+}
+
+/// The best point where a Newton iteration stalled with a correction below
+/// [`ROUGH`] (its size, and the point).
+pub(super) type Rough = Option<(f64, Vec<f64>)>;
+
+/// A correction this small (relative to `|y| + 10^7 atol`, so below
+/// 10^-6 V + 10^-4 |v| on node voltages: ngspice's VNTOL, and a tenth of its
+/// RELTOL) is a solution where Newton stalls on rounding in `f` and nothing
+/// converges further.
+const ROUGH: f64 = 1e-4;
+
+/// The most pseudo-transient steps (each one Jacobian) before the DC solve
+/// moves on to GMIN and source stepping.
+const PTC_STEPS: usize = 1000;
 
 /// `f` into its argument, returning its max-norm.
 pub(super) type Residual<'a> = dyn Fn(&[f64], &mut Vec<f64>) -> Result<f64, SimError> + 'a;
@@ -513,7 +651,9 @@ pub(super) fn direct_dc() -> bool {
 
 /// The factored DC Jacobian at a point.
 /// Rows of held states are identity rows.
-pub(super) type JacobianAt<'a> = dyn FnMut(&[f64]) -> Result<Factored, SimError> + 'a;
+/// With a `shift` s it factors `J − s·I` (pseudo-transient continuation's
+/// backward-Euler matrix for a pseudo-time step 1/s); Newton passes 0.
+pub(super) type JacobianAt<'a> = dyn FnMut(&[f64], f64) -> Result<Factored, SimError> + 'a;
 
 /// Damped Newton from `y` (Deuflhard's natural monotonicity test, which
 /// compares corrections in the states' own units rather than residuals of
@@ -529,6 +669,7 @@ pub(super) fn dc_newton(
     jacobian: &mut JacobianAt<'_>,
     limit: &mut dyn FnMut(&[f64], &mut [f64]) -> bool,
     atol: &[f64],
+    rough: &mut Rough,
 ) -> Result<Vec<f64>, SimError> {
     let n = y.len();
     let mut f = vec![0.0; n];
@@ -542,7 +683,7 @@ pub(super) fn dc_newton(
     let mut trial = vec![0.0; n];
     let mut ft = vec![0.0; n];
     for _ in 0..200 {
-        let jac = jacobian(&y)?;
+        let jac = jacobian(&y, 0.0)?;
         let mut step = jac.solve(&f).ok_or_else(singular)?;
         let full = scaled(&step, &y);
         if full <= 1e-10 || norm <= 1e-15 {
@@ -578,8 +719,11 @@ pub(super) fn dc_newton(
             // ngspice's ABSTOL (1 pA), this is the operating point; with a
             // larger f it is not, as a charge's correction reaches its
             // current amplified by 1/(C·RS) (source stepping goes on).
-            if full <= 1e-7 && norm <= 1e-12 {
+            if full <= 1e-9 || (full <= 1e-7 && norm <= 1e-12) {
                 return Ok(y);
+            }
+            if full <= ROUGH && rough.as_ref().is_none_or(|(best, _)| full < *best) {
+                *rough = Some((full, y.clone()));
             }
             return Err(SimError::DcFailed {
                 reason: DcFailure::Stalled { residual: norm },
