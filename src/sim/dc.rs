@@ -131,7 +131,8 @@ where
         y = held.y;
         warnings.extend(held.warnings);
     }
-    let r = tape.in_mode(Mode::Dc, || dc_point::<M>(ode, t0, y, atol));
+    let path = DcPath::of(c);
+    let r = tape.in_mode(Mode::Dc, || dc_point::<M>(ode, t0, y, atol, path));
     // Where no operating point is found from zero, the transistors are
     // started conducting, as ngspice starts them (each base-emitter
     // junction at its critical voltage, the others at 0 V), and the solve
@@ -139,7 +140,7 @@ where
     let r = match r {
         Err(e) => match transistors_on(sorted, &tape.states) {
             Some(start) => tape
-                .in_mode(Mode::Dc, || dc_point::<M>(ode, t0, start, atol))
+                .in_mode(Mode::Dc, || dc_point::<M>(ode, t0, start, atol, path))
                 .map_err(|_| e),
             None => Err(e),
         },
@@ -204,6 +205,23 @@ fn transistors_on(sorted: &Sorted, states: &[VarId]) -> Option<Vec<f64>> {
             })
             .collect(),
     )
+}
+
+/// Whether every node has a DC path to ground (else the circuit has no
+/// unique operating point, and the DC solve says so rather than pick one).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum DcPath {
+    Everywhere,
+    Missing,
+}
+
+impl DcPath {
+    pub(super) fn of(c: &Circuit) -> DcPath {
+        match floating_islands(c).is_empty() {
+            true => DcPath::Everywhere,
+            false => DcPath::Missing,
+        }
+    }
 }
 
 /// For each node, a representative of the nodes that the elements `joins`
@@ -302,6 +320,7 @@ pub(super) fn dc_point<M: Matrix<T = f64>>(
     t0: f64,
     y: Vec<f64>,
     atol: &[f64],
+    path: DcPath,
 ) -> Result<Vec<f64>, SimError>
 where
     M::V: HostVec,
@@ -441,6 +460,18 @@ where
     let Err(error) = first else {
         return first;
     };
+    // Pseudo-transient continuation: the circuit itself, its sources held at
+    // their values at t0, integrated towards its equilibrium. Not where a
+    // node has no DC path: it has no operating point, and the integration
+    // would only pick one of many.
+    if path == DcPath::Everywhere
+        && let Ok(found) = pseudo_transient(y0.clone(), &resid, solve, &mut limit, atol, &mut rough)
+    {
+        return Ok(found);
+    }
+    // The blocks start the next solves from their first guesses, not from
+    // where the integration left them.
+    ode.reset_tears();
     // GMIN stepping (as SPICE steps it): a conductance across every junction
     // with GMIN, large enough that the circuit is nearly linear, stepped down
     // to none, each solution the start of the next; a failed stage is retried
@@ -505,15 +536,6 @@ where
     if result.is_ok() {
         return result;
     }
-    // Pseudo-transient continuation: the circuit itself, its sources held at
-    // their values at t0, integrated towards its equilibrium. Not where the
-    // DC Jacobian is singular: a node without a DC path has no operating
-    // point, and the integration would only pick one of many.
-    if !matches!(error, SimError::DcSingular)
-        && let Ok(found) = pseudo_transient(y0.clone(), &resid, solve, &mut limit, atol, &mut rough)
-    {
-        return Ok(found);
-    }
     // A point where Newton stalled with its correction within ngspice's
     // convergence tolerances, where nothing converged further.
     if let Some((_, y)) = rough {
@@ -526,16 +548,18 @@ where
 
 /// Pseudo-transient continuation (Kelley and Keyes, "Convergence analysis of
 /// pseudo-transient continuation", SIAM J. Numer. Anal. 35, 1998): backward
-/// Euler steps of the circuit's own `y' = f(y)`, one linearized step each
-/// (`(J − I/h) d = f`, `y ← y − d`), from `y` towards the equilibrium that its
-/// transient would reach. The pseudo-time step `h` grows as the scaled rate
-/// `‖f‖` falls (switched evolution relaxation: `h ← h·‖f‖old/‖f‖new`); a step
-/// that cannot be evaluated or that raises the rate tenfold is retried at a
-/// quarter of `h`. Once `h` is long beside every time constant the step is
-/// Newton's, and [`dc_newton`] finishes from there.
+/// Euler steps of the circuit's own `y' = f(y)`, its sources held at their
+/// values at t0, from `y` towards the equilibrium its transient reaches.
+/// Accuracy along the way does not matter, only that each step's implicit
+/// equation `f(x) − (x − y)/h = 0` is solved: by Newton on the matrix
+/// `J − I/h` factored at the step's start (and once more if that stalls),
+/// junction steps limited; the step grows fourfold after a quick solve and
+/// twofold after a slower one, and a failed solve is retried at a quarter of
+/// it. Once the step is long beside the rate at which the states still move,
+/// [`dc_newton`] finishes from there.
 ///
 /// This finds operating points that Newton, GMIN and source stepping miss
-/// where the equilibrium is stable (a bipolar op-amp's bias network whose
+/// where the equilibrium is stable (a bipolar op-amp's bias network, whose
 /// Newton iterates wander among the junctions' exponentials); it cannot find
 /// an unstable one (an oscillator's), which the others may.
 pub(super) fn pseudo_transient(
@@ -547,19 +571,18 @@ pub(super) fn pseudo_transient(
     rough: &mut Rough,
 ) -> Result<Vec<f64>, SimError> {
     let n = y.len();
+    // Sizes relative to each state's own scale: `|y| + 10^6 atol`.
+    let scale = |k: usize, y: &[f64]| y[k].abs() + 1e6 * atol[k];
     // The root-mean-square rate of change of the states relative to their
-    // own scales (1/s): a maximum would let one reverse-biased junction's
-    // femtocoulomb charge, moving at rounding level, hold the whole step.
+    // scales (1/s): a maximum would let one reverse-biased junction's
+    // femtocoulomb charge, moving at rounding level, stand for the circuit.
     let rate = |f: &[f64], y: &[f64]| {
-        ((0..n)
-            .map(|k| (f[k] / (y[k].abs() + 1e6 * atol[k])).powi(2))
-            .sum::<f64>()
-            / n as f64)
-            .sqrt()
+        ((0..n).map(|k| (f[k] / scale(k, y)).powi(2)).sum::<f64>() / n as f64).sqrt()
     };
+    let size = |d: &[f64], y: &[f64]| (0..n).map(|k| d[k].abs() / scale(k, y)).fold(0.0, f64::max);
     let mut f = vec![0.0; n];
-    let mut ft = vec![0.0; n];
-    let mut trial = vec![0.0; n];
+    let mut x = vec![0.0; n];
+    let mut g = vec![0.0; n];
     resid(&y, &mut f)?;
     let mut r = rate(&f, &y);
     let mut h = 1e-9f64;
@@ -567,57 +590,78 @@ pub(super) fn pseudo_transient(
     // whose rate is ten times lower.
     let mut newton_rate = f64::INFINITY;
     for _ in 0..PTC_STEPS {
-        // Where the pseudo-time step reaches far beyond the rate's time
-        // scale, the state is near an equilibrium: Newton from here.
         if (h * r < 1e-3 || h > 1e6) && r < 0.1 * newton_rate {
             newton_rate = r;
             if let Ok(found) = dc_newton(y.clone(), resid, jacobian, limit, atol, rough) {
                 return Ok(found);
             }
         }
-        if !(1e-15..=1e12).contains(&h) {
+        if !(1e-18..=1e12).contains(&h) {
             break;
         }
-        let step = jacobian(&y, 1.0 / h).ok().and_then(|jac| jac.solve(&f));
-        let Some(mut step) = step else {
+        // One backward-Euler step of length h, from y.
+        x.copy_from_slice(&y);
+        let mut solved = None;
+        'refactor: for _ in 0..3 {
+            let Ok(jac) = jacobian(&x, 1.0 / h) else {
+                break;
+            };
+            let mut last = f64::INFINITY;
+            for iteration in 1..=10 {
+                if !resid(&x, &mut g).is_ok_and(|norm| norm.is_finite()) {
+                    break 'refactor;
+                }
+                for k in 0..n {
+                    g[k] -= (x[k] - y[k]) / h;
+                }
+                let Some(mut d) = jac.solve(&g) else {
+                    break 'refactor;
+                };
+                limit(&x, &mut d);
+                for k in 0..n {
+                    x[k] -= d[k];
+                }
+                let moved = size(&d, &x);
+                if moved <= 1e-3 {
+                    solved = Some(iteration);
+                    break 'refactor;
+                }
+                if moved > 0.5 * last {
+                    // Not converging on this matrix: factor it anew here.
+                    continue 'refactor;
+                }
+                last = moved;
+            }
+        }
+        let Some(iterations) = solved else {
             h *= 0.25;
             continue;
         };
-        limit(&y, &mut step);
-        for k in 0..n {
-            trial[k] = y[k] - step[k];
-        }
-        // A step that cannot be evaluated, or that speeds the states up
-        // tenfold (beyond a rate of 1/s, which rounding can reach), is
-        // taken again shorter.
-        let rt = match resid(&trial, &mut ft) {
-            Ok(norm) if norm.is_finite() => rate(&ft, &trial),
-            _ => f64::INFINITY,
-        };
-        if !(rt <= 10.0 * r.max(1.0)) {
+        if !resid(&x, &mut f).is_ok_and(|norm| norm.is_finite()) {
             h *= 0.25;
             continue;
         }
-        // Switched evolution relaxation, and at least doubling where the
-        // step changed no state by a fifth of its scale.
-        let change = (0..n)
-            .map(|k| step[k].abs() / (y[k].abs() + 1e6 * atol[k]))
-            .fold(0.0, f64::max);
-        let mut grow = if rt > 0.0 { r / rt } else { 10.0 };
-        if change < 0.2 {
-            grow = grow.max(2.0);
-        }
-        h *= grow.clamp(0.5, 10.0);
-        std::mem::swap(&mut y, &mut trial);
-        std::mem::swap(&mut f, &mut ft);
-        r = rt;
+        std::mem::swap(&mut y, &mut x);
+        r = rate(&f, &y);
+        h *= match iterations {
+            ..=3 => 4.0,
+            4..=6 => 2.0,
+            _ => 1.0,
+        };
     }
-    if r < newton_rate {
-        return dc_newton(y, resid, jacobian, limit, atol, rough);
+    if r < newton_rate
+        && let Ok(found) = dc_newton(y, resid, jacobian, limit, atol, rough)
+    {
+        return Ok(found);
     }
-    Err(SimError::DcFailed {
-        reason: DcFailure::NotTried,
-    })
+    // Where Newton stalled on rounding near the equilibrium the integration
+    // reached, that equilibrium is the operating point.
+    match rough.take() {
+        Some((_, y)) => Ok(y),
+        None => Err(SimError::DcFailed {
+            reason: DcFailure::NotTried,
+        }),
+    }
 }
 
 /// The best point where a Newton iteration stalled with a correction below
@@ -630,8 +674,7 @@ pub(super) type Rough = Option<(f64, Vec<f64>)>;
 /// converges further.
 const ROUGH: f64 = 1e-4;
 
-/// The most pseudo-transient steps (each one Jacobian) before the DC solve
-/// moves on to GMIN and source stepping.
+/// The most pseudo-transient steps before the DC solve gives up.
 const PTC_STEPS: usize = 1000;
 
 /// `f` into its argument, returning its max-norm.

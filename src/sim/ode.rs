@@ -186,6 +186,13 @@ where
         self.tangents.borrow_mut().valid = false;
     }
 
+    /// Every block's tears back at their first guesses (see
+    /// [`crate::tape::Tape::reset_tears`]).
+    pub fn reset_tears(&self) {
+        self.tape.reset_tears(&mut self.regs.borrow_mut());
+        self.tangents.borrow_mut().valid = false;
+    }
+
     /// The DC solve's GMIN step across the junctions (see
     /// [`crate::tape::Tape::set_gmin_step`]).
     pub fn set_gmin_step(&self, g: f64) {

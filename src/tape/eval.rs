@@ -78,6 +78,17 @@ impl Tape {
 
     /// Scale every independent source by `s`: the waveforms (through
     /// `source_scale`) and the DC values held in `regs`.
+    /// Put every block's tears back at their first guesses: a Newton that
+    /// starts over from another point (the DC solve's last fallback) should
+    /// not start its blocks where a failed one left them.
+    pub fn reset_tears(&self, regs: &mut [f64]) {
+        for b in &self.blocks {
+            for &t in &b.tears {
+                regs[t.idx()] = self.init[t.idx()];
+            }
+        }
+    }
+
     pub fn scale_sources(&self, regs: &mut [f64], s: f64) {
         self.source_scale.set(s);
         for &(r, v) in &self.source_params {
