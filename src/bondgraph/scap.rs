@@ -1,0 +1,457 @@
+//! SCAP, the sequential causality assignment procedure, in seed 002's order
+//! with seed 003's constraints:
+//!
+//! 1. fixed causality: every source (Se gives effort, Sf flow), each
+//!    propagated at once (1a); then ports whose law cannot be inverted: the
+//!    windings of a perfectly coupled I-field past its rank, whose inductance
+//!    matrix has no inverse (1b);
+//! 2. preferred causality: each storage port in turn gets integral causality
+//!    (C gives effort, I takes it) unless propagation has already decided
+//!    it, and is propagated;
+//! 3. arbitrary causality: each resistor still open gets one (it takes the
+//!    flow, `e = R·f`), propagated; a choice here closes an algebraic loop;
+//! 4. any bond still open (a loop of junctions only) is chosen the same way.
+//!
+//! Propagation applies the junction constraints (a 0-junction has exactly
+//! one bond that sets its effort, a 1-junction exactly one that sets its
+//! flow), a transformer's (one port takes effort, the other gives it) and a
+//! gyrator's (both ports alike). When every bond is set, each vertex is
+//! checked; what breaks a constraint is a causal conflict.
+//!
+//! A bond's causality is the end its stroke is drawn at: the vertex there
+//! receives the effort and gives the flow.
+
+use std::collections::VecDeque;
+
+use super::{BondGraph, BondId, Law, StateKey, Vertex, VertexId, VertexKind};
+
+/// The end of a bond whose vertex receives the effort (where the causal
+/// stroke is drawn).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stroke {
+    Head,
+    Tail,
+}
+
+/// The step of SCAP that set a bond.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Phase {
+    /// 1a: a source.
+    Source,
+    /// 1b: a port whose law cannot be inverted.
+    Fixed,
+    /// 2: a storage port's integral causality.
+    Preferred,
+    /// 3: a resistor's arbitrary causality.
+    Arbitrary,
+    /// 4: a junction bond's arbitrary causality.
+    Open,
+}
+
+/// One decision of SCAP and the bonds its propagation set.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Decision {
+    pub phase: Phase,
+    pub vertex: VertexId,
+    pub bond: BondId,
+    /// Bonds set by propagating this decision, in order.
+    pub propagated: Vec<BondId>,
+}
+
+/// A storage port's outcome.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StoragePort {
+    pub vertex: VertexId,
+    pub bond: BondId,
+    /// Port index at the vertex (a field's winding).
+    pub port: usize,
+    pub state: Option<StateKey>,
+    pub integral: bool,
+    /// Set by its own decision (phase 2 or 1b), not by propagation.
+    pub chosen: bool,
+}
+
+/// What a conflict breaks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ConflictKind {
+    /// A source made to take the variable it should give.
+    Source,
+    /// A port of fixed causality (past a singular field's rank) made integral.
+    Fixed,
+    /// A 0-junction whose effort two bonds set.
+    EffortTwice,
+    /// A 0-junction whose effort no bond sets.
+    EffortUnset,
+    /// A 1-junction whose flow two bonds set.
+    FlowTwice,
+    /// A 1-junction whose flow no bond sets.
+    FlowUnset,
+    /// A transformer with effort into (or out of) both ports.
+    Transformer,
+    /// A gyrator with effort into one port and out of the other.
+    Gyrator,
+}
+
+/// A vertex whose constraint the assignment breaks.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Conflict {
+    pub vertex: VertexId,
+    pub kind: ConflictKind,
+    /// The bonds involved (those that set the variable twice, or all).
+    pub bonds: Vec<BondId>,
+}
+
+/// The causal strokes and how SCAP came to them.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Causality {
+    /// Per bond (removed bonds: `None`).
+    pub strokes: Vec<Option<Stroke>>,
+    /// Per bond: the index of the decision that set it.
+    pub cause: Vec<Option<usize>>,
+    pub decisions: Vec<Decision>,
+    /// Every storage port, in the order SCAP took them.
+    pub storage: Vec<StoragePort>,
+    pub conflicts: Vec<Conflict>,
+}
+
+/// Options of [`assign`].
+#[derive(Clone, Debug, Default)]
+pub struct Options {
+    /// Storage ports to take last in phase 2 (the cross-check asks whether
+    /// index reduction's choice of dependent states is SCAP's too).
+    pub defer: Vec<StateKey>,
+}
+
+impl Causality {
+    /// Whether vertex `v` receives the effort through bond `b`.
+    pub fn effort_into(&self, g: &BondGraph, v: VertexId, b: BondId) -> Option<bool> {
+        let s = self.strokes.get(b.0 as usize).copied().flatten()?;
+        let bond = &g.bonds[b];
+        Some(match s {
+            Stroke::Head => bond.head == v,
+            Stroke::Tail => bond.tail == v,
+        })
+    }
+
+    /// Storage ports in derivative causality.
+    pub fn derivative(&self) -> impl Iterator<Item = &StoragePort> {
+        self.storage.iter().filter(|s| !s.integral)
+    }
+
+    /// Storage ports in integral causality.
+    pub fn integral(&self) -> impl Iterator<Item = &StoragePort> {
+        self.storage.iter().filter(|s| s.integral)
+    }
+
+    /// The arbitrary choices (phases 3 and 4).
+    pub fn arbitrary(&self) -> impl Iterator<Item = &Decision> {
+        self.decisions
+            .iter()
+            .filter(|d| matches!(d.phase, Phase::Arbitrary | Phase::Open))
+    }
+}
+
+/// Whether a storage port takes the effort in integral causality (an I's
+/// does, a C's gives it).
+fn integral_takes_effort(kind: VertexKind) -> bool {
+    matches!(kind, VertexKind::I | VertexKind::IField)
+}
+
+struct Scap<'g> {
+    g: &'g BondGraph,
+    c: Causality,
+    queue: VecDeque<VertexId>,
+    queued: Vec<bool>,
+    /// Ports of fixed causality (1b), as (vertex, bond).
+    fixed: Vec<(VertexId, BondId)>,
+}
+
+/// Assign causality to every bond of `g` by SCAP.
+pub fn assign(g: &BondGraph, opts: &Options) -> Causality {
+    let n = g.bonds.len();
+    let mut s = Scap {
+        g,
+        c: Causality {
+            strokes: vec![None; n],
+            cause: vec![None; n],
+            decisions: Vec::new(),
+            storage: Vec::new(),
+            conflicts: Vec::new(),
+        },
+        queue: VecDeque::new(),
+        queued: vec![false; g.vertices.len()],
+        fixed: fixed_ports(g),
+    };
+    // 1a: sources.
+    for (v, x) in g.live_vertices() {
+        if x.kind.is_source()
+            && let Some(&b) = x.bonds.first()
+        {
+            let takes = matches!(x.kind, VertexKind::Sf | VertexKind::MSf);
+            s.decide(Phase::Source, v, b, takes);
+        }
+    }
+    // 1b: ports that cannot be integral.
+    for (v, b) in s.fixed.clone() {
+        s.decide(Phase::Fixed, v, b, false);
+    }
+    // 2: storage, one port at a time; deferred ones last.
+    let mut ports: Vec<(VertexId, BondId, Option<StateKey>)> = Vec::new();
+    for (v, x) in g.live_vertices() {
+        if !x.kind.is_storage() {
+            continue;
+        }
+        for (k, &b) in x.bonds.iter().enumerate() {
+            ports.push((v, b, x.states.get(k).copied().flatten()));
+        }
+    }
+    // A field's pivots (the windings that keep a flux) first.
+    ports.sort_by_key(|&(v, b, st)| {
+        let deferred = st.and_then(|k| opts.defer.iter().position(|&d| d == k));
+        (
+            deferred.is_some(),
+            deferred,
+            v,
+            field_rank(&g.vertices[v], b),
+        )
+    });
+    for (v, b, _) in ports {
+        let takes = integral_takes_effort(g.vertices[v].kind);
+        s.decide(Phase::Preferred, v, b, takes);
+    }
+    // 3: resistors.
+    for (v, x) in g.live_vertices() {
+        if x.kind.is_resistor() {
+            for &b in &x.bonds {
+                s.decide(Phase::Arbitrary, v, b, false);
+            }
+        }
+    }
+    // 4: whatever is left.
+    for (b, bond) in g.live_bonds() {
+        s.decide(Phase::Open, bond.head, b, true);
+    }
+    s.finish();
+    s.c
+}
+
+/// A field port's place in phase 2: pivots first, in pivot order.
+fn field_rank(x: &Vertex, b: BondId) -> usize {
+    let k = x.bonds.iter().position(|&c| c == b).unwrap_or(0);
+    match &x.law {
+        Law::Field(f) => match &f.singular {
+            Some(s) => s.pivots.iter().position(|&p| p == k).unwrap_or(usize::MAX),
+            None => k,
+        },
+        _ => k,
+    }
+}
+
+/// The ports of 1b: a singular field's windings that hold no flux.
+fn fixed_ports(g: &BondGraph) -> Vec<(VertexId, BondId)> {
+    let mut out = Vec::new();
+    for (v, x) in g.live_vertices() {
+        if x.kind != VertexKind::IField {
+            continue;
+        }
+        if let Law::Field(f) = &x.law {
+            for (k, &b) in x.bonds.iter().enumerate() {
+                if f.singular.as_ref().is_some_and(|s| !s.pivots.contains(&k)) {
+                    out.push((v, b));
+                }
+            }
+        }
+    }
+    out
+}
+
+impl Scap<'_> {
+    /// Decide bond `b` at vertex `v` (`v` takes the effort when `takes`),
+    /// unless propagation has already, and propagate.
+    fn decide(&mut self, phase: Phase, v: VertexId, b: BondId, takes: bool) {
+        if self.c.strokes[b.0 as usize].is_some() {
+            return;
+        }
+        self.c.decisions.push(Decision {
+            phase,
+            vertex: v,
+            bond: b,
+            propagated: Vec::new(),
+        });
+        self.set(b, v, takes);
+        self.propagate();
+        if matches!(phase, Phase::Preferred | Phase::Fixed) {
+            self.c.storage.push(StoragePort {
+                vertex: v,
+                bond: b,
+                port: self.g.vertices[v]
+                    .bonds
+                    .iter()
+                    .position(|&c| c == b)
+                    .unwrap_or(0),
+                state: None,
+                integral: false,
+                chosen: true,
+            });
+        }
+    }
+
+    /// Set bond `b` so that vertex `v` takes (or gives) the effort.
+    fn set(&mut self, b: BondId, v: VertexId, takes: bool) {
+        let bond = &self.g.bonds[b];
+        let at_head = bond.head == v;
+        let stroke = if at_head == takes {
+            Stroke::Head
+        } else {
+            Stroke::Tail
+        };
+        self.c.strokes[b.0 as usize] = Some(stroke);
+        let d = self.c.decisions.len() - 1;
+        self.c.cause[b.0 as usize] = Some(d);
+        if self.c.decisions[d].bond != b {
+            self.c.decisions[d].propagated.push(b);
+        }
+        for end in [bond.tail, bond.head] {
+            if !self.queued[end.0 as usize] {
+                self.queued[end.0 as usize] = true;
+                self.queue.push_back(end);
+            }
+        }
+    }
+
+    fn takes(&self, v: VertexId, b: BondId) -> Option<bool> {
+        self.c.effort_into(self.g, v, b)
+    }
+
+    /// Apply the constraints of every vertex reached until nothing follows.
+    fn propagate(&mut self) {
+        while let Some(v) = self.queue.pop_front() {
+            self.queued[v.0 as usize] = false;
+            let x = &self.g.vertices[v];
+            match x.kind {
+                // One bond sets a 0-junction's effort: the others take it
+                // from the junction (give it the effort: `takes` false at
+                // the junction); the last open bond of a junction nobody
+                // sets yet must. A 1-junction is the dual.
+                VertexKind::Zero | VertexKind::One => {
+                    let strong = x.kind == VertexKind::One;
+                    let mut set = 0;
+                    let mut open = Vec::new();
+                    for &b in &x.bonds {
+                        match self.takes(v, b) {
+                            Some(t) if t != strong => set += 1,
+                            Some(_) => {}
+                            None => open.push(b),
+                        }
+                    }
+                    if set >= 1 {
+                        for b in open {
+                            self.set(b, v, strong);
+                        }
+                    } else if open.len() == 1 {
+                        self.set(open[0], v, !strong);
+                    }
+                }
+                VertexKind::Tf | VertexKind::Gy if x.bonds.len() == 2 => {
+                    let same = x.kind == VertexKind::Gy;
+                    let (b1, b2) = (x.bonds[0], x.bonds[1]);
+                    match (self.takes(v, b1), self.takes(v, b2)) {
+                        (Some(t), None) => self.set(b2, v, t == same),
+                        (None, Some(t)) => self.set(b1, v, t == same),
+                        _ => {}
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Record every storage port's outcome and check every constraint.
+    fn finish(&mut self) {
+        let g = self.g;
+        let mut storage = Vec::new();
+        let chosen: Vec<BondId> = self.c.storage.iter().map(|s| s.bond).collect();
+        for (v, x) in g.live_vertices() {
+            if !x.kind.is_storage() {
+                continue;
+            }
+            for (k, &b) in x.bonds.iter().enumerate() {
+                let takes = self.takes(v, b).unwrap_or(false);
+                storage.push(StoragePort {
+                    vertex: v,
+                    bond: b,
+                    port: k,
+                    state: x.states.get(k).copied().flatten(),
+                    integral: takes == integral_takes_effort(x.kind),
+                    chosen: chosen.contains(&b)
+                        && self.c.cause[b.0 as usize]
+                            .is_some_and(|d| self.c.decisions[d].bond == b),
+                });
+            }
+        }
+        // In the order SCAP took them: by the decision that set each.
+        storage.sort_by_key(|s| (self.c.cause[s.bond.0 as usize], s.bond));
+        self.c.storage = storage;
+        let mut conflicts = Vec::new();
+        for (v, x) in g.live_vertices() {
+            let takes: Vec<(BondId, bool)> = x
+                .bonds
+                .iter()
+                .map(|&b| (b, self.takes(v, b).unwrap_or(false)))
+                .collect();
+            let mut conflict = |kind, bonds: Vec<BondId>| {
+                conflicts.push(Conflict {
+                    vertex: v,
+                    kind,
+                    bonds,
+                })
+            };
+            match x.kind {
+                VertexKind::Zero | VertexKind::One => {
+                    let one = x.kind == VertexKind::One;
+                    let setters: Vec<BondId> = takes
+                        .iter()
+                        .filter(|&&(_, t)| t != one)
+                        .map(|&(b, _)| b)
+                        .collect();
+                    let all = takes.iter().map(|&(b, _)| b).collect();
+                    match (setters.len(), one) {
+                        (0, false) => conflict(ConflictKind::EffortUnset, all),
+                        (0, true) => conflict(ConflictKind::FlowUnset, all),
+                        (1, _) => {}
+                        (_, false) => conflict(ConflictKind::EffortTwice, setters),
+                        (_, true) => conflict(ConflictKind::FlowTwice, setters),
+                    }
+                }
+                VertexKind::Se | VertexKind::MSe => {
+                    if let Some(&(b, true)) = takes.first() {
+                        conflict(ConflictKind::Source, vec![b]);
+                    }
+                }
+                VertexKind::Sf | VertexKind::MSf => {
+                    if let Some(&(b, false)) = takes.first() {
+                        conflict(ConflictKind::Source, vec![b]);
+                    }
+                }
+                VertexKind::Tf if takes.len() == 2 && takes[0].1 == takes[1].1 => {
+                    conflict(ConflictKind::Transformer, vec![takes[0].0, takes[1].0]);
+                }
+                VertexKind::Gy if takes.len() == 2 && takes[0].1 != takes[1].1 => {
+                    conflict(ConflictKind::Gyrator, vec![takes[0].0, takes[1].0]);
+                }
+                VertexKind::IField => {
+                    for &(b, t) in &takes {
+                        if t && self.fixed.contains(&(v, b)) {
+                            conflict(ConflictKind::Fixed, vec![b]);
+                        }
+                    }
+                }
+                _ => {}
+            }
+        }
+        self.c.conflicts = conflicts;
+    }
+}
