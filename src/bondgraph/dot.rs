@@ -66,7 +66,7 @@ pub fn dot(a: &Analysis) -> String {
         t,
         "  graph [rankdir=LR, fontname=\"Helvetica\", fontsize=12, labelloc=t, label={}];",
         quote(&format!(
-            "{}\\ncausal bond graph: bar = end that takes the effort; red = derivative causality, magenta = conflict, blue = arbitrary",
+            "{}\ncausal strokes (bar) at the end that takes the effort; red: derivative causality, magenta: conflict, blue: arbitrary",
             g.title
         ))
     );

@@ -20,7 +20,7 @@
 use std::collections::HashMap;
 
 use super::scap::Phase;
-use super::{Atom, BondGraph, BondId, Causality, Law, Origin, Part, Var, VertexId, VertexKind};
+use super::{BondGraph, BondId, Causality, Law, Origin, Part, Var, VertexId, VertexKind};
 use crate::elab::ElemId;
 use crate::ir::IdVec;
 
@@ -170,7 +170,23 @@ pub fn read_off(g: &BondGraph, c: &Causality) -> ReadOff {
         eqs: Vec::new(),
     };
     r.name_bonds();
-    for (v, _) in g.live_vertices() {
+    // Sources, storage, resistors and two-ports, junctions: the order the
+    // listing breaks ties in.
+    let mut order: Vec<VertexId> = g.live_vertices().map(|(v, _)| v).collect();
+    order.sort_by_key(|&v| {
+        let k = g.vertices[v].kind;
+        let rank = if k.is_source() {
+            0
+        } else if k.is_storage() {
+            1
+        } else if k.is_junction() {
+            3
+        } else {
+            2
+        };
+        (rank, v)
+    });
+    for v in order {
         r.vertex(v);
     }
     let too_deep = r.differentiate_needed();
@@ -258,8 +274,19 @@ impl Reader<'_> {
                 _ => {}
             }
         }
+        // A bond between two elements is named after the one whose name
+        // says most: a storage element's (its state), a resistor's, then
+        // a source's or two-port's.
+        let rank = |v: VertexId| match g.vertices[v].kind {
+            VertexKind::C | VertexKind::I | VertexKind::IField => 0,
+            VertexKind::R | VertexKind::MR => 1,
+            _ => 2,
+        };
         for (b, bond) in g.live_bonds() {
-            let ends = [bond.tail, bond.head];
+            let mut ends = [bond.tail, bond.head];
+            if rank(ends[1]) < rank(ends[0]) {
+                ends.swap(0, 1);
+            }
             let e = match ends.iter().find_map(|v| zero.get(v)) {
                 Some(&x) => x,
                 None => match ends.iter().find_map(|&v| self.port(v, b)).cloned() {
@@ -916,10 +943,11 @@ impl Reader<'_> {
                 }
             }
         }
-        let comps = crate::analysis::graph::strong_components(self.eqs.len(), edges.into_iter());
+        let comps =
+            crate::analysis::graph::strong_components(self.eqs.len(), edges.iter().copied());
         let mut steps = Vec::new();
-        for comp in comps {
-            let comp: Vec<usize> = comp.into_iter().map(|k| k as usize).collect();
+        for comp in in_order(&comps, &edges) {
+            let comp: Vec<usize> = comps[comp].iter().map(|&k| k as usize).collect();
             if comp.len() == 1 && !self_loop[comp[0]] {
                 steps.push(Step::Assign(comp[0]));
                 continue;
@@ -963,6 +991,46 @@ impl Reader<'_> {
             derivative,
         }
     }
+}
+
+/// The components in a topological order that takes, of those ready, the
+/// one with the lowest equation first: the listing follows the order the
+/// graph was read in wherever the dependencies leave a choice.
+fn in_order(comps: &[Vec<u32>], edges: &[(u32, u32)]) -> Vec<usize> {
+    use std::cmp::Reverse;
+    use std::collections::BinaryHeap;
+    let n: usize = comps.iter().map(Vec::len).sum();
+    let mut comp_of = vec![0usize; n];
+    for (c, comp) in comps.iter().enumerate() {
+        for &k in comp {
+            comp_of[k as usize] = c;
+        }
+    }
+    let mut succ: Vec<Vec<usize>> = vec![Vec::new(); comps.len()];
+    let mut preds = vec![0usize; comps.len()];
+    for &(a, b) in edges {
+        let (ca, cb) = (comp_of[a as usize], comp_of[b as usize]);
+        if ca != cb {
+            succ[ca].push(cb);
+            preds[cb] += 1;
+        }
+    }
+    let first = |c: usize| comps[c].iter().copied().min().unwrap_or(0);
+    let mut ready: BinaryHeap<Reverse<(u32, usize)>> = (0..comps.len())
+        .filter(|&c| preds[c] == 0)
+        .map(|c| Reverse((first(c), c)))
+        .collect();
+    let mut out = Vec::with_capacity(comps.len());
+    while let Some(Reverse((_, c))) = ready.pop() {
+        out.push(c);
+        for &d in &succ[c] {
+            preds[d] -= 1;
+            if preds[d] == 0 {
+                ready.push(Reverse((first(d), d)));
+            }
+        }
+    }
+    out
 }
 
 /// What an equation reads.
@@ -1163,9 +1231,4 @@ impl ReadOff {
             Step::Assign(_) => None,
         })
     }
-}
-
-/// A bond variable of the graph, for the check's messages.
-pub fn atom_name(r: &ReadOff, a: Atom) -> String {
-    r.bond_var(a.bond, a.var)
 }

@@ -238,6 +238,28 @@ pub fn assign(g: &BondGraph, opts: &Options) -> Causality {
     s.c
 }
 
+/// The storage outcomes and conflicts of given strokes (no decisions): how
+/// the cross-check's tests hand it an assignment SCAP would not make.
+pub fn evaluate(g: &BondGraph, strokes: Vec<Option<Stroke>>) -> Causality {
+    let n = g.bonds.len();
+    let mut s = Scap {
+        g,
+        c: Causality {
+            strokes,
+            cause: vec![None; n],
+            decisions: Vec::new(),
+            storage: Vec::new(),
+            conflicts: Vec::new(),
+        },
+        queue: VecDeque::new(),
+        queued: vec![false; g.vertices.len()],
+        fixed: fixed_ports(g),
+    };
+    s.c.strokes.resize(n, None);
+    s.finish();
+    s.c
+}
+
 /// A field port's place in phase 2: pivots first, in pivot order.
 fn field_rank(x: &Vertex, b: BondId) -> usize {
     let k = x.bonds.iter().position(|&c| c == b).unwrap_or(0);
@@ -393,7 +415,7 @@ impl Scap<'_> {
             }
         }
         // In the order SCAP took them: by the decision that set each.
-        storage.sort_by_key(|s| (self.c.cause[s.bond.0 as usize], s.bond));
+        storage.sort_by_key(|s| (self.c.cause[s.bond.0 as usize], !s.chosen, s.bond));
         self.c.storage = storage;
         let mut conflicts = Vec::new();
         for (v, x) in g.live_vertices() {
@@ -453,5 +475,158 @@ impl Scap<'_> {
             }
         }
         self.c.conflicts = conflicts;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bondgraph::{Bond, Origin, Part, StateKind};
+    use crate::elab::ElemId;
+
+    /// A graph of the given vertices (vertex `k` is element `k`) and bonds
+    /// `(tail, head)`.
+    fn graph(vs: &[VertexKind], bonds: &[(u32, u32)]) -> BondGraph {
+        let mut g = BondGraph {
+            title: "test".into(),
+            vertices: Default::default(),
+            bonds: Default::default(),
+            simplified: Vec::new(),
+            notes: Vec::new(),
+            element_names: (0..vs.len()).map(|k| format!("x{k}")).collect(),
+            node_names: Vec::new(),
+            elements: Vec::new(),
+            element_spans: Vec::new(),
+            witness: Vec::new(),
+            forward: Default::default(),
+        };
+        for (k, &kind) in vs.iter().enumerate() {
+            let elem = ElemId(k as u32);
+            g.vertices.push(Vertex {
+                kind,
+                label: format!("x{k}"),
+                origin: Origin::Element {
+                    elem,
+                    part: Part::Whole,
+                },
+                bonds: Vec::new(),
+                ports: Vec::new(),
+                states: vec![kind.is_storage().then_some(StateKey {
+                    elem,
+                    kind: StateKind::Voltage,
+                })],
+                law: Law::Junction,
+                signals: Vec::new(),
+                name: None,
+                removed: false,
+            });
+        }
+        for &(t, h) in bonds {
+            let b = g.bonds.push(Bond {
+                tail: VertexId(t),
+                head: VertexId(h),
+                removed: false,
+            });
+            g.vertices[VertexId(t)].bonds.push(b);
+            g.vertices[VertexId(h)].bonds.push(b);
+        }
+        g
+    }
+
+    fn derivative(c: &Causality) -> Vec<u32> {
+        let mut v: Vec<u32> = c.derivative().map(|s| s.vertex.0).collect();
+        v.sort();
+        v
+    }
+
+    use VertexKind::*;
+
+    #[test]
+    fn capacitors_across_a_voltage_source_are_dependent() {
+        // Se → 0 → C, C: the source sets the junction's effort, which both
+        // capacitors take.
+        let g = graph(&[Se, Zero, C, C], &[(0, 1), (1, 2), (1, 3)]);
+        let c = assign(&g, &Options::default());
+        assert_eq!(derivative(&c), [2, 3]);
+        assert!(c.conflicts.is_empty());
+        assert!(c.storage.iter().all(|s| !s.chosen));
+    }
+
+    #[test]
+    fn one_of_two_parallel_capacitors_is_dependent() {
+        // R → 0 with C, C: the first capacitor takes integral causality and
+        // sets the junction's effort, the second takes it; deferring the
+        // first gives the other choice.
+        let g = graph(
+            &[Se, One, R, Zero, C, C],
+            &[(0, 1), (1, 2), (1, 3), (3, 4), (3, 5)],
+        );
+        let c = assign(&g, &Options::default());
+        assert_eq!(derivative(&c), [5]);
+        let defer = vec![StateKey {
+            elem: ElemId(4),
+            kind: StateKind::Voltage,
+        }];
+        let c = assign(&g, &Options { defer });
+        assert_eq!(derivative(&c), [4]);
+    }
+
+    #[test]
+    fn inductors_behind_a_current_source_are_dependent() {
+        let g = graph(&[Sf, One, I, I], &[(0, 1), (1, 2), (1, 3)]);
+        let c = assign(&g, &Options::default());
+        assert_eq!(derivative(&c), [2, 3]);
+    }
+
+    #[test]
+    fn resistors_alone_need_an_arbitrary_choice() {
+        // Seed C's loop: Se → 1 with R1, on to 0 with R2 and R3.
+        let g = graph(
+            &[Se, One, R, Zero, R, R],
+            &[(0, 1), (1, 2), (1, 3), (3, 4), (3, 5)],
+        );
+        let c = assign(&g, &Options::default());
+        let chosen: Vec<u32> = c.arbitrary().map(|d| d.vertex.0).collect();
+        assert_eq!(chosen, [2]);
+        // R1 takes the flow (gives e = R·f); the 1-junction then gives the
+        // 0-junction its effort, which R2 and R3 take.
+        assert_eq!(c.effort_into(&g, VertexId(2), BondId(1)), Some(false));
+        assert_eq!(c.effort_into(&g, VertexId(4), BondId(3)), Some(true));
+        assert_eq!(c.effort_into(&g, VertexId(5), BondId(4)), Some(true));
+        assert!(c.conflicts.is_empty());
+    }
+
+    #[test]
+    fn two_voltage_sources_on_one_junction_conflict() {
+        // The first source sets the junction's effort; propagation makes
+        // the second take it, against its fixed causality.
+        let g = graph(&[Se, Zero, Se, R], &[(0, 1), (2, 1), (1, 3)]);
+        let c = assign(&g, &Options::default());
+        let found: Vec<(u32, ConflictKind)> =
+            c.conflicts.iter().map(|x| (x.vertex.0, x.kind)).collect();
+        assert_eq!(found, [(2, ConflictKind::Source)]);
+    }
+
+    #[test]
+    fn a_transformer_passes_causality_on_and_a_gyrator_turns_it() {
+        // Se → TF → C: effort in at port 1, out at port 2: C takes it.
+        let g = graph(&[Se, Tf, C], &[(0, 1), (1, 2)]);
+        assert_eq!(derivative(&assign(&g, &Options::default())), [2]);
+        // Se → GY → C: effort in at both ports: C gives its effort.
+        let g = graph(&[Se, Gy, C], &[(0, 1), (1, 2)]);
+        let c = assign(&g, &Options::default());
+        assert_eq!(derivative(&c), Vec::<u32>::new());
+        assert!(c.conflicts.is_empty());
+    }
+
+    #[test]
+    fn evaluate_reports_what_an_assignment_breaks() {
+        let g = graph(&[Se, Zero, C], &[(0, 1), (1, 2)]);
+        // C given integral causality against the source: the junction's
+        // effort is set twice.
+        let c = evaluate(&g, vec![Some(Stroke::Head), Some(Stroke::Tail)]);
+        assert_eq!(derivative(&c), Vec::<u32>::new());
+        assert_eq!(c.conflicts.len(), 1);
+        assert_eq!(c.conflicts[0].kind, ConflictKind::EffortTwice);
     }
 }
