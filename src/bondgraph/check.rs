@@ -128,13 +128,7 @@ pub fn check_with(
         };
         format!("{prefix}{}", name(k.elem))
     };
-    let list = |ks: &BTreeSet<StateKey>| {
-        if ks.is_empty() {
-            "none".to_string()
-        } else {
-            ks.iter().map(key_name).collect::<Vec<_>>().join(", ")
-        }
-    };
+    let list = |ks: &BTreeSet<StateKey>| capped(ks.iter().map(key_name).collect());
 
     // 1. States.
     let mut hidden = Vec::new();
@@ -221,12 +215,14 @@ pub fn check_with(
         let alt = scap::assign(g, &opts);
         let alt_set: BTreeSet<StateKey> = alt.derivative().filter_map(|s| s.state).collect();
         if alt_set == eq && alt.conflicts.len() <= causality.conflicts.len() {
+            let only_bg: BTreeSet<StateKey> = bg.difference(&eq).copied().collect();
+            let only_eq: BTreeSet<StateKey> = eq.difference(&bg).copied().collect();
             let text = format!(
-                "derivative causality: {} by SCAP in netlist order; the equations: {}. An equally valid choice: SCAP taking {} last puts {} in derivative causality, every other storage port integral",
+                "derivative causality: {} by SCAP in netlist order; the equations: {}. They differ in {} (SCAP) against {} (the equations), an equally valid choice: SCAP taking the equations' dependent states last puts exactly them in derivative causality, every other storage port integral",
                 list(&bg),
                 why_eq(),
-                list(&eq),
-                list(&eq)
+                list(&only_bg),
+                list(&only_eq)
             );
             let r = read_off(g, &alt);
             alternative = Some((alt, r));
@@ -296,14 +292,7 @@ pub fn check_with(
         .loops()
         .flat_map(|l| l.elements.iter().copied())
         .collect();
-    let elems = |s: &mut dyn Iterator<Item = ElemId>| {
-        let v: Vec<String> = s.map(name).collect();
-        if v.is_empty() {
-            "none".to_string()
-        } else {
-            v.join(", ")
-        }
-    };
+    let elems = |s: &mut dyn Iterator<Item = ElemId>| capped(s.map(name).collect());
 
     // 3. Arbitrary causality.
     let mut outside = Vec::new();
@@ -327,13 +316,13 @@ pub fn check_with(
     } else if outside.is_empty() {
         format!(
             "chosen arbitrarily: {}; each in an algebraic block of the colouring",
-            chosen.join(", ")
+            capped(chosen)
         )
     } else {
         format!(
             "chosen arbitrarily: {}; not in any algebraic block of the colouring: {}",
-            chosen.join(", "),
-            outside.join(", ")
+            capped(chosen),
+            capped(outside.clone())
         )
     };
     findings.push(Finding {
@@ -432,7 +421,7 @@ pub fn check_with(
         format!(
             "{} of {compared} element laws outside loops solved differently: {}",
             differ.len(),
-            differ.join(", ")
+            capped(differ.clone())
         )
     };
     findings.push(Finding {
@@ -487,6 +476,18 @@ fn loop_formulation(sorted: &Sorted) -> Option<Sorted> {
     let built = crate::build::build(&el.circuit, opts.build);
     crate::pipeline::sort_built(el, built, &opts).ok()
 }
+
+/// Names joined, at most [`SHOWN`] of them, then how many more.
+fn capped(names: Vec<String>) -> String {
+    match names.len() {
+        0 => "none".to_string(),
+        n if n <= SHOWN => names.join(", "),
+        n => format!("{}, … ({} more)", names[..SHOWN].join(", "), n - SHOWN),
+    }
+}
+
+/// Names a finding lists before it counts the rest.
+const SHOWN: usize = 12;
 
 fn plural(n: usize) -> &'static str {
     if n == 1 { "" } else { "s" }

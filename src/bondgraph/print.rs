@@ -249,12 +249,16 @@ fn mark(c: &Causality, b: BondId) -> &'static str {
 fn causality_text(t: &mut String, g: &BondGraph, c: &Causality, r: &ReadOff) {
     let _ = writeln!(t, "causality (SCAP: sources, storage, resistors):");
     for d in &c.decisions {
-        let what = match d.phase {
-            Phase::Source => "fixed",
-            Phase::Fixed => "fixed by its law",
-            Phase::Preferred => "integral",
-            Phase::Arbitrary => "chosen (takes the flow)",
-            Phase::Open => "chosen",
+        let what = match (d.phase, d.turned) {
+            (Phase::Source, _) => "fixed",
+            (Phase::Fixed, _) => "fixed by its law",
+            (Phase::Preferred, false) => "integral",
+            (Phase::Preferred, true) => "derivative (integral would break a constraint)",
+            (Phase::Arbitrary, false) => "chosen (takes the flow)",
+            (Phase::Arbitrary, true) => {
+                "chosen (takes the effort: the flow would break a constraint)"
+            }
+            (Phase::Open, _) => "chosen",
         };
         let mut line = format!(
             "    {} {} {what} on {}",

@@ -12,6 +12,14 @@
 //!    flow, `e = R·f`), propagated; a choice here closes an algebraic loop;
 //! 4. any bond still open (a loop of junctions only) is chosen the same way.
 //!
+//! A choice (phases 2 to 4) that leads to a broken constraint, at once or
+//! later, is taken back and the other causality tried, latest choice first,
+//! as seed 002 says (go back and change it): a storage port then ends in
+//! derivative causality, a resistor takes the effort. A search that runs out
+//! of its budget, or constraints broken by the sources alone, leave the
+//! choices to be made one by one, each turned only if it breaks a
+//! constraint at once.
+//!
 //! Propagation applies the junction constraints (a 0-junction has exactly
 //! one bond that sets its effort, a 1-junction exactly one that sets its
 //! flow), a transformer's (one port takes effort, the other gives it) and a
@@ -58,6 +66,9 @@ pub struct Decision {
     pub bond: BondId,
     /// Bonds set by propagating this decision, in order.
     pub propagated: Vec<BondId>,
+    /// The preferred (or first) causality broke a constraint; this is the
+    /// other one.
+    pub turned: bool,
 }
 
 /// A storage port's outcome.
@@ -160,6 +171,10 @@ fn integral_takes_effort(kind: VertexKind) -> bool {
     matches!(kind, VertexKind::I | VertexKind::IField)
 }
 
+/// A choice of phases 2 to 4: the phase, the vertex, the bond, and whether
+/// the vertex takes the effort in the preferred causality.
+type Item = (Phase, VertexId, BondId, bool);
+
 struct Scap<'g> {
     g: &'g BondGraph,
     c: Causality,
@@ -167,6 +182,8 @@ struct Scap<'g> {
     queued: Vec<bool>,
     /// Ports of fixed causality (1b), as (vertex, bond).
     fixed: Vec<(VertexId, BondId)>,
+    /// The bonds in the order they were set.
+    trail: Vec<BondId>,
 }
 
 /// Assign causality to every bond of `g` by SCAP.
@@ -184,6 +201,7 @@ pub fn assign(g: &BondGraph, opts: &Options) -> Causality {
         queue: VecDeque::new(),
         queued: vec![false; g.vertices.len()],
         fixed: fixed_ports(g),
+        trail: Vec::new(),
     };
     // 1a: sources.
     for (v, x) in g.live_vertices() {
@@ -218,21 +236,29 @@ pub fn assign(g: &BondGraph, opts: &Options) -> Causality {
             field_rank(&g.vertices[v], b),
         )
     });
-    for (v, b, _) in ports {
-        let takes = integral_takes_effort(g.vertices[v].kind);
-        s.decide(Phase::Preferred, v, b, takes);
-    }
+    let mut items: Vec<Item> = ports
+        .into_iter()
+        .map(|(v, b, _)| {
+            let takes = integral_takes_effort(g.vertices[v].kind);
+            (Phase::Preferred, v, b, takes)
+        })
+        .collect();
     // 3: resistors.
     for (v, x) in g.live_vertices() {
         if x.kind.is_resistor() {
             for &b in &x.bonds {
-                s.decide(Phase::Arbitrary, v, b, false);
+                items.push((Phase::Arbitrary, v, b, false));
             }
         }
     }
     // 4: whatever is left.
     for (b, bond) in g.live_bonds() {
-        s.decide(Phase::Open, bond.head, b, true);
+        items.push((Phase::Open, bond.head, b, true));
+    }
+    if !s.search(&items) {
+        for &(phase, v, b, takes) in &items {
+            s.decide(phase, v, b, takes);
+        }
     }
     s.finish();
     s.c
@@ -254,6 +280,7 @@ pub fn evaluate(g: &BondGraph, strokes: Vec<Option<Stroke>>) -> Causality {
         queue: VecDeque::new(),
         queued: vec![false; g.vertices.len()],
         fixed: fixed_ports(g),
+        trail: Vec::new(),
     };
     s.c.strokes.resize(n, None);
     s.finish();
@@ -302,27 +329,158 @@ impl Scap<'_> {
             vertex: v,
             bond: b,
             propagated: Vec::new(),
+            turned: false,
         });
+        // A choice whose propagation breaks a constraint is taken back and
+        // the other causality tried; if that breaks one too, the first
+        // stands and the conflict is reported.
+        let mark = self.trail.len();
         self.set(b, v, takes);
         self.propagate();
-        if matches!(phase, Phase::Preferred | Phase::Fixed) {
-            self.c.storage.push(StoragePort {
+        if phase != Phase::Source && self.broken_since(mark) {
+            self.retry(mark, b, v, !takes);
+            if self.broken_since(mark) {
+                self.retry(mark, b, v, takes);
+                if let Some(d) = self.c.decisions.last_mut() {
+                    d.turned = false;
+                }
+            }
+        }
+    }
+
+    /// Take back what the last decision set and set its bond the other way.
+    fn retry(&mut self, mark: usize, b: BondId, v: VertexId, takes: bool) {
+        self.undo(mark);
+        if let Some(d) = self.c.decisions.last_mut() {
+            d.propagated.clear();
+            d.turned = true;
+        }
+        self.set(b, v, takes);
+        self.propagate();
+    }
+
+    /// Phases 2 to 4 as a search: each choice is made as preferred and
+    /// propagated; where that leads to a broken constraint, the latest
+    /// choice not yet turned is taken back and turned (seed 002: go back and
+    /// change it), so that a resistor chosen early cannot leave a junction
+    /// that nothing can set later. `false` (and nothing changed) when the
+    /// constraints are broken before any choice (a loop of sources) or the
+    /// search runs out of its budget: the choices are then made one by one.
+    fn search(&mut self, items: &[Item]) -> bool {
+        if self.g.live_vertices().any(|(v, _)| self.broken(v)) {
+            return false;
+        }
+        struct Frame {
+            item: usize,
+            mark: usize,
+            decisions: usize,
+            turned: bool,
+        }
+        let (mark0, decisions0) = (self.trail.len(), self.c.decisions.len());
+        let mut stack: Vec<Frame> = Vec::new();
+        let mut budget = 10_000 + 50 * items.len();
+        let mut next = 0;
+        loop {
+            while next < items.len() && self.c.strokes[items[next].2.0 as usize].is_some() {
+                next += 1;
+            }
+            let Some(&(phase, v, b, takes)) = items.get(next) else {
+                return true;
+            };
+            let mut frame = Frame {
+                item: next,
+                mark: self.trail.len(),
+                decisions: self.c.decisions.len(),
+                turned: false,
+            };
+            self.c.decisions.push(Decision {
+                phase,
                 vertex: v,
                 bond: b,
-                port: self.g.vertices[v]
-                    .bonds
-                    .iter()
-                    .position(|&c| c == b)
-                    .unwrap_or(0),
-                state: None,
-                integral: false,
-                chosen: true,
+                propagated: Vec::new(),
+                turned: false,
             });
+            self.set(b, v, takes);
+            self.propagate();
+            while self.broken_since(frame.mark) {
+                // Back to the latest choice with another causality left.
+                while frame.turned {
+                    self.undo(frame.mark);
+                    self.c.decisions.truncate(frame.decisions);
+                    match stack.pop() {
+                        Some(f) if budget > 0 => frame = f,
+                        _ => {
+                            self.undo(mark0);
+                            self.c.decisions.truncate(decisions0);
+                            return false;
+                        }
+                    }
+                }
+                budget -= 1;
+                self.undo(frame.mark);
+                self.c.decisions.truncate(frame.decisions);
+                let (phase, v, b, takes) = items[frame.item];
+                self.c.decisions.push(Decision {
+                    phase,
+                    vertex: v,
+                    bond: b,
+                    propagated: Vec::new(),
+                    turned: true,
+                });
+                self.set(b, v, !takes);
+                self.propagate();
+                frame.turned = true;
+            }
+            next = frame.item + 1;
+            stack.push(frame);
+        }
+    }
+
+    /// Take back every bond set since the trail was `mark` long.
+    fn undo(&mut self, mark: usize) {
+        for b in self.trail.drain(mark..) {
+            self.c.strokes[b.0 as usize] = None;
+            self.c.cause[b.0 as usize] = None;
+        }
+    }
+
+    /// Whether a vertex at a bond set since `mark` breaks its constraint
+    /// already (with the bonds still open as they are).
+    fn broken_since(&self, mark: usize) -> bool {
+        self.trail[mark..].iter().any(|&b| {
+            let bond = &self.g.bonds[b];
+            self.broken(bond.tail) || self.broken(bond.head)
+        })
+    }
+
+    fn broken(&self, v: VertexId) -> bool {
+        let x = &self.g.vertices[v];
+        let takes: Vec<Option<bool>> = x.bonds.iter().map(|&b| self.takes(v, b)).collect();
+        match x.kind {
+            VertexKind::Zero | VertexKind::One => {
+                let one = x.kind == VertexKind::One;
+                let setters = takes.iter().filter(|t| **t == Some(!one)).count();
+                let open = takes.iter().any(Option::is_none);
+                setters > 1 || (setters == 0 && !open)
+            }
+            VertexKind::Se | VertexKind::MSe => takes.first() == Some(&Some(true)),
+            VertexKind::Sf | VertexKind::MSf => takes.first() == Some(&Some(false)),
+            VertexKind::Tf | VertexKind::Gy => match takes.as_slice() {
+                [Some(a), Some(b)] => (a == b) != (x.kind == VertexKind::Gy),
+                _ => false,
+            },
+            VertexKind::IField => x
+                .bonds
+                .iter()
+                .zip(&takes)
+                .any(|(&b, t)| *t == Some(true) && self.fixed.contains(&(v, b))),
+            _ => false,
         }
     }
 
     /// Set bond `b` so that vertex `v` takes (or gives) the effort.
     fn set(&mut self, b: BondId, v: VertexId, takes: bool) {
+        self.trail.push(b);
         let bond = &self.g.bonds[b];
         let at_head = bond.head == v;
         let stroke = if at_head == takes {
@@ -395,7 +553,13 @@ impl Scap<'_> {
     fn finish(&mut self) {
         let g = self.g;
         let mut storage = Vec::new();
-        let chosen: Vec<BondId> = self.c.storage.iter().map(|s| s.bond).collect();
+        let chosen: Vec<BondId> = self
+            .c
+            .decisions
+            .iter()
+            .filter(|d| matches!(d.phase, Phase::Preferred | Phase::Fixed))
+            .map(|d| d.bond)
+            .collect();
         for (v, x) in g.live_vertices() {
             if !x.kind.is_storage() {
                 continue;

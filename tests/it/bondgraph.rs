@@ -324,6 +324,26 @@ fn a_different_but_equally_valid_choice_is_named() {
     assert_eq!(names, ["C1"]);
 }
 
+/// A diode bridge whose resistors, chosen in netlist order, would leave a
+/// junction that nothing can set: SCAP goes back and turns the latest
+/// choices, and ends without a conflict, in agreement with the equations.
+#[test]
+fn scap_goes_back_where_a_choice_leads_to_a_conflict() {
+    let s = sorted("bench/vacask_graetz.cir");
+    let a = analysed(&s);
+    assert!(
+        a.causality.conflicts.is_empty(),
+        "{:?}",
+        a.causality.conflicts
+    );
+    assert!(
+        a.causality.arbitrary().any(|d| d.turned),
+        "a choice was turned"
+    );
+    assert_eq!(a.causality.integral().count(), 5);
+    assert!(bondgraph::check(&s, &a).agrees());
+}
+
 /// Perfect coupling: the winding past the field's rank is in derivative
 /// causality by its law (SCAP 1b), as the build keeps no flux of it.
 #[test]
