@@ -24,7 +24,7 @@
 //! 8. [`bondgraph`] draws the same circuit as a bond graph (seed 003's
 //!    procedure), puts causal strokes on it by SCAP and cross-checks them
 //!    against the colouring and index reduction ([`bondgraph::analyse`],
-//!    [`bondgraph::check`]).
+//!    [`bondgraph::check()`]).
 //! 9. [`validate`] runs ngspice on the same netlist and compares the
 //!    waveforms ([`validate::validate`]); [`bench`] measures speed against
 //!    error, beside ngspice.
