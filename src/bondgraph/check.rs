@@ -13,14 +13,17 @@
 //! 3. arbitrary causality: every resistor SCAP had to choose lies in an
 //!    algebraic block of the colouring;
 //! 4. algebraic loops: the elements whose laws lie in a loop of the
-//!    read-off equations against those whose laws lie in a block of the
-//!    colouring;
+//!    read-off equations lie in a block of the colouring, and every block
+//!    holds one of them (a block may hold more: the nodal formulation's node
+//!    potentials and per-element KCL can pull an element in that the bond
+//!    graph, summing a difference or a parallel group's current, solves
+//!    outside any loop; the report names them and why);
 //! 5. laws: outside loops, each simple element's law is solved for the same
 //!    kind of variable (effort, flow or a derivative) in both views.
 
 use std::collections::{BTreeSet, HashMap};
 
-use super::equations::{QtyKind, ReadOff, read_off};
+use super::equations::{QtyKind, ReadOff};
 use super::scap::{self, Causality};
 use super::{Analysis, BondGraph, Law, StateKey, StateKind, VertexKind};
 use crate::elab::{ElemId, ElementKind};
@@ -211,8 +214,9 @@ pub fn check_with(
     } else if bg.len() == eq.len() {
         let opts = scap::Options {
             defer: eq.iter().copied().collect(),
+            ..Default::default()
         };
-        let alt = scap::assign(g, &opts);
+        let (alt, alt_equations) = super::assign(g, opts);
         let alt_set: BTreeSet<StateKey> = alt.derivative().filter_map(|s| s.state).collect();
         if alt_set == eq && alt.conflicts.len() <= causality.conflicts.len() {
             let only_bg: BTreeSet<StateKey> = bg.difference(&eq).copied().collect();
@@ -224,8 +228,7 @@ pub fn check_with(
                 list(&only_bg),
                 list(&only_eq)
             );
-            let r = read_off(g, &alt);
-            alternative = Some((alt, r));
+            alternative = Some((alt, alt_equations));
             (true, text)
         } else {
             (
@@ -331,10 +334,14 @@ pub fn check_with(
         text,
     });
 
-    // 4. Algebraic loops. The nodal formulation solves node potentials the
-    // bond graph does not hold (its junctions keep differences), which can
-    // pull an element into a block; the loop formulation (KVL on a tree's
-    // loops, no potentials) is asked where the nodal one differs.
+    // 4. Algebraic loops. Every loop of the bond graph must be in a block of
+    // the colouring, and every block must hold a loop of the bond graph. A
+    // block may hold more: the nodal formulation solves node potentials the
+    // bond graph does not hold (its junctions keep differences) and sums
+    // element currents at each node where the bond graph sums a parallel
+    // group's, which can pull an element into a block. Where the views
+    // differ, the loop formulation (KVL on a tree's loops, no potentials) is
+    // asked as well.
     let only_bg: Vec<ElemId> = bg_loops.difference(&eq_loops).copied().collect();
     let only_eq: Vec<ElemId> = eq_loops.difference(&bg_loops).copied().collect();
     let loop_form = (!only_bg.is_empty() || !only_eq.is_empty())
@@ -350,6 +357,22 @@ pub fn check_with(
         only_bg.into_iter().partition(|e| !explained(e));
     let (only_eq, eq_explained): (Vec<ElemId>, Vec<ElemId>) =
         only_eq.into_iter().partition(|e| !explained(e));
+    // Blocks of the colouring with no element of a bond-graph loop.
+    let unmatched: Vec<usize> = sorted
+        .schedule
+        .blocks()
+        .filter(|b| {
+            let laws: Vec<ElemId> = b
+                .inner
+                .iter()
+                .chain(&b.residuals)
+                .filter_map(|a| law_element(sys, a.eq))
+                .filter(|&e| !signal_only(e))
+                .collect();
+            !laws.is_empty() && !laws.iter().any(|e| bg_loops.contains(e))
+        })
+        .map(|b| b.index)
+        .collect();
     let n_bg = equations.loops().count();
     let n_eq = sorted.schedule.blocks().count();
     let mut text = format!(
@@ -365,10 +388,13 @@ pub fn check_with(
             elems(&mut only_bg.iter().copied())
         ));
     }
-    if !only_eq.is_empty() {
+    if !unmatched.is_empty() {
+        let ks: Vec<String> = unmatched.iter().map(|k| k.to_string()).collect();
         text.push_str(&format!(
-            "; in a block of the colouring only (in either formulation): {}",
-            elems(&mut only_eq.iter().copied())
+            "; block{} {} of the colouring hold{} no loop of the bond graph",
+            plural(ks.len()),
+            ks.join(", "),
+            if ks.len() == 1 { "s" } else { "" }
         ));
     }
     if !eq_explained.is_empty() {
@@ -376,6 +402,12 @@ pub fn check_with(
             ". {} in a block of the nodal colouring only because the node potentials it reads are solved there (the bond graph holds only their difference); with KVL on loops (no potentials) the colouring has {} outside every block too",
             elems(&mut eq_explained.iter().copied()),
             if eq_explained.len() == 1 { "it" } else { "them" }
+        ));
+    }
+    if !only_eq.is_empty() {
+        text.push_str(&format!(
+            ". {} in a block of the colouring only, in either formulation: the equations sum each element's current at its nodes, inside the block, where the bond graph sums the current of the parallel group it belongs to, outside any loop",
+            elems(&mut only_eq.iter().copied())
         ));
     }
     if !bg_explained.is_empty() {
@@ -386,7 +418,7 @@ pub fn check_with(
     }
     findings.push(Finding {
         item: Item::Loops,
-        agrees: only_bg.is_empty() && only_eq.is_empty(),
+        agrees: only_bg.is_empty() && unmatched.is_empty(),
         text,
     });
 

@@ -17,7 +17,7 @@
 //! connected set of equations is an algebraic loop, named by its elements,
 //! the arbitrary choices and the derivative causality inside it.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use super::scap::Phase;
 use super::{BondGraph, BondId, Causality, Law, Origin, Part, Var, VertexId, VertexKind};
@@ -30,8 +30,12 @@ crate::entity_id!(
     "q"
 );
 
-/// Derivatives of higher order than this are not written (a note says so).
-const MAX_ORDER: u8 = 3;
+/// Derivatives of higher order than this are not written (a note says so):
+/// differentiating along a causality where a storage port in derivative
+/// causality sits in a loop with an arbitrary resistor can need the
+/// derivative of its own derivative, and so on without end. Index
+/// reduction differentiates the loop's constraint instead.
+const MAX_ORDER: u8 = 2;
 
 /// What a quantity is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -109,6 +113,10 @@ pub struct Equation {
     pub law: bool,
     /// The equation this one differentiates.
     pub of: Option<usize>,
+    /// The derivative of a junction's balance along the chain that fixes a
+    /// storage port in derivative causality by states and sources alone
+    /// (its constraint).
+    pub constraint: bool,
 }
 
 /// An algebraic loop of the read-off equations.
@@ -146,6 +154,9 @@ pub struct ReadOff {
     pub unknown: Vec<QRef>,
     /// Derivatives past [`MAX_ORDER`] that were not written.
     pub too_deep: Vec<QRef>,
+    /// The state of each storage port in integral causality: its quantity,
+    /// vertex and bond.
+    pub state_ports: Vec<(QtyId, VertexId, BondId)>,
 }
 
 struct Reader<'a> {
@@ -156,6 +167,7 @@ struct Reader<'a> {
     effort: Vec<Option<(i32, QtyId)>>,
     flow: Vec<Option<(i32, QtyId)>>,
     eqs: Vec<Equation>,
+    state_ports: Vec<(QtyId, VertexId, BondId)>,
 }
 
 /// Read the equations off the causal bond graph and sort them.
@@ -168,6 +180,7 @@ pub fn read_off(g: &BondGraph, c: &Causality) -> ReadOff {
         effort: vec![None; g.bonds.len()],
         flow: vec![None; g.bonds.len()],
         eqs: Vec::new(),
+        state_ports: Vec::new(),
     };
     r.name_bonds();
     // Sources, storage, resistors and two-ports, junctions: the order the
@@ -200,6 +213,7 @@ pub fn read_off(g: &BondGraph, c: &Causality) -> ReadOff {
         twice,
         unknown,
         too_deep,
+        state_ports: r.state_ports,
     }
 }
 
@@ -399,6 +413,7 @@ impl Reader<'_> {
             element,
             law,
             of: None,
+            constraint: false,
         });
     }
 
@@ -563,6 +578,7 @@ impl Reader<'_> {
         };
         if integral {
             let state = self.qty(&state_name, QtyKind::State);
+            self.state_ports.push((state, v, b));
             match part {
                 // A charge: the effort from the charge (the law inverted).
                 Part::Charge => {
@@ -684,6 +700,7 @@ impl Reader<'_> {
                 let flux = &s.flux[j];
                 if integral[p] {
                     let im = self.qty(&name, QtyKind::State);
+                    self.state_ports.push((im, v, x.bonds[p]));
                     // der(im_p) := u_p/L_p; i_p := im_p − Σ n_pk·i_k.
                     let rhs = vec![Term {
                         coef: volt[p].0,
@@ -752,6 +769,7 @@ impl Reader<'_> {
         for k in 0..n {
             if integral[k] {
                 let state = self.qty(&format!("i_{}", g.element_name(members[k])), QtyKind::State);
+                self.state_ports.push((state, v, x.bonds[k]));
                 if cur[k].1 != state {
                     self.emit(
                         (cur[k].0, q(cur[k].1)),
@@ -876,6 +894,7 @@ impl Reader<'_> {
     /// Write the derivatives the equations read and no equation gives, by
     /// differentiating the equations of what they are derivatives of.
     fn differentiate_needed(&mut self) -> Vec<QRef> {
+        self.constraints();
         let mut computed: HashMap<QRef, usize> = HashMap::new();
         for (k, e) in self.eqs.iter().enumerate() {
             computed.entry(e.lhs).or_insert(k);
@@ -909,6 +928,264 @@ impl Reader<'_> {
         too_deep
     }
 
+    /// The derivative of what each storage port in derivative causality
+    /// takes, written as index reduction writes it: from the junction
+    /// balances that fix it by states and sources alone (a loop of
+    /// capacitors and voltage sources, a cutset of inductors and current
+    /// sources), one equation per junction along the chain. Differentiating
+    /// along the causality instead can run through a resistor whose
+    /// causality was chosen, and need ever higher derivatives. Where no
+    /// such chain exists, the closure differentiates along the causality.
+    fn constraints(&mut self) {
+        let g = self.g;
+        let mut known: HashSet<QtyId> = self
+            .quantities
+            .iter()
+            .filter(|(_, x)| x.kind == QtyKind::State)
+            .map(|(q, _)| q)
+            .collect();
+        // And what follows from states and sources without a loop (a
+        // state handed to a junction, a resistor's current from it): its
+        // derivative comes by differentiating that chain, which ends.
+        loop {
+            let before = known.len();
+            for e in &self.eqs {
+                if e.lhs.order == 0
+                    && !known.contains(&e.lhs.q)
+                    && deps(e).iter().all(|d| d.order == 0 && known.contains(&d.q))
+                {
+                    known.insert(e.lhs.q);
+                }
+            }
+            if known.len() == before {
+                break;
+            }
+        }
+        let ports: Vec<(VertexId, BondId)> =
+            self.c.derivative().map(|s| (s.vertex, s.bond)).collect();
+        for (v, b) in ports {
+            let effort = g.vertices[v].kind == VertexKind::C;
+            let var = |r: &Self, b: BondId| if effort { r.e(b) } else { r.f(b) };
+            let target = var(self, b).1;
+            // Fixed by states and sources along the causality already (a
+            // capacitor beside one in integral causality): differentiating
+            // that chain ends, and is written so unless its terms cancel.
+            if known.contains(&target) {
+                if self.eqs.iter().any(|e| e.lhs == der(q(target))) {
+                    continue;
+                }
+                let def = self.eqs.iter().find(|e| e.lhs == q(target)).and_then(|e| {
+                    let sum: Option<Vec<(i32, QtyId)>> = e
+                        .rhs
+                        .iter()
+                        .map(|t| match (&t.mul, &t.div, &t.x) {
+                            (None, None, Operand::Q(x)) if x.order == 0 => Some((t.coef, x.q)),
+                            _ => None,
+                        })
+                        .collect();
+                    Some((e.vertex, sum?))
+                });
+                if let Some((j, sum)) = def
+                    && let Some(terms) = self.cancelled(&sum)
+                {
+                    self.eqs.push(Equation {
+                        lhs: der(q(target)),
+                        rhs: terms.into_iter().map(|(k, y)| term(k, der(q(y)))).collect(),
+                        vertex: j,
+                        element: None,
+                        law: false,
+                        of: None,
+                        constraint: true,
+                    });
+                }
+                continue;
+            }
+            // Efforts balance at 1-junctions, flows at 0-junctions: each
+            // balance as Σ coef·quantity = 0.
+            let kind = if effort {
+                VertexKind::One
+            } else {
+                VertexKind::Zero
+            };
+            let mut relations: Vec<(VertexId, Vec<(i32, QtyId)>)> = Vec::new();
+            for (j, x) in g.live_vertices().filter(|(_, x)| x.kind == kind) {
+                let mut terms: Vec<(i32, QtyId)> = Vec::new();
+                for &c in &x.bonds {
+                    let side = if g.bonds[c].head == j { 1 } else { -1 };
+                    let (sign, q) = var(self, c);
+                    match terms.iter_mut().find(|(_, y)| *y == q) {
+                        Some(t) => t.0 += side * sign,
+                        None => terms.push((side * sign, q)),
+                    }
+                }
+                terms.retain(|&(k, _)| k != 0);
+                relations.push((j, terms));
+            }
+            let unknowns = |terms: &[(i32, QtyId)]| -> Option<Vec<QtyId>> {
+                let u: Vec<(i32, QtyId)> = terms
+                    .iter()
+                    .copied()
+                    .filter(|(_, q)| !known.contains(q))
+                    .collect();
+                (u.len() <= 2 && u.iter().all(|(k, _)| k.abs() == 1))
+                    .then(|| u.into_iter().map(|(_, q)| q).collect())
+            };
+            // Breadth first from the target over balances with at most two
+            // unknowns, to one whose only unknown is the last reached.
+            let mut parent: HashMap<QtyId, (usize, QtyId)> = HashMap::new();
+            let mut queue = std::collections::VecDeque::from([target]);
+            let mut end = None;
+            'search: while let Some(q) = queue.pop_front() {
+                for (r, (_, terms)) in relations.iter().enumerate() {
+                    if !terms.iter().any(|&(_, y)| y == q) {
+                        continue;
+                    }
+                    let Some(u) = unknowns(terms) else {
+                        continue;
+                    };
+                    match u.iter().find(|&&y| y != q) {
+                        None => {
+                            end = Some((q, r));
+                            break 'search;
+                        }
+                        Some(&next) if next != target && !parent.contains_key(&next) => {
+                            parent.insert(next, (r, q));
+                            queue.push_back(next);
+                        }
+                        Some(_) => {}
+                    }
+                }
+            }
+            let Some((mut q, r)) = end else {
+                // A capacitor between two nodes neither source nor state
+                // fixes (a loop of capacitors away from every source): its
+                // balance holds the two potentials, whose difference the
+                // chain of balances from one to the other gives.
+                if let Some(rhs) = difference_chain(&relations, &known, target) {
+                    let j = relations
+                        .iter()
+                        .find(|(_, t)| t.iter().any(|&(_, y)| y == target))
+                        .map_or(v, |(j, _)| *j);
+                    let lhs = QRef {
+                        q: target,
+                        order: 1,
+                    };
+                    if !self.eqs.iter().any(|e| e.lhs == lhs) {
+                        self.eqs.push(Equation {
+                            lhs,
+                            rhs,
+                            vertex: j,
+                            element: None,
+                            law: false,
+                            of: None,
+                            constraint: true,
+                        });
+                    }
+                }
+                continue;
+            };
+            // From the far end back to the target: each balance solved for
+            // the derivative of the quantity nearer the target.
+            let mut chain = vec![(q, r)];
+            while let Some(&(r, prev)) = parent.get(&q) {
+                chain.push((prev, r));
+                q = prev;
+            }
+            for (q, r) in chain {
+                let lhs = QRef { q, order: 1 };
+                if self.eqs.iter().any(|e| e.lhs == lhs) {
+                    continue;
+                }
+                let (j, terms) = &relations[r];
+                let Some(&(c, _)) = terms.iter().find(|(_, y)| *y == q) else {
+                    continue;
+                };
+                let sum: Vec<(i32, QtyId)> = terms
+                    .iter()
+                    .filter(|(_, y)| *y != q)
+                    .map(|&(k, y)| (-k * c, y))
+                    .collect();
+                let rhs = self
+                    .cancelled(&sum)
+                    .unwrap_or(sum)
+                    .into_iter()
+                    .map(|(k, y)| term(k, QRef { q: y, order: 1 }))
+                    .collect();
+                self.eqs.push(Equation {
+                    lhs,
+                    rhs,
+                    vertex: *j,
+                    element: None,
+                    law: false,
+                    of: None,
+                    constraint: true,
+                });
+            }
+        }
+    }
+
+    /// `sum` with its quantities written out through the balances and
+    /// hand-overs that compute them (sums of other quantities, coefficients
+    /// ±1), where that makes terms cancel: `v(3) − v(1)` with `v(1) = u_C3`
+    /// and `v(3) = u_C3 − u_C0 − u_C1` is `−u_C0 − u_C1`, whose derivative
+    /// does not read C3's. `None` where nothing cancels (the sum as it is
+    /// names the junctions along the way, as the seeds write them).
+    fn cancelled(&self, sum: &[(i32, QtyId)]) -> Option<Vec<(i32, QtyId)>> {
+        let mut defs: HashMap<QtyId, Vec<(i32, QtyId)>> = HashMap::new();
+        for e in &self.eqs {
+            if e.lhs.order != 0 || self.quantities[e.lhs.q].kind == QtyKind::State {
+                continue;
+            }
+            let unit: Option<Vec<(i32, QtyId)>> = e
+                .rhs
+                .iter()
+                .map(|t| match (&t.mul, &t.div, &t.x) {
+                    (None, None, Operand::Q(x)) if x.order == 0 && t.coef.abs() == 1 => {
+                        Some((t.coef, x.q))
+                    }
+                    _ => None,
+                })
+                .collect();
+            if let Some(unit) = unit {
+                defs.entry(e.lhs.q).or_insert(unit);
+            }
+        }
+        let mut expr: Vec<(i32, QtyId)> = sum.to_vec();
+        // Each round writes out every quantity that has a definition; the
+        // definitions may loop (an algebraic loop of balances), so the
+        // rounds are bounded.
+        for _ in 0..self.eqs.len().min(64) {
+            let mut next: Vec<(i32, QtyId)> = Vec::new();
+            let mut changed = false;
+            for &(k, q) in &expr {
+                match defs.get(&q) {
+                    Some(d) => {
+                        changed = true;
+                        next.extend(d.iter().map(|&(c, y)| (k * c, y)));
+                    }
+                    None => next.push((k, q)),
+                }
+            }
+            expr = next;
+            if !changed {
+                break;
+            }
+        }
+        let mut merged: Vec<(i32, QtyId)> = Vec::new();
+        for (k, q) in expr {
+            match merged.iter_mut().find(|(_, y)| *y == q) {
+                Some(t) => t.0 += k,
+                None => merged.push((k, q)),
+            }
+        }
+        let before = merged.len();
+        merged.retain(|&(k, _)| k != 0);
+        (merged.len() < before).then(|| {
+            merged.sort_by_key(|&(_, q)| q);
+            merged
+        })
+    }
+
     /// Sort: strongly connected components of "computes what reads".
     fn sort(&self) -> (Vec<Step>, Vec<QRef>, Vec<QRef>) {
         let mut computed: HashMap<QRef, usize> = HashMap::new();
@@ -936,7 +1213,7 @@ impl Reader<'_> {
                     }
                     None => {
                         let known = r.order == 0 && self.quantities[r.q].kind == QtyKind::State;
-                        if !known && !unknown.contains(&r) {
+                        if !known && r.order <= MAX_ORDER && !unknown.contains(&r) {
                             unknown.push(r);
                         }
                     }
@@ -991,6 +1268,112 @@ impl Reader<'_> {
             derivative,
         }
     }
+}
+
+/// `d/dt` of `target` from the balance that holds it and two unknowns `a`,
+/// `b` (`target = ±a ∓ b + known`), with `a − b` eliminated along a chain
+/// of balances of two unknowns each, or each of them along a chain to a
+/// balance where it is the only unknown. `None` where no such chain leaves
+/// only known quantities.
+fn difference_chain(
+    relations: &[(VertexId, Vec<(i32, QtyId)>)],
+    known: &HashSet<QtyId>,
+    target: QtyId,
+) -> Option<Vec<Term>> {
+    let unknown = |terms: &[(i32, QtyId)]| -> Vec<(i32, QtyId)> {
+        terms
+            .iter()
+            .copied()
+            .filter(|(_, q)| !known.contains(q))
+            .collect()
+    };
+    let (r0, terms0) = relations.iter().enumerate().find_map(|(r, (_, t))| {
+        let u = unknown(t);
+        (u.len() == 3 && u.iter().all(|(k, _)| k.abs() == 1) && u.iter().any(|&(_, q)| q == target))
+            .then_some((r, t))
+    })?;
+    let ct = terms0.iter().find(|(_, q)| *q == target)?.0;
+    // target = −ct · Σ k·q over the rest.
+    let mut expr: HashMap<QtyId, i32> = HashMap::new();
+    for &(k, q) in terms0.iter().filter(|(_, q)| *q != target) {
+        *expr.entry(q).or_default() -= ct * k;
+    }
+    let ends: Vec<QtyId> = unknown(terms0)
+        .into_iter()
+        .map(|(_, q)| q)
+        .filter(|&q| q != target)
+        .collect();
+    // Breadth first from the first unknown over balances of two unknowns
+    // (not the first balance) to the second unknown or to a balance of one.
+    let eliminate = |start: QtyId, stop: Option<QtyId>, expr: &mut HashMap<QtyId, i32>| {
+        let mut parent: HashMap<QtyId, (usize, QtyId)> = HashMap::new();
+        let mut queue = std::collections::VecDeque::from([start]);
+        let mut end: Option<(QtyId, Option<usize>)> = None;
+        'search: while let Some(q) = queue.pop_front() {
+            if Some(q) == stop {
+                end = Some((q, None));
+                break;
+            }
+            for (r, (_, terms)) in relations.iter().enumerate() {
+                if r == r0 || !terms.iter().any(|&(_, y)| y == q) {
+                    continue;
+                }
+                let u = unknown(terms);
+                if u.len() > 2 || u.iter().any(|(k, _)| k.abs() != 1) {
+                    continue;
+                }
+                match u.iter().find(|&&(_, y)| y != q) {
+                    None if stop.is_none() => {
+                        end = Some((q, Some(r)));
+                        break 'search;
+                    }
+                    Some(&(_, next)) if next != start && !parent.contains_key(&next) => {
+                        parent.insert(next, (r, q));
+                        queue.push_back(next);
+                    }
+                    _ => {}
+                }
+            }
+        }
+        let (last, last_r) = end?;
+        // The relations from `start` on, in order.
+        let mut steps: Vec<(QtyId, usize)> = Vec::new();
+        let mut q = last;
+        while let Some(&(r, prev)) = parent.get(&q) {
+            steps.push((prev, r));
+            q = prev;
+        }
+        steps.reverse();
+        if let Some(r) = last_r {
+            steps.push((last, r));
+        }
+        for (cur, r) in steps {
+            let a = expr.remove(&cur).unwrap_or(0);
+            let terms = &relations[r].1;
+            let c = terms.iter().find(|(_, y)| *y == cur)?.0;
+            for &(k, y) in terms.iter().filter(|(_, y)| *y != cur) {
+                *expr.entry(y).or_default() -= a * c * k;
+            }
+        }
+        expr.retain(|_, k| *k != 0);
+        Some(())
+    };
+    let (a, b) = (ends[0], ends[1]);
+    if eliminate(a, Some(b), &mut expr).is_none() {
+        eliminate(a, None, &mut expr)?;
+        eliminate(b, None, &mut expr)?;
+    }
+    if expr.keys().any(|q| !known.contains(q)) {
+        return None;
+    }
+    let mut terms: Vec<(QtyId, i32)> = expr.into_iter().collect();
+    terms.sort();
+    Some(
+        terms
+            .into_iter()
+            .map(|(q, k)| term(k, QRef { q, order: 1 }))
+            .collect(),
+    )
 }
 
 /// The components in a topological order that takes, of those ready, the
@@ -1121,6 +1504,7 @@ fn differentiate(e: &Equation, of: usize) -> Equation {
         element: e.element,
         law: e.law,
         of: Some(of),
+        constraint: false,
     }
 }
 

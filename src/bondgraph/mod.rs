@@ -402,13 +402,74 @@ pub struct Analysis {
 /// Draw the graph, assign causality by SCAP and read the equations off.
 pub fn analyse(circuit: &Circuit) -> Analysis {
     let graph = draw(circuit);
-    let causality = scap::assign(&graph, &scap::Options::default());
-    let equations = read_off(&graph, &causality);
+    let (causality, equations) = assign(&graph, scap::Options::default());
     Analysis {
         graph,
         causality,
         equations,
     }
+}
+
+/// SCAP and the equations read off, until no loop of junctions alone is
+/// left. Such a loop (its equations balances only, no element's law) is a
+/// constraint between the states that feed it: a loop of capacitors or a
+/// cutset of inductors away from every source, where propagation finds one
+/// bond setting each junction's variable and yet the efforts (or flows)
+/// around the loop add up to nothing. The storage port SCAP took last among
+/// those feeding it is fixed in derivative causality (SCAP's 1b) and SCAP
+/// runs again; each round fixes one more port, so the rounds end.
+pub fn assign(g: &BondGraph, mut opts: scap::Options) -> (Causality, ReadOff) {
+    loop {
+        let c = scap::assign(g, &opts);
+        let r = read_off(g, &c);
+        match junction_loop_state(g, &c, &r) {
+            Some(k) if !opts.force.contains(&k) => opts.force.push(k),
+            _ => return (c, r),
+        }
+    }
+}
+
+/// The state a loop of junctions alone is to be broken at: of the states
+/// reaching the loop through balances and hand-overs only, the one whose
+/// port SCAP decided last.
+fn junction_loop_state(g: &BondGraph, c: &Causality, r: &ReadOff) -> Option<StateKey> {
+    let computed: HashMap<equations::QRef, usize> = r
+        .equations
+        .iter()
+        .enumerate()
+        .map(|(k, e)| (e.lhs, k))
+        .collect();
+    for l in r.loops().filter(|l| l.elements.is_empty()) {
+        let mut seen: Vec<usize> = l.eqs.clone();
+        let mut stack: Vec<usize> = l.eqs.clone();
+        let mut best: Option<(Option<usize>, BondId, StateKey)> = None;
+        while let Some(k) = stack.pop() {
+            for d in equations::deps(&r.equations[k]) {
+                if let Some(&(_, v, b)) = r.state_ports.iter().find(|(q, ..)| *q == d.q) {
+                    let x = &g.vertices[v];
+                    let port = x.bonds.iter().position(|&y| y == b).unwrap_or(0);
+                    if let Some(key) = x.states.get(port).copied().flatten() {
+                        let cause = c.cause.get(b.0 as usize).copied().flatten();
+                        if best.is_none_or(|(bc, bb, _)| (cause, b) > (bc, bb)) {
+                            best = Some((cause, b, key));
+                        }
+                    }
+                    continue;
+                }
+                if let Some(&j) = computed.get(&d) {
+                    let e = &r.equations[j];
+                    if (e.element.is_none() || !e.law) && !seen.contains(&j) {
+                        seen.push(j);
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+        if let Some((_, _, key)) = best {
+            return Some(key);
+        }
+    }
+    None
 }
 
 impl BondGraph {

@@ -9,7 +9,7 @@ use std::fmt::Write;
 use super::check::Check;
 use super::equations::{ReadOff, Step};
 use super::scap::{Causality, ConflictKind, Phase, Stroke};
-use super::{Analysis, BondGraph, BondId, Law, Rule, Var, VertexId};
+use super::{Analysis, BondGraph, BondId, Law, Rule, Var, VertexId, VertexKind};
 
 /// A law in a few words.
 fn law(g: &BondGraph, v: VertexId) -> String {
@@ -250,7 +250,15 @@ fn causality_text(t: &mut String, g: &BondGraph, c: &Causality, r: &ReadOff) {
     let _ = writeln!(t, "causality (SCAP: sources, storage, resistors):");
     for d in &c.decisions {
         let what = match (d.phase, d.turned) {
+            (Phase::Source, _) if g.vertices[d.vertex].kind.is_junction() => {
+                "fixed (its only bond: a source of zero)"
+            }
             (Phase::Source, _) => "fixed",
+            (Phase::Fixed, _)
+                if matches!(g.vertices[d.vertex].kind, VertexKind::C | VertexKind::I) =>
+            {
+                "derivative (a loop of junctions alone fixes it)"
+            }
             (Phase::Fixed, _) => "fixed by its law",
             (Phase::Preferred, false) => "integral",
             (Phase::Preferred, true) => "derivative (integral would break a constraint)",
@@ -285,9 +293,13 @@ fn causality_text(t: &mut String, g: &BondGraph, c: &Causality, r: &ReadOff) {
                 format!("{prefix}{}", g.element_name(k.elem))
             })
             .unwrap_or_default();
+        let forced = s.state.is_some_and(|k| c.forced.contains(&k));
         let how = match (s.integral, s.chosen) {
             (true, true) => "integral (preferred)",
             (true, false) => "integral (by propagation)",
+            (false, true) if forced => {
+                "derivative: a dependent state (a loop of junctions alone fixed it)"
+            }
             (false, true) => "derivative (fixed by its law)",
             (false, false) => "derivative: a dependent state",
         };
@@ -362,6 +374,8 @@ fn equations_text(t: &mut String, g: &BondGraph, r: &ReadOff) {
         let mut origin = g.vertex_name(e.vertex);
         if let Some(of) = e.of {
             origin = format!("d/dt of ({}) {origin}", of + 1);
+        } else if e.constraint {
+            origin = format!("d/dt of {origin}'s balance (the constraint)");
         }
         let _ = writeln!(
             t,
@@ -397,10 +411,15 @@ fn equations_text(t: &mut String, g: &BondGraph, r: &ReadOff) {
         }
     }
     if !r.too_deep.is_empty() {
+        let names: Vec<String> = r
+            .too_deep
+            .iter()
+            .map(|&x| super::equations::print_ref(x, &|q| r.name(q)))
+            .collect();
         let _ = writeln!(
             t,
-            "  derivatives of order above 3 not written: {}",
-            r.too_deep.len()
+            "  not written: {} (differentiating along this causality needs ever higher derivatives; index reduction differentiates the loop's constraint instead)",
+            names.join(", ")
         );
     }
 }

@@ -1,10 +1,12 @@
 //! SCAP, the sequential causality assignment procedure, in seed 002's order
 //! with seed 003's constraints:
 //!
-//! 1. fixed causality: every source (Se gives effort, Sf flow), each
+//! 1. fixed causality: every source (Se gives effort, Sf flow; a junction
+//!    with a single bond is a source of zero flow or zero effort), each
 //!    propagated at once (1a); then ports whose law cannot be inverted: the
 //!    windings of a perfectly coupled I-field past its rank, whose inductance
-//!    matrix has no inverse (1b);
+//!    matrix has no inverse, and storage that a loop of junctions alone
+//!    fixes (1b, found by [`crate::bondgraph::analyse`]);
 //! 2. preferred causality: each storage port in turn gets integral causality
 //!    (C gives effort, I takes it) unless propagation has already decided
 //!    it, and is propagated;
@@ -90,7 +92,8 @@ pub struct StoragePort {
 pub enum ConflictKind {
     /// A source made to take the variable it should give.
     Source,
-    /// A port of fixed causality (past a singular field's rank) made integral.
+    /// A port of fixed causality (past a singular field's rank, or forced
+    /// by a loop of junctions) made integral.
     Fixed,
     /// A 0-junction whose effort two bonds set.
     EffortTwice,
@@ -126,6 +129,9 @@ pub struct Causality {
     /// Every storage port, in the order SCAP took them.
     pub storage: Vec<StoragePort>,
     pub conflicts: Vec<Conflict>,
+    /// Storage ports fixed in derivative causality because a loop of
+    /// junctions alone fixed them ([`Options::force`]).
+    pub forced: Vec<StateKey>,
 }
 
 /// Options of [`assign`].
@@ -134,6 +140,9 @@ pub struct Options {
     /// Storage ports to take last in phase 2 (the cross-check asks whether
     /// index reduction's choice of dependent states is SCAP's too).
     pub defer: Vec<StateKey>,
+    /// Storage ports fixed in derivative causality (1b): those a loop of
+    /// junctions alone was found to fix.
+    pub force: Vec<StateKey>,
 }
 
 impl Causality {
@@ -180,8 +189,9 @@ struct Scap<'g> {
     c: Causality,
     queue: VecDeque<VertexId>,
     queued: Vec<bool>,
-    /// Ports of fixed causality (1b), as (vertex, bond).
-    fixed: Vec<(VertexId, BondId)>,
+    /// Ports of fixed causality (1b): vertex, bond, and whether the vertex
+    /// must take the effort there.
+    fixed: Vec<(VertexId, BondId, bool)>,
     /// The bonds in the order they were set.
     trail: Vec<BondId>,
 }
@@ -197,10 +207,11 @@ pub fn assign(g: &BondGraph, opts: &Options) -> Causality {
             decisions: Vec::new(),
             storage: Vec::new(),
             conflicts: Vec::new(),
+            forced: Vec::new(),
         },
         queue: VecDeque::new(),
         queued: vec![false; g.vertices.len()],
-        fixed: fixed_ports(g),
+        fixed: fixed_ports(g, &opts.force),
         trail: Vec::new(),
     };
     // 1a: sources.
@@ -212,9 +223,18 @@ pub fn assign(g: &BondGraph, opts: &Options) -> Causality {
             s.decide(Phase::Source, v, b, takes);
         }
     }
+    // A junction with one bond (a node that only one element reaches)
+    // carries no flow (0) or no effort (1) on it: a source of zero.
+    for (v, x) in g.live_vertices() {
+        if x.kind.is_junction()
+            && let [b] = x.bonds[..]
+        {
+            s.decide(Phase::Source, v, b, x.kind == VertexKind::Zero);
+        }
+    }
     // 1b: ports that cannot be integral.
-    for (v, b) in s.fixed.clone() {
-        s.decide(Phase::Fixed, v, b, false);
+    for (v, b, takes) in s.fixed.clone() {
+        s.decide(Phase::Fixed, v, b, takes);
     }
     // 2: storage, one port at a time; deferred ones last.
     let mut ports: Vec<(VertexId, BondId, Option<StateKey>)> = Vec::new();
@@ -260,6 +280,7 @@ pub fn assign(g: &BondGraph, opts: &Options) -> Causality {
             s.decide(phase, v, b, takes);
         }
     }
+    s.c.forced = opts.force.clone();
     s.finish();
     s.c
 }
@@ -276,10 +297,11 @@ pub fn evaluate(g: &BondGraph, strokes: Vec<Option<Stroke>>) -> Causality {
             decisions: Vec::new(),
             storage: Vec::new(),
             conflicts: Vec::new(),
+            forced: Vec::new(),
         },
         queue: VecDeque::new(),
         queued: vec![false; g.vertices.len()],
-        fixed: fixed_ports(g),
+        fixed: fixed_ports(g, &[]),
         trail: Vec::new(),
     };
     s.c.strokes.resize(n, None);
@@ -299,18 +321,24 @@ fn field_rank(x: &Vertex, b: BondId) -> usize {
     }
 }
 
-/// The ports of 1b: a singular field's windings that hold no flux.
-fn fixed_ports(g: &BondGraph) -> Vec<(VertexId, BondId)> {
+/// The ports of 1b: a singular field's windings that hold no flux, and the
+/// storage ports `forced` into derivative causality (by a loop of junctions
+/// alone, see [`crate::bondgraph::analyse`]). Each with whether its vertex
+/// takes the effort (a C in derivative causality does, an I does not).
+fn fixed_ports(g: &BondGraph, forced: &[StateKey]) -> Vec<(VertexId, BondId, bool)> {
     let mut out = Vec::new();
     for (v, x) in g.live_vertices() {
-        if x.kind != VertexKind::IField {
+        if !x.kind.is_storage() {
             continue;
         }
-        if let Law::Field(f) = &x.law {
-            for (k, &b) in x.bonds.iter().enumerate() {
-                if f.singular.as_ref().is_some_and(|s| !s.pivots.contains(&k)) {
-                    out.push((v, b));
-                }
+        for (k, &b) in x.bonds.iter().enumerate() {
+            let past_rank = match &x.law {
+                Law::Field(f) => f.singular.as_ref().is_some_and(|s| !s.pivots.contains(&k)),
+                _ => false,
+            };
+            let state = x.states.get(k).copied().flatten();
+            if past_rank || state.is_some_and(|st| forced.contains(&st)) {
+                out.push((v, b, x.kind == VertexKind::C));
             }
         }
     }
@@ -469,12 +497,11 @@ impl Scap<'_> {
                 [Some(a), Some(b)] => (a == b) != (x.kind == VertexKind::Gy),
                 _ => false,
             },
-            VertexKind::IField => x
+            _ => x
                 .bonds
                 .iter()
                 .zip(&takes)
-                .any(|(&b, t)| *t == Some(true) && self.fixed.contains(&(v, b))),
-            _ => false,
+                .any(|(&b, t)| t.is_some_and(|t| self.fixed.contains(&(v, b, !t)))),
         }
     }
 
@@ -628,14 +655,13 @@ impl Scap<'_> {
                 VertexKind::Gy if takes.len() == 2 && takes[0].1 != takes[1].1 => {
                     conflict(ConflictKind::Gyrator, vec![takes[0].0, takes[1].0]);
                 }
-                VertexKind::IField => {
+                _ => {
                     for &(b, t) in &takes {
-                        if t && self.fixed.contains(&(v, b)) {
+                        if self.fixed.contains(&(v, b, !t)) {
                             conflict(ConflictKind::Fixed, vec![b]);
                         }
                     }
                 }
-                _ => {}
             }
         }
         self.c.conflicts = conflicts;
@@ -731,7 +757,13 @@ mod tests {
             elem: ElemId(4),
             kind: StateKind::Voltage,
         }];
-        let c = assign(&g, &Options { defer });
+        let c = assign(
+            &g,
+            &Options {
+                defer,
+                ..Default::default()
+            },
+        );
         assert_eq!(derivative(&c), [4]);
     }
 
