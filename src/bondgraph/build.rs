@@ -123,6 +123,11 @@ pub(super) fn build(c: &Circuit) -> BondGraph {
     b.g
 }
 
+/// A control node of `e` (E, G, S: the third and fourth), ground if absent.
+fn control(e: &crate::elab::Element, k: usize) -> NodeId {
+    e.nodes.get(k).copied().unwrap_or(GROUND)
+}
+
 fn atom(bond: BondId, var: Var) -> Atom {
     Atom { bond, var }
 }
@@ -287,7 +292,10 @@ impl Builder<'_> {
 
     fn ends(&self, elem: ElemId) -> (NodeId, NodeId) {
         let e = &self.c.elements[elem];
-        (e.nodes[0], e.nodes[1])
+        // Elaboration gives every element with a port two nodes; a missing
+        // one reads as ground (and a port on one node gets no bond).
+        let node = |k: usize| e.nodes.get(k).copied().unwrap_or(GROUND);
+        (node(0), node(1))
     }
 
     /// A one-port element across its first two nodes.
@@ -379,7 +387,7 @@ impl Builder<'_> {
                     param: name.clone(),
                     value: *gain,
                 };
-                let ctrl = [(1, e.nodes[2]), (-1, e.nodes[3])];
+                let ctrl = [(1, control(e, 2)), (-1, control(e, 3))];
                 let v = self.one_port(id, kind, law, Power::Out, None);
                 self.g.vertices[v].signals = ctrl
                     .iter()
@@ -450,7 +458,7 @@ impl Builder<'_> {
                 };
                 let signals = match ctrl {
                     Some(c) => vec![(1, Signal::Current(*c))],
-                    None => [(1, e.nodes[2]), (-1, e.nodes[3])]
+                    None => [(1, control(e, 2)), (-1, control(e, 3))]
                         .into_iter()
                         .filter(|(_, n)| *n != GROUND)
                         .map(|(k, n)| (k, Signal::Potential(n)))
@@ -759,6 +767,9 @@ impl Builder<'_> {
                 e.kind,
                 ElementKind::Coupling { .. } | ElementKind::Intermediate { .. }
             ) && e.nodes.len() >= 2
+                && e.nodes[..2]
+                    .iter()
+                    .all(|n| (n.0 as usize) < terminals.len())
             {
                 terminals[e.nodes[0].0 as usize] += 1;
                 terminals[e.nodes[1].0 as usize] += 1;
@@ -782,6 +793,9 @@ impl Builder<'_> {
             let Some(v) = c.elements.get(ctrl) else {
                 continue;
             };
+            if fe.nodes.len() < 2 || v.nodes.len() < 2 {
+                continue;
+            }
             for (eid, ee) in c.elements.iter() {
                 let ElementKind::Vcvs { gain: ge } = ee.kind else {
                     continue;
@@ -795,7 +809,7 @@ impl Builder<'_> {
                 };
                 let mut s = None;
                 for (k, &x) in ee.nodes[..2].iter().enumerate() {
-                    if x == GROUND || terminals[x.0 as usize] != 2 || ctrl == eid {
+                    if x == GROUND || terminals.get(x.0 as usize) != Some(&2) || ctrl == eid {
                         continue;
                     }
                     let first = v.nodes[0] == x;
@@ -830,6 +844,9 @@ impl Builder<'_> {
                 let ElementKind::Vccs { gm: gm2 } = e2.kind else {
                     continue;
                 };
+                if e1.nodes.len() < 4 || e2.nodes.len() < 4 {
+                    continue;
+                }
                 if used.contains(&g1) || used.contains(&g2) {
                     continue;
                 }
