@@ -15,6 +15,8 @@ pub enum Error {
     #[error(transparent)]
     Structural(#[from] crate::analysis::StructuralError),
     #[error(transparent)]
+    BondGraph(#[from] crate::bondgraph::BondGraphError),
+    #[error(transparent)]
     Sim(#[from] crate::sim::SimError),
     #[error(transparent)]
     Validate(#[from] crate::validate::ValidateError),
@@ -27,6 +29,7 @@ impl ToDiagnostic for Error {
             Error::Elab(e) => e.to_diagnostic(),
             Error::Topology(e) => e.to_diagnostic(),
             Error::Structural(e) => e.to_diagnostic(),
+            Error::BondGraph(e) => e.to_diagnostic(),
             Error::Sim(e) => e.to_diagnostic(),
             Error::Validate(e) => e.to_diagnostic(),
         }

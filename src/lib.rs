@@ -21,7 +21,11 @@
 //! 7. [`sim`] integrates the tape from its operating point with diffsol or
 //!    kausal's own TR-BDF2 ([`sim::simulate`]), on top of the numerical
 //!    kernels of [`numeric`] (dense and sparse LU, damped Newton).
-//! 8. [`validate`] runs ngspice on the same netlist and compares the
+//! 8. [`bondgraph`] draws the same circuit as a bond graph (seed 003's
+//!    procedure), puts causal strokes on it by SCAP and cross-checks them
+//!    against the colouring and index reduction ([`bondgraph::analyse`],
+//!    [`bondgraph::check()`]).
+//! 9. [`validate`] runs ngspice on the same netlist and compares the
 //!    waveforms ([`validate::validate`]); [`bench`] measures speed against
 //!    error, beside ngspice.
 //!
@@ -35,6 +39,7 @@
 pub mod analysis;
 pub mod back;
 pub mod bench;
+pub mod bondgraph;
 pub mod build;
 pub mod diag;
 pub mod elab;

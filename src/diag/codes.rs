@@ -1,7 +1,7 @@
 //! Every diagnostic code kausal emits, in one table: its stable id, the
 //! constant the code names it by, and what it means. Ranges: K00xx input
 //! files, K01xx parsing, K02xx elaboration, K03xx structure, K04xx
-//! simulation, K05xx validation.
+//! simulation, K05xx validation, K06xx bond graphs.
 
 use std::fmt;
 
@@ -137,6 +137,8 @@ codes! {
     SWITCH_METHOD = "K0417", "Switch events are located by the adaptive diffsol methods only.";
     CHATTER = "K0418", "A B source's comparison chatters at its threshold (a sliding mode).";
     VALIDATE_FAILED = "K0500", "Validation against ngspice failed.";
+    CAUSAL_CONFLICT = "K0600", "A causal conflict in the bond graph: a junction or source whose causality cannot be met.";
+    VIEWS_DISAGREE = "K0601", "The bond graph's causality and the equations' sorting disagree (`kausal bondgraph --check`).";
 }
 
 #[cfg(test)]

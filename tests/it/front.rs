@@ -225,6 +225,12 @@ fn run_all(name: &str, text: String) {
                 kausal::build::build(&el.circuit, kausal::build::Options { kvl, alias: true });
             assert!(kausal::ir::verify(&built.system).is_empty());
         }
+        // The bond graph draws whatever elaborates.
+        let a = kausal::bondgraph::analyse(&el.circuit);
+        let _ = (
+            kausal::bondgraph::text(&a, None),
+            kausal::bondgraph::dot(&a),
+        );
     } else if let Err(f) = result {
         // Rendering must cope with whatever spans the errors carry.
         for d in &f.diagnostics {

@@ -1,6 +1,7 @@
 //! Integration tests, one module per stage. Fixtures live in `netlists/`,
 //! snapshots in `goldens/<stage>/`.
 
+mod bondgraph;
 mod codegen;
 mod equations;
 pub mod errors;

@@ -342,7 +342,7 @@ fn singular_seed_d_names_the_constraint() {
 
 /// A random circuit that is well posed for almost any values: every node has
 /// a resistor to ground, sources and storage elements sit on top.
-fn circuit() -> impl Strategy<Value = String> {
+pub(crate) fn circuit() -> impl Strategy<Value = String> {
     let elem = (
         0u8..9,
         1usize..7,

@@ -7,8 +7,23 @@ use std::path::{Path, PathBuf};
 /// The library's top-level modules, lowest layer first. A module may use
 /// only modules listed before it.
 const LAYERS: &[&str] = &[
-    "diag", "ir", "numeric", "front", "io", "elab", "build", "analysis", "back", "tape",
-    "pipeline", "sim", "validate", "generate", "bench", "error",
+    "diag",
+    "ir",
+    "numeric",
+    "front",
+    "io",
+    "elab",
+    "build",
+    "analysis",
+    "back",
+    "tape",
+    "pipeline",
+    "bondgraph",
+    "sim",
+    "validate",
+    "generate",
+    "bench",
+    "error",
 ];
 
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {

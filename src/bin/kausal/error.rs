@@ -38,6 +38,9 @@ pub enum Error {
     /// A plot could not be drawn.
     #[error("{0}")]
     Plot(String),
+    /// Graphviz's `dot` could not draw the bond graph.
+    #[error("{0}")]
+    Dot(String),
     /// The benchmark cannot go on (ngspice is missing).
     #[error("{0}")]
     Bench(kausal::bench::BenchError),

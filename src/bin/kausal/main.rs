@@ -4,6 +4,7 @@
 
 mod args;
 mod bench;
+mod bondgraph;
 mod check;
 mod codegen;
 mod equations;
@@ -53,6 +54,9 @@ enum Command {
     Sort(sort::Args),
     /// Simulate the netlist's `.tran` and write the waveforms (CSV).
     Sim(sim::Args),
+    /// The circuit as a bond graph with causal strokes (SCAP), the equations
+    /// read off it, and (--check) their agreement with the sorted equations.
+    Bondgraph(bondgraph::Args),
 }
 
 fn main() -> ExitCode {
@@ -73,5 +77,6 @@ fn run(cli: Cli) -> Result<ExitCode, error::Error> {
         Command::Codegen(args) => codegen::run(args),
         Command::Sort(args) => sort::run(args),
         Command::Sim(args) => sim::run(args),
+        Command::Bondgraph(args) => bondgraph::run(args),
     }
 }
