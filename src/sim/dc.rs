@@ -131,8 +131,8 @@ where
         y = held.y;
         warnings.extend(held.warnings);
     }
-    let path = DcPath::of(c);
-    let r = tape.in_mode(Mode::Dc, || dc_point::<M>(ode, t0, y, atol, path));
+    let ptc = Continuation::of(c);
+    let r = tape.in_mode(Mode::Dc, || dc_point::<M>(ode, t0, y, atol, ptc));
     // Where no operating point is found from zero, the transistors are
     // started conducting, as ngspice starts them (each base-emitter
     // junction at its critical voltage, the others at 0 V), and the solve
@@ -140,7 +140,7 @@ where
     let r = match r {
         Err(e) => match transistors_on(sorted, &tape.states) {
             Some(start) => tape
-                .in_mode(Mode::Dc, || dc_point::<M>(ode, t0, start, atol, path))
+                .in_mode(Mode::Dc, || dc_point::<M>(ode, t0, start, atol, ptc))
                 .map_err(|_| e),
             None => Err(e),
         },
@@ -207,19 +207,20 @@ fn transistors_on(sorted: &Sorted, states: &[VarId]) -> Option<Vec<f64>> {
     )
 }
 
-/// Whether every node has a DC path to ground (else the circuit has no
-/// unique operating point, and the DC solve says so rather than pick one).
+/// Whether the DC solve may fall back on pseudo-transient continuation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum DcPath {
-    Everywhere,
-    Missing,
+pub(super) enum Continuation {
+    Allowed,
+    /// Not where a node has no DC path to ground: the circuit has no unique
+    /// operating point, and the DC solve says so rather than pick one.
+    NoDcPath,
 }
 
-impl DcPath {
-    pub(super) fn of(c: &Circuit) -> DcPath {
+impl Continuation {
+    pub(super) fn of(c: &Circuit) -> Continuation {
         match floating_islands(c).is_empty() {
-            true => DcPath::Everywhere,
-            false => DcPath::Missing,
+            true => Continuation::Allowed,
+            false => Continuation::NoDcPath,
         }
     }
 }
@@ -320,7 +321,7 @@ pub(super) fn dc_point<M: Matrix<T = f64>>(
     t0: f64,
     y: Vec<f64>,
     atol: &[f64],
-    path: DcPath,
+    ptc: Continuation,
 ) -> Result<Vec<f64>, SimError>
 where
     M::V: HostVec,
@@ -464,10 +465,31 @@ where
     // their values at t0, integrated towards its equilibrium. Not where a
     // node has no DC path: it has no operating point, and the integration
     // would only pick one of many.
-    if path == DcPath::Everywhere
-        && let Ok(found) = pseudo_transient(y0.clone(), &resid, solve, &mut limit, atol, &mut rough)
-    {
-        return Ok(found);
+    if ptc == Continuation::Allowed {
+        // Its work is bounded in instructions run, PTC_WORK evaluations of f
+        // at its start: a step whose blocks take long Newton solves at far
+        // points gives up rather than run on.
+        let before = tape.work();
+        let mut scratch = vec![0.0; n];
+        let _ = resid(&y0, &mut scratch);
+        let per_eval = (tape.work() - before).max(1);
+        tape.limit_work(
+            tape.work()
+                .saturating_add(PTC_WORK.saturating_mul(per_eval)),
+        );
+        let found = pseudo_transient(
+            y0.clone(),
+            &resid,
+            solve,
+            &mut limit,
+            atol,
+            &mut rough,
+            tape,
+        );
+        tape.limit_work(u64::MAX);
+        if let Ok(found) = found {
+            return Ok(found);
+        }
     }
     // The blocks start the next solves from their first guesses, not from
     // where the integration left them.
@@ -569,6 +591,7 @@ pub(super) fn pseudo_transient(
     limit: &mut dyn FnMut(&[f64], &mut [f64]) -> bool,
     atol: &[f64],
     rough: &mut Rough,
+    tape: &crate::tape::Tape,
 ) -> Result<Vec<f64>, SimError> {
     let n = y.len();
     // Sizes relative to each state's own scale: `|y| + 10^6 atol`.
@@ -589,6 +612,8 @@ pub(super) fn pseudo_transient(
     // The rate where Newton was last tried: it is tried again from a point
     // whose rate is ten times lower.
     let mut newton_rate = f64::INFINITY;
+    // Evaluations of f in the steps' solves, against PTC_EVALS.
+    let mut evals = 0usize;
     for _ in 0..PTC_STEPS {
         if (h * r < 1e-3 || h > 1e6) && r < 0.1 * newton_rate {
             newton_rate = r;
@@ -596,7 +621,7 @@ pub(super) fn pseudo_transient(
                 return Ok(found);
             }
         }
-        if !(1e-18..=1e12).contains(&h) {
+        if !(1e-18..=1e12).contains(&h) || evals > PTC_EVALS || tape.over_budget() {
             break;
         }
         // One backward-Euler step of length h, from y.
@@ -608,6 +633,7 @@ pub(super) fn pseudo_transient(
             };
             let mut last = f64::INFINITY;
             for iteration in 1..=10 {
+                evals += 1;
                 if !resid(&x, &mut g).is_ok_and(|norm| norm.is_finite()) {
                     break 'refactor;
                 }
@@ -655,13 +681,12 @@ pub(super) fn pseudo_transient(
         return Ok(found);
     }
     // Where Newton stalled on rounding near the equilibrium the integration
-    // reached, that equilibrium is the operating point.
-    match rough.take() {
-        Some((_, y)) => Ok(y),
-        None => Err(SimError::DcFailed {
-            reason: DcFailure::NotTried,
-        }),
-    }
+    // reached, `rough` holds that point: GMIN and source stepping may still
+    // converge fully (a stall can be a region boundary of a MOSFET's
+    // equations, not rounding), and it is the answer where they do not.
+    Err(SimError::DcFailed {
+        reason: DcFailure::NotTried,
+    })
 }
 
 /// The best point where a Newton iteration stalled with a correction below
@@ -674,8 +699,13 @@ pub(super) type Rough = Option<(f64, Vec<f64>)>;
 /// converges further.
 const ROUGH: f64 = 1e-4;
 
-/// The most pseudo-transient steps before the DC solve gives up.
-const PTC_STEPS: usize = 1000;
+/// The most pseudo-transient steps, and evaluations of `f` in their solves,
+/// before the DC solve moves on: a circuit whose blocks cost much per
+/// evaluation (a bipolar IC's) ends its DC solve in tens of seconds at most.
+const PTC_STEPS: usize = 600;
+const PTC_EVALS: usize = 2000;
+/// The continuation's work, in evaluations of `f` at its start.
+const PTC_WORK: u64 = 30_000;
 
 /// `f` into its argument, returning its max-norm.
 pub(super) type Residual<'a> = dyn Fn(&[f64], &mut Vec<f64>) -> Result<f64, SimError> + 'a;

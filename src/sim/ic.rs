@@ -13,7 +13,7 @@ use std::rc::Rc;
 
 use diffsol::{FaerSparseMat, Matrix, NalgebraMat};
 
-use super::dc::DcPath;
+use super::dc::Continuation;
 use super::ode::{CircuitOde, HostVec};
 use super::{DENSE_STATES, Options, SimError, atols, dc_point, output_ref};
 use crate::diag::Diagnostic;
@@ -249,11 +249,11 @@ pub(super) fn held_operating_point(
     }
     let tape = Rc::new(tape::compile(sys, &dc.causal.graph, &dc.schedule, &refs));
     let atol = atols(sys, &dc_states, opts, &dc.elaborated.circuit);
-    let path = DcPath::of(&dc.elaborated.circuit);
+    let ptc = Continuation::of(&dc.elaborated.circuit);
     let (y, values) = if dc_states.len() > DENSE_STATES {
-        solve::<FaerSparseMat<f64>>(tape, &atol, true, path)
+        solve::<FaerSparseMat<f64>>(tape, &atol, true, ptc)
     } else {
-        solve::<NalgebraMat<f64>>(tape, &atol, false, path)
+        solve::<NalgebraMat<f64>>(tape, &atol, false, ptc)
     }
     .map_err(Unheld::Sim)?;
     let y = from
@@ -276,7 +276,7 @@ fn solve<M: Matrix<T = f64>>(
     tape: Rc<tape::Tape>,
     atol: &[f64],
     sparse: bool,
-    path: DcPath,
+    ptc: Continuation,
 ) -> Result<(Vec<f64>, Vec<f64>), SimError>
 where
     M::V: HostVec,
@@ -284,7 +284,7 @@ where
     let n = tape.states.len();
     let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; n], sparse);
     tape.in_mode(tape::Mode::Dc, || {
-        let y = dc_point::<M>(&ode, 0.0, vec![0.0; n], atol, path)?;
+        let y = dc_point::<M>(&ode, 0.0, vec![0.0; n], atol, ptc)?;
         let mut out = vec![0.0; tape.out_regs.len()];
         ode.outputs(0.0, &y, &mut out)
             .map_err(|error| SimError::Eval { error })?;

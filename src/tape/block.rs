@@ -321,6 +321,9 @@ impl Tape {
         // The last full step: start, correction, slope, scaled size, damping.
         let mut last: Option<(f64, f64, f64, f64, f64)> = None;
         for _ in 0..400 {
+            if self.over_budget() {
+                return Err(b.no_convergence(r[res].abs(), t));
+            }
             for &z in &b.touched {
                 w.dr[z] = 0.0;
             }
@@ -414,6 +417,9 @@ impl Tape {
         };
         // The Jacobian's tangent runs evaluate the body too.
         for _ in 0..200 {
+            if self.over_budget() {
+                return Err(no_convergence(r));
+            }
             let mut dr = std::mem::take(&mut w.dr);
             let factored = self.factor_jacobian(b, r, &mut dr, t, w);
             w.dr = dr;
@@ -694,6 +700,8 @@ mod tests {
             switch_regs: Vec::new(),
             modes: Vec::new(),
             source_memo: Vec::new(),
+            work: std::cell::Cell::new(0),
+            work_limit: std::cell::Cell::new(u64::MAX),
         }
     }
 

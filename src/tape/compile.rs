@@ -683,5 +683,7 @@ pub fn compile(
         switch_regs,
         modes: c.modes,
         source_memo: vec![std::cell::Cell::new((f64::NAN, 0.0)); sys.sources.len()],
+        work: std::cell::Cell::new(0),
+        work_limit: std::cell::Cell::new(u64::MAX),
     }
 }

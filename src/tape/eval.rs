@@ -78,6 +78,28 @@ impl Tape {
 
     /// Scale every independent source by `s`: the waveforms (through
     /// `source_scale`) and the DC values held in `regs`.
+    /// Instructions run so far.
+    pub fn work(&self) -> u64 {
+        self.work.get()
+    }
+
+    /// Let blocks' Newton iterations give up (as not converged) once `limit`
+    /// instructions have run in all; `u64::MAX` lifts it.
+    pub fn limit_work(&self, limit: u64) {
+        self.work_limit.set(limit);
+    }
+
+    #[inline]
+    pub(super) fn count_work(&self, n: usize) {
+        self.work.set(self.work.get().wrapping_add(n as u64));
+    }
+
+    /// Whether the work limit is passed (checked once per block iteration).
+    #[inline]
+    pub fn over_budget(&self) -> bool {
+        self.work.get() > self.work_limit.get()
+    }
+
     /// Put every block's tears back at their first guesses: a Newton that
     /// starts over from another point (the DC solve's last fallback) should
     /// not start its blocks where a failed one left them.
@@ -97,6 +119,7 @@ impl Tape {
     }
 
     pub(super) fn run(&self, code: &[Instr], r: &mut [f64], t: f64) -> Result<(), EvalError> {
+        self.count_work(code.len());
         for ins in code {
             match *ins {
                 Instr::Neg { d, a } => r[d] = -r[a],

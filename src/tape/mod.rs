@@ -203,6 +203,11 @@ pub struct Tape {
     /// iterations of an implicit stage evaluate `f` at one time again and
     /// again, and a transcendental source (SIN) is then computed once.
     source_memo: Vec<std::cell::Cell<(f64, f64)>>,
+    /// Instructions run so far (evaluations and tangent runs), and the
+    /// count past which a block's Newton gives up (`u64::MAX` but while
+    /// the DC solve's continuation bounds its work: see [`Tape::limit_work`]).
+    work: std::cell::Cell<u64>,
+    work_limit: std::cell::Cell<u64>,
 }
 
 /// A comparison a user wrote (`v(a) > 1`, `u(x)`): while `held` is a value

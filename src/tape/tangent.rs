@@ -54,6 +54,7 @@ impl Tape {
         t: f64,
         mut cache: Option<&mut TangentCache>,
     ) -> Result<(), EvalError> {
+        self.count_work(code.len());
         for ins in code {
             match *ins {
                 Instr::Neg { d, a } => {
@@ -226,6 +227,7 @@ impl Tape {
         m: usize,
         t: f64,
     ) -> Result<(), EvalError> {
+        self.count_work(code.len() * m);
         // dr[d] = ka·dr[a] (+ kb·dr[b]) in every direction.
         fn lin(dr: &mut [f64], m: usize, d: Reg, a: (Reg, f64), b: Option<(Reg, f64)>) {
             let (d, a0, ka) = (d.idx() * m, a.0.idx() * m, a.1);
