@@ -1,7 +1,8 @@
-//! M: ngspice's MOSFET levels 1 (Shichman–Hodges) and 3 (the semi-empirical
-//! short-channel model), with Meyer's gate capacitances and the bulk
-//! junctions, at the nominal temperature, elaborated into branches named by
-//! the device as a BJT is (`bjt.rs`):
+//! M: ngspice's MOSFET levels 1 (Shichman–Hodges), 2 (Grove–Frohman,
+//! `mos/level2.rs`) and 3 (the semi-empirical short-channel model), with
+//! Meyer's gate capacitances and the bulk junctions, at the nominal
+//! temperature, elaborated into branches named by the device as a BJT is
+//! (`bjt.rs`):
 //!
 //! ```text
 //!  D ─rd─ D' ─┬─ ds: id(vgs, vds, vbs) ──┬─ S' ─rs─ S
@@ -421,7 +422,7 @@ impl Elab {
         self.expand_mos(el, name, nodes, &model, &dv, &g, leff, weff, vt);
     }
 
-    /// The model's derived values (ngspice's `mos1temp.c`, `mos3temp.c` at
+    /// The model's derived values (ngspice's `mos1temp.c`, `mos2temp.c`, `mos3temp.c` at
     /// TNOM): KP from UO and TOX, and φ, γ and VTO from NSUB, each where
     /// not given.
     fn derive_mos(

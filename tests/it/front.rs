@@ -477,6 +477,52 @@ fn transistor_lines_and_model_cards_are_read_as_ngspice_reads_them() {
     ));
 }
 
+/// A level-2 device's intermediates follow its model card: the body
+/// factor's short-channel form with XJ and NSUB, weak inversion with NFS,
+/// Baum's quartic with VMAX, the mobility factor with UEXP; a plain card
+/// has the threshold, Grove–Frohman's vdsat and the current only.
+#[test]
+fn level_2_mosfets_name_the_intermediates_their_model_needs() {
+    let text = "t\nV1 1 0 5\nM1 1 1 0 0 full L=2u W=10u\nM2 1 1 0 0 plain\n\
+        .model full nmos level=2 vto=0.7 tox=20n nsub=1e16 xj=0.3u delta=1 nfs=1e11 vmax=5e4 neff=2 ucrit=2e4 uexp=0.2\n\
+        .model plain nmos level=2 vto=0.7 kp=5e-5 gamma=0.4 lambda=0.02\n.tran 1u 10u\n.end\n";
+    let el = elaborate(text);
+    let names: Vec<&str> = el
+        .circuit
+        .elements
+        .values()
+        .map(|e| e.name.as_str())
+        .collect();
+    let of = |dev: &str| -> Vec<&str> {
+        names
+            .iter()
+            .filter_map(|n| n.strip_prefix(dev))
+            .collect::<Vec<_>>()
+    };
+    let full = of("M1:");
+    for tag in [
+        "sarg", "barg", "vbin", "args", "argd", "gamasd", "xn", "vth", "von", "ufact", "vgsx",
+        "gammad", "v1", "vdsgf", "xv", "b1", "d1", "qr", "qs", "qp", "y3", "a3", "b3", "q1",
+        "x1lo", "x4hi", "x4", "xs", "vdsat", "dl", "clfact", "vdsx", "bx", "id", "ds", "gs", "gb",
+    ] {
+        assert!(full.contains(&tag), "M1:{tag} in {full:?}");
+    }
+    let plain = of("M2:");
+    for tag in [
+        "sarg", "von", "v1", "vdsgf", "vdsat", "clfact", "vdsx", "bx", "id",
+    ] {
+        assert!(plain.contains(&tag), "M2:{tag} in {plain:?}");
+    }
+    for tag in ["barg", "gamasd", "xn", "ufact", "xv", "y3", "vbin", "dl"] {
+        assert!(!plain.contains(&tag), "no M2:{tag} in {plain:?}");
+    }
+    // Each intermediate once.
+    let mut sorted = names.clone();
+    sorted.sort_unstable();
+    sorted.dedup();
+    assert_eq!(sorted.len(), names.len(), "{names:?}");
+}
+
 #[test]
 fn mosfet_lines_read_their_geometry_and_the_model_its_level() {
     // M1: geometry, RSH times NRS (an internal source node), no drain

@@ -360,7 +360,7 @@ impl Device<'_> {
                 }
             }
         }
-        let gf = def(if vmax { "vdsgf" } else { "vdsat" }, x);
+        let gf = def(if vmax || !nfs { "vdsgf" } else { "vdsat" }, x);
         // The velocity-saturated drain, from Baum's quartic.
         let ueff = |x: &mut Ex| {
             let u = ufact_at(x);
