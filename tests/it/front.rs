@@ -439,6 +439,30 @@ fn stray_plus_and_a_lone_closing_paren_in_a_model_are_read_as_ngspice_reads_them
     assert_eq!((model.is, model.n, model.rs), (1e-14, 2.0, 3.0));
 }
 
+/// A diode's area by name (`area=`, as ngspice reads it; the CircuitSim90
+/// decks write it so) is its area, times `m=`; positional, as before.
+#[test]
+fn a_diode_takes_its_area_by_name_or_position() {
+    let text = "t\nV1 1 0 0.7\nD1 1 0 dm area=2.5\nD2 1 0 dm 3 m=2\nD3 1 0 dm area=1.5 m=4\n\
+        .model dm D(IS=1e-14)\n.tran 1u 10u\n.end\n";
+    let el = elaborate(text);
+    assert!(
+        el.warnings.is_empty(),
+        "{:?}",
+        el.warnings.iter().map(|d| &d.message).collect::<Vec<_>>()
+    );
+    let areas: Vec<f64> = el
+        .circuit
+        .elements
+        .values()
+        .filter_map(|e| match &e.kind {
+            kausal::elab::ElementKind::Diode { area, .. } => Some(*area),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(areas, [2.5, 6.0, 6.0]);
+}
+
 /// The transistor lines and model cards of others' netlists: SPICE2's
 /// `.model Q1 NPN BF 20` (names and values without `=`), parameters after
 /// the closing parenthesis, a model name that starts with a digit, a
