@@ -255,17 +255,19 @@ impl Device<'_> {
             }
             None => def("von", x),
         };
-        // Mobility degradation past the critical field: `(vc/max(vgs −
-        // von, vc))^UEXP`, vc = UCRIT·εSi/Cox.
+        // Mobility degradation past the critical field: `(vc/(vgs −
+        // von))^UEXP` where vgs − von > vc = UCRIT·εSi/Cox, else 1.
         let ufact = (md.uexp != 0.0).then(|| {
             let mut x = Ex::default();
             let (g, o) = (x.volt(f.vg), x.volt(von));
             let vgst = x.sub(g, o);
             let vc = x.num(md.ucrit * 100.0 * EPS_SI / dv.cox);
-            let d = x.max(vgst, vc);
-            let r = x.div(vc, d);
+            let past = x.cmp(Cmp::Gt, vgst, vc);
+            let one = x.num(1.0);
+            let r = x.div(vc, vgst);
             let e = x.num(md.uexp);
-            x.arith(Arith::Pow, r, e);
+            let u = x.arith(Arith::Pow, r, e);
+            x.sel(past, u, one);
             def("ufact", x)
         });
         let ufact_at = |x: &mut Ex| match ufact {
