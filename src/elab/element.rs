@@ -348,19 +348,23 @@ impl Elab {
         inherited: f64,
         scope: &Scope<'_, '_>,
     ) -> Option<ElementKind> {
-        let mut area = inherited
-            * match area {
-                Some(a) => self.value(a, scope)?,
-                None => 1.0,
-            };
+        let mut area = match area {
+            Some(a) => self.value(a, scope)?,
+            None => 1.0,
+        };
+        let mut m = inherited;
         for p in params {
             if p.name.is("m") {
                 // `m` junctions in parallel: as `m` times the area.
-                area *= self.multiplier(p, name, scope)?;
+                m *= self.multiplier(p, name, scope)?;
+            } else if p.name.is("area") {
+                // ngspice's `area=`, the positional area by name.
+                area = self.value(&p.value, scope)?;
             } else {
                 self.ignored_param(p, name);
             }
         }
+        let area = area * m;
         let model = self.diode_model(model, name, scope)?;
         Some(ElementKind::Diode {
             model: Box::new(model),

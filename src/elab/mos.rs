@@ -1,7 +1,8 @@
-//! M: ngspice's MOSFET levels 1 (Shichman–Hodges) and 3 (the semi-empirical
-//! short-channel model), with Meyer's gate capacitances and the bulk
-//! junctions, at the nominal temperature, elaborated into branches named by
-//! the device as a BJT is (`bjt.rs`):
+//! M: ngspice's MOSFET levels 1 (Shichman–Hodges), 2 (Grove–Frohman,
+//! `mos/level2.rs`) and 3 (the semi-empirical short-channel model), with
+//! Meyer's gate capacitances and the bulk junctions, at the nominal
+//! temperature, elaborated into branches named by the device as a BJT is
+//! (`bjt.rs`):
 //!
 //! ```text
 //!  D ─rd─ D' ─┬─ ds: id(vgs, vds, vbs) ──┬─ S' ─rs─ S
@@ -20,6 +21,8 @@
 //! voltage the state, as ngspice integrates `C·Δv` each step. A P-channel
 //! device's branches point the other way, so that every branch voltage is
 //! ngspice's `type · v`.
+
+mod level2;
 
 use super::bjt::{Ex, NextIds, oriented};
 use super::{Arith, BNode, Elab, ElabError, ElemId, Element, ElementKind, NodeId, Scope};
@@ -78,7 +81,7 @@ pub(super) struct MosModel {
     ld: f64,
     u0: Option<f64>,
     fc: f64,
-    // Level 3.
+    // Levels 2 and 3.
     xj: f64,
     vmax: f64,
     delta: f64,
@@ -89,6 +92,10 @@ pub(super) struct MosModel {
     xl: f64,
     xw: f64,
     delvto: f64,
+    // Level 2.
+    ucrit: f64,
+    uexp: f64,
+    neff: f64,
 }
 
 impl MosModel {
@@ -135,6 +142,9 @@ impl MosModel {
             xl: 0.0,
             xw: 0.0,
             delvto: 0.0,
+            ucrit: 1e4,
+            uexp: 0.0,
+            neff: 1.0,
         }
     }
 }
@@ -150,9 +160,12 @@ struct Derived {
     phi: f64,
     /// `type·VTO − γ√φ`.
     vbi: f64,
-    /// Level 3: surface mobility (cm²/V·s), the depletion-width
-    /// coefficient, the narrow-width factor, the DIBL factor's scale.
+    /// Levels 2 and 3: surface mobility (cm²/V·s), the depletion-width
+    /// coefficient (0 without NSUB); level 3: the narrow-width factor, the
+    /// DIBL factor's scale.
     u0: f64,
+    /// NSUB given (level 2 derives the channel-length modulation from it).
+    nsub: bool,
     xd: f64,
     narrow: f64,
     alpha: f64,
@@ -164,6 +177,12 @@ const MOS1_PARAMS: &[&str] = &[
     "js", "pb", "cgso", "cgdo", "cgbo", "cj", "mj", "cjsw", "mjsw", "tox", "nsub", "nss", "tpg",
     "ld", "uo", "u0", "fc", "nmos", "pmos",
 ];
+/// Level 2's: level 1's and the Grove–Frohman ones.
+const MOS2_PARAMS: &[&str] = &[
+    "level", "vto", "vt0", "kp", "gamma", "phi", "lambda", "rd", "rs", "rsh", "cbd", "cbs", "is",
+    "js", "pb", "cgso", "cgdo", "cgbo", "cj", "mj", "cjsw", "mjsw", "tox", "nsub", "nss", "nfs",
+    "tpg", "ld", "uo", "u0", "fc", "xj", "vmax", "delta", "ucrit", "uexp", "neff", "nmos", "pmos",
+];
 /// Level 3's: level 1's (but λ) and the short-channel ones.
 const MOS3_PARAMS: &[&str] = &[
     "level", "vto", "vt0", "kp", "gamma", "phi", "rd", "rs", "rsh", "cbd", "cbs", "is", "js", "pb",
@@ -174,11 +193,13 @@ const MOS3_PARAMS: &[&str] = &[
 /// Parameters that do not change the transient result at the nominal
 /// temperature (temperature, noise, and ngspice's flags).
 const MOS_IGNORED: &[&str] = &["tnom", "kf", "af", "nlev", "gdsnoi", "version"];
+/// Level 2's: also SPICE2's UTRA (a transverse-field mobility coefficient),
+/// which ngspice's level 2 does not read either (it warns and ignores it).
+const MOS2_IGNORED: &[&str] = &["tnom", "kf", "af", "nlev", "gdsnoi", "version", "utra"];
 
 /// The families ngspice's other MOS levels belong to, for the refusal.
 fn level_family(level: f64) -> &'static str {
     match level as i64 {
-        2 => "the Grove–Frohman model (level 2)",
         4 => "BSIM1",
         5 => "BSIM2",
         6 => "Sakurai–Newton (level 6)",
@@ -192,7 +213,7 @@ fn level_family(level: f64) -> &'static str {
 }
 
 impl Elab {
-    /// The MOS model `model` (an NMOS or PMOS card of level 1 or 3).
+    /// The MOS model `model` (an NMOS or PMOS card of level 1, 2 or 3).
     fn mos_model(
         &mut self,
         model: &ast::Name<'_>,
@@ -218,14 +239,14 @@ impl Elab {
                 ok = false;
                 continue;
             };
-            if v == 1.0 || v == 3.0 {
+            if v == 1.0 || v == 2.0 || v == 3.0 {
                 m.level = v as u8;
             } else {
                 self.errors.push(ElabError::UnsupportedModel {
                     span: p.value.span(),
                     model: def.name.text.to_string(),
                     what: format!("a level-{v} MOSFET ({})", level_family(v)),
-                    help: "kausal models ngspice's MOS levels 1 and 3; BSIM and the other compact models would come as compiled (OSDI) devices, see ARCHITECTURE.md",
+                    help: "kausal models ngspice's MOS levels 1, 2 and 3; BSIM and the other compact models would come as compiled (OSDI) devices, see ARCHITECTURE.md",
                 });
                 ok = false;
             }
@@ -234,7 +255,7 @@ impl Elab {
             self.mos_cache.insert(cache_key, None);
             return None;
         }
-        if m.level == 3 {
+        if m.level >= 2 {
             m.tox = Some(1e-7);
             m.mjsw = 0.33;
         }
@@ -243,12 +264,12 @@ impl Elab {
             if key == "level" {
                 continue;
             }
-            let known = if m.level == 3 {
-                MOS3_PARAMS
-            } else {
-                MOS1_PARAMS
+            let (known, ignored) = match m.level {
+                3 => (MOS3_PARAMS, MOS_IGNORED),
+                2 => (MOS2_PARAMS, MOS2_IGNORED),
+                _ => (MOS1_PARAMS, MOS_IGNORED),
             };
-            if self.unread_model_param(p, &key, known, MOS_IGNORED, def, first_use) {
+            if self.unread_model_param(p, &key, known, ignored, def, first_use) {
                 continue;
             }
             let Some(v) = self.value(&p.value, scope) else {
@@ -294,6 +315,9 @@ impl Elab {
                 "xl" => m.xl = v,
                 "xw" => m.xw = v,
                 "delvto" | "delvt0" => m.delvto = v,
+                "ucrit" => m.ucrit = v,
+                "uexp" => m.uexp = v,
+                "neff" => m.neff = v,
                 _ => {}
             }
         }
@@ -398,7 +422,7 @@ impl Elab {
         self.expand_mos(el, name, nodes, &model, &dv, &g, leff, weff, vt);
     }
 
-    /// The model's derived values (ngspice's `mos1temp.c`, `mos3temp.c` at
+    /// The model's derived values (ngspice's `mos1temp.c`, `mos2temp.c`, `mos3temp.c` at
     /// TNOM): KP from UO and TOX, and φ, γ and VTO from NSUB, each where
     /// not given.
     fn derive_mos(
@@ -419,6 +443,18 @@ impl Elab {
             Some(tox) if tox != 0.0 => EPS_OX / tox,
             _ => 0.0,
         };
+        if md.level == 2 && !(cox > 0.0 && cox.is_finite()) {
+            self.errors.push(ElabError::BadDevice {
+                span: el.span,
+                element: element.to_string(),
+                why: format!(
+                    "model `{}` is level 2 with TOX = {}: its equations divide by the oxide capacitance, so TOX must be positive",
+                    md.name,
+                    md.tox.unwrap_or(0.0)
+                ),
+            });
+            return None;
+        }
         if phi.is_nan() || phi <= 0.0 {
             self.errors.push(ElabError::BadDevice {
                 span: el.span,
@@ -473,21 +509,21 @@ impl Elab {
                 }
             }
         }
-        // Level 3's depletion-width coefficient, narrow-width factor and
-        // DIBL scale (mos3temp.c; NSUB's default there is 1e15 for XD).
-        let (xd, narrow, alpha) = if md.level == 3 {
-            let xd = match md.nsub {
-                Some(n) if n > 0.0 => (2.0 * EPS_SI / (CHARGE * n * 1e6)).sqrt(),
-                _ => 0.0,
-            };
+        // Levels 2 and 3: the depletion-width coefficient (0 without
+        // NSUB); level 3's narrow-width factor and DIBL scale (mos3temp.c).
+        let xd = match md.nsub {
+            Some(n) if n > 0.0 && md.level >= 2 => (2.0 * EPS_SI / (CHARGE * n * 1e6)).sqrt(),
+            _ => 0.0,
+        };
+        let (narrow, alpha) = if md.level == 3 {
             let narrow = if cox > 0.0 {
                 md.delta * 0.5 * std::f64::consts::PI * EPS_SI / cox
             } else {
                 0.0
             };
-            (xd, narrow, xd * xd)
+            (narrow, xd * xd)
         } else {
-            (0.0, 0.0, 0.0)
+            (0.0, 0.0)
         };
         Some(Derived {
             cox,
@@ -496,6 +532,7 @@ impl Elab {
             phi,
             vbi: t * (vto + md.delvto) - gamma * phi.sqrt(),
             u0,
+            nsub: md.nsub.is_some(),
             xd,
             narrow,
             alpha,
@@ -560,6 +597,7 @@ impl Elab {
         let f = dev.frame(&mut def, [gate, dp, sp, b]);
         let ch = match md.level {
             3 => dev.level3(&mut def, &f),
+            2 => dev.level2(&mut def, &f),
             _ => dev.level1(&mut def, &f),
         };
         let meyer = (cox > 0.0).then(|| dev.meyer(&mut def, &f, &ch));
@@ -882,24 +920,8 @@ impl Device<'_> {
 
         // √(φ − vbs), and its continuation above vbs = 0: √φ/(1 + vbs/2φ).
         let mut x = Ex::default();
-        {
-            let vb = x.volt(f.vb);
-            let zero = c(&mut x, 0.0);
-            let one = c(&mut x, 1.0);
-            let phi = c(&mut x, dv.phi);
-            let cnd = x.push(BNode::Cmp(Cmp::Lt, vb, zero));
-            let vb_neg = x.push(BNode::Select(cnd, vb, zero));
-            let t = x.arith(Arith::Sub, phi, vb_neg);
-            let rev = x.push(BNode::Call(Func::Sqrt, t));
-            let sqphis = c(&mut x, dv.phi.sqrt());
-            let twophi = c(&mut x, 2.0 * dv.phi);
-            let vb_pos = x.positive(vb);
-            let t = x.arith(Arith::Div, vb_pos, twophi);
-            let t = x.arith(Arith::Add, one, t);
-            let fwd = x.arith(Arith::Div, sqphis, t);
-            let cnd = x.push(BNode::Cmp(Cmp::Le, vb, zero));
-            x.push(BNode::Select(cnd, rev, fwd));
-        }
+        let vb = x.volt(f.vb);
+        sqrt_phi_over(&mut x, dv.phi, vb);
         let sqphbs = def("sqphbs", x);
 
         // The short-channel factor.
@@ -1278,6 +1300,27 @@ impl Device<'_> {
         let cb = def("cb", x);
         Meyer { cs, cd, cb }
     }
+}
+
+/// `√(φ − v)` for `v ≤ 0`, and its continuation above, `√φ/(1 + v/2φ)`,
+/// as ngspice's levels 2 and 3 write it (level 1's is
+/// [`sqrt_phi_minus`]).
+fn sqrt_phi_over(x: &mut Ex, phi: f64, v: u32) -> u32 {
+    let zero = x.num(0.0);
+    let one = x.num(1.0);
+    let p = x.num(phi);
+    let cnd = x.push(BNode::Cmp(Cmp::Lt, v, zero));
+    let v_neg = x.push(BNode::Select(cnd, v, zero));
+    let t = x.arith(Arith::Sub, p, v_neg);
+    let rev = x.push(BNode::Call(Func::Sqrt, t));
+    let sqphi = x.num(phi.sqrt());
+    let twophi = x.num(2.0 * phi);
+    let v_pos = x.positive(v);
+    let t = x.arith(Arith::Div, v_pos, twophi);
+    let t = x.arith(Arith::Add, one, t);
+    let fwd = x.arith(Arith::Div, sqphi, t);
+    let cnd = x.push(BNode::Cmp(Cmp::Le, v, zero));
+    x.push(BNode::Select(cnd, rev, fwd))
 }
 
 /// `√(φ − vbs)` for `vbs ≤ 0`, and ngspice's linear continuation

@@ -136,6 +136,8 @@ fn dc_image(
         ics: Vec::new(),
         nodesets: Vec::new(),
         options: c.options.clone(),
+        // The transistors' junction functions, which their branches call.
+        junctions: c.junctions.clone(),
         ..Default::default()
     };
     (image, map)

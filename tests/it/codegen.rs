@@ -108,6 +108,9 @@ fn generated_rust_and_c_agree_with_the_evaluator() {
         // 3's short-channel current, terminal resistances.
         "mos_current_mirror",
         "mos3_inverter_chain",
+        // Level 2: Baum's quartic in closed form (atan, cos, ln, exp, the
+        // mobility factor's power) and its choices.
+        "mos2_inverter_chain",
         // Generated: its repeated sections become loops in the source.
         "rlc_ladder_60",
     ] {

@@ -439,6 +439,30 @@ fn stray_plus_and_a_lone_closing_paren_in_a_model_are_read_as_ngspice_reads_them
     assert_eq!((model.is, model.n, model.rs), (1e-14, 2.0, 3.0));
 }
 
+/// A diode's area by name (`area=`, as ngspice reads it; the CircuitSim90
+/// decks write it so) is its area, times `m=`; positional, as before.
+#[test]
+fn a_diode_takes_its_area_by_name_or_position() {
+    let text = "t\nV1 1 0 0.7\nD1 1 0 dm area=2.5\nD2 1 0 dm 3 m=2\nD3 1 0 dm area=1.5 m=4\n\
+        .model dm D(IS=1e-14)\n.tran 1u 10u\n.end\n";
+    let el = elaborate(text);
+    assert!(
+        el.warnings.is_empty(),
+        "{:?}",
+        el.warnings.iter().map(|d| &d.message).collect::<Vec<_>>()
+    );
+    let areas: Vec<f64> = el
+        .circuit
+        .elements
+        .values()
+        .filter_map(|e| match &e.kind {
+            kausal::elab::ElementKind::Diode { area, .. } => Some(*area),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(areas, [2.5, 6.0, 6.0]);
+}
+
 /// The transistor lines and model cards of others' netlists: SPICE2's
 /// `.model Q1 NPN BF 20` (names and values without `=`), parameters after
 /// the closing parenthesis, a model name that starts with a digit, a
@@ -475,6 +499,52 @@ fn transistor_lines_and_model_cards_are_read_as_ngspice_reads_them() {
             ..
         }
     ));
+}
+
+/// A level-2 device's intermediates follow its model card: the body
+/// factor's short-channel form with XJ and NSUB, weak inversion with NFS,
+/// Baum's quartic with VMAX, the mobility factor with UEXP; a plain card
+/// has the threshold, Grove–Frohman's vdsat and the current only.
+#[test]
+fn level_2_mosfets_name_the_intermediates_their_model_needs() {
+    let text = "t\nV1 1 0 5\nM1 1 1 0 0 full L=2u W=10u\nM2 1 1 0 0 plain\n\
+        .model full nmos level=2 vto=0.7 tox=20n nsub=1e16 xj=0.3u delta=1 nfs=1e11 vmax=5e4 neff=2 ucrit=2e4 uexp=0.2\n\
+        .model plain nmos level=2 vto=0.7 kp=5e-5 gamma=0.4 lambda=0.02\n.tran 1u 10u\n.end\n";
+    let el = elaborate(text);
+    let names: Vec<&str> = el
+        .circuit
+        .elements
+        .values()
+        .map(|e| e.name.as_str())
+        .collect();
+    let of = |dev: &str| -> Vec<&str> {
+        names
+            .iter()
+            .filter_map(|n| n.strip_prefix(dev))
+            .collect::<Vec<_>>()
+    };
+    let full = of("M1:");
+    for tag in [
+        "sarg", "barg", "vbin", "args", "argd", "gamasd", "xn", "vth", "von", "ufact", "vgsx",
+        "gammad", "v1", "vdsgf", "xv", "b1", "d1", "qr", "qs", "qp", "y3", "a3", "b3", "q1",
+        "x1lo", "x4hi", "x4", "xs", "vdsat", "dl", "clfact", "vdsx", "bx", "id", "ds", "gs", "gb",
+    ] {
+        assert!(full.contains(&tag), "M1:{tag} in {full:?}");
+    }
+    let plain = of("M2:");
+    for tag in [
+        "sarg", "von", "v1", "vdsgf", "vdsat", "clfact", "vdsx", "bx", "id",
+    ] {
+        assert!(plain.contains(&tag), "M2:{tag} in {plain:?}");
+    }
+    for tag in ["barg", "gamasd", "xn", "ufact", "xv", "y3", "vbin", "dl"] {
+        assert!(!plain.contains(&tag), "no M2:{tag} in {plain:?}");
+    }
+    // Each intermediate once.
+    let mut sorted = names.clone();
+    sorted.sort_unstable();
+    sorted.dedup();
+    assert_eq!(sorted.len(), names.len(), "{names:?}");
 }
 
 #[test]

@@ -364,6 +364,36 @@ fn every_ic_node_is_held_in_the_operating_point() {
     }
 }
 
+/// The `.ic` operating point is solved on an image of the circuit, which
+/// keeps the transistors' junction functions (their bulk and base
+/// junctions): a latch of two CMOS inverters (MOS level 2) and a BJT stage
+/// held by `.ic` start where they are held (this panicked on a junction the
+/// image had lost).
+#[test]
+fn an_ic_holds_transistor_circuits() {
+    let latch = "latch\n.model n nmos level=2 vto=0.7 kp=1e-4 cj=3e-4 cjsw=1e-10\n\
+        .model p pmos level=2 vto=-0.7 kp=5e-5 cj=3e-4 cjsw=1e-10\nvdd 1 0 3\n\
+        mp1 3 2 1 1 p l=1u w=5u ad=5p pd=6u as=5p ps=6u\nmn1 3 2 0 0 n l=1u w=5u ad=5p pd=6u as=5p ps=6u\n\
+        mp2 2 3 1 1 p l=1u w=5u ad=5p pd=6u as=5p ps=6u\nmn2 2 3 0 0 n l=1u w=5u ad=5p pd=6u as=5p ps=6u\n\
+        .ic v(2)=2 v(3)=0\n.tran 0.1n 10n\n.end\n";
+    let bjt = "stage\n.model q npn is=1e-15 bf=100 cje=1p cjc=1p\nvcc 1 0 5\nrc 1 c 1k\nrb b 0 10k\n\
+        q1 c b 0 q\ncb b 0 1n\n.ic v(b)=0.7\n.tran 1n 100n\n.end\n";
+    for (text, node, held) in [(latch, "v(2)", 2.0), (bjt, "v(b)", 0.7)] {
+        let s = sort_text(text);
+        let opts = sim::Options {
+            times: Some(vec![0.0]),
+            probes: vec![node.to_string()],
+            ..Default::default()
+        };
+        let w = sim::simulate(&s, &opts).unwrap_or_else(|e| panic!("{e}"));
+        assert!(
+            (w.data[0][0] - held).abs() < 1e-6,
+            "{node}: {}",
+            w.data[0][0]
+        );
+    }
+}
+
 /// An `.ic` that cannot be held (a voltage source fixes its node) is
 /// reported, naming the node, which keeps the source's value; the other
 /// `.ic` is held; with `uic` nothing is reported.
