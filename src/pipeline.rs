@@ -237,7 +237,7 @@ pub fn sort_built(
     let faults = topology::faults(c, &keep);
     let errors: Vec<TopologyError> = faults.iter().map(|f| TopologyError::new(c, f)).collect();
     let (fixable, fatal): (Vec<TopologyError>, Vec<TopologyError>) =
-        errors.into_iter().partition(|e| e.is_fixable());
+        errors.into_iter().partition(|e| e.fault.is_warning());
     if !fatal.is_empty() {
         let diags = fatal
             .iter()

@@ -114,6 +114,7 @@ codes! {
     NO_STATE_IN_CONSTRAINT = "K0304", "A constraint between states that index reduction cannot differentiate.";
     COUPLED_STATES = "K0310", "A capacitor loop or inductor cutset: index reduction removes a state.";
     CONFLICTING_TOPOLOGY = "K0311", "A voltage-source loop, current-source cutset or floating node.";
+    FORCED_JUNCTION = "K0312", "A diode without series resistance whose voltage voltage sources fix.";
     PREFER_STATE_UNKNOWN = "K0320", "--prefer-state names no element.";
     PREFER_STATE_NOT_STORAGE = "K0321", "--prefer-state names an element without a state.";
     PERFECT_COUPLING = "K0330", "Coupled inductors with a singular inductance matrix: fluxes are the states.";

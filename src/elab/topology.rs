@@ -66,9 +66,21 @@ pub enum Fault {
         nodes: Vec<NodeId>,
         via: Vec<ElemId>,
     },
+    /// A diode without series resistance across voltage sources (`sources`,
+    /// the path that joins its terminals): they fix its voltage, so its
+    /// current is its exponential of whatever they apply. A warning: beyond
+    /// 50 N·Vt forward kausal continues the exponential linearly (ngspice
+    /// evaluates it: 10^100 A at 13 V), so the two disagree there.
+    ForcedJunction { diode: ElemId, sources: Vec<ElemId> },
 }
 
 impl Fault {
+    /// Only a warning: index reduction removes it, or it is a forced
+    /// junction.
+    pub fn is_warning(&self) -> bool {
+        self.is_fixable() || matches!(self, Fault::ForcedJunction { .. })
+    }
+
     /// Index reduction can remove it (it only couples states).
     pub fn is_fixable(&self) -> bool {
         matches!(
@@ -244,6 +256,30 @@ pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
     // Loops: voltage sources first, then capacitors.
     let mut f = Forest::new(n);
     for pass in [Defines::Voltage, Defines::Capacitor] {
+        if pass == Defines::Capacitor {
+            // The forest holds the voltage sources alone: a diode without
+            // series resistance whose terminals it joins is forced.
+            let joined = components(
+                n,
+                c.elements
+                    .values()
+                    .filter(|e| defines(&e.kind) == Defines::Voltage)
+                    .map(two),
+            );
+            for (id, e) in c.elements.iter() {
+                if let ElementKind::Diode { model, .. } = &e.kind
+                    && model.rs == 0.0
+                    && e.nodes.len() >= 2
+                {
+                    let (a, b) = two(e);
+                    if joined[a] == joined[b] {
+                        let mut sources = f.path(a, b);
+                        sources.sort();
+                        out.push(Fault::ForcedJunction { diode: id, sources });
+                    }
+                }
+            }
+        }
         for (id, e) in c.elements.iter() {
             if defines(&e.kind) != pass {
                 continue;
@@ -404,6 +440,7 @@ impl TopologyError {
             | Fault::VoltageLoop { elements } => (elements, &[]),
             Fault::CurrentCutset { elements, nodes } => (elements, nodes),
             Fault::Floating { nodes, via } => (via, nodes),
+            Fault::ForcedJunction { sources, .. } => (sources, &[]),
         };
         let part = |&e: &ElemId| {
             let x = &c.elements[e];
@@ -416,7 +453,10 @@ impl TopologyError {
         };
         let node = |&n: &NodeId| (n, (c.nodes[n].name.clone(), c.nodes[n].span));
         let mut parts: rustc_hash::FxHashMap<ElemId, Part> = elements.iter().map(part).collect();
-        if let Fault::CapacitorLoop { fixed, .. } | Fault::InductorCutset { fixed, .. } = f {
+        if let Fault::CapacitorLoop { fixed, .. }
+        | Fault::InductorCutset { fixed, .. }
+        | Fault::ForcedJunction { diode: fixed, .. } = f
+        {
             parts.extend([part(fixed)]);
         }
         TopologyError {
@@ -541,6 +581,12 @@ impl TopologyError {
                 };
                 format!("{what}: {how}, so the circuit is under-determined")
             }
+            Fault::ForcedJunction { diode, sources } => format!(
+                "{} has no series resistance and {} fix{} its voltage: its current is the exponential of that voltage, which kausal continues linearly beyond 50 N·Vt forward where ngspice evaluates it (10^100 A at 13 V)",
+                self.name(diode),
+                list(&self.names(sources)),
+                if sources.len() == 1 { "es" } else { "" }
+            ),
         }
     }
 
@@ -578,6 +624,12 @@ impl TopologyError {
                 );
                 labels
             }
+            Fault::ForcedJunction { diode, sources } => {
+                let mut labels =
+                    self.labels_of(std::slice::from_ref(diode), "its voltage is forced");
+                labels.extend(self.labels_of(sources, "fixes it"));
+                labels
+            }
         }
     }
 
@@ -596,6 +648,9 @@ impl TopologyError {
             Fault::Floating { .. } => {
                 "give every node a path to ground, e.g. a resistor (ngspice needs a DC path too)"
             }
+            Fault::ForcedJunction { .. } => {
+                "give the diode's model a series resistance (RS), or put a resistor in series"
+            }
         }
     }
 }
@@ -610,13 +665,13 @@ impl std::error::Error for TopologyError {}
 
 impl ToDiagnostic for TopologyError {
     fn to_diagnostic(&self) -> Diagnostic {
-        let code = if self.is_fixable() {
-            codes::COUPLED_STATES
-        } else {
-            codes::CONFLICTING_TOPOLOGY
+        let code = match self.fault {
+            Fault::ForcedJunction { .. } => codes::FORCED_JUNCTION,
+            _ if self.is_fixable() => codes::COUPLED_STATES,
+            _ => codes::CONFLICTING_TOPOLOGY,
         };
         let mut d = Diagnostic::error(code, self.message()).with_help(self.help());
-        if self.is_fixable() {
+        if self.fault.is_warning() {
             d.severity = Severity::Warning;
         }
         for (span, label) in self.labels() {

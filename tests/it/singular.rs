@@ -269,3 +269,44 @@ fn check_reports_structural_errors() {
         "{err}"
     );
 }
+
+/// A diode without series resistance across voltage sources (fuzz finding
+/// 07): the sources fix its voltage, kausal continues the exponential
+/// linearly beyond 50 N·Vt where ngspice evaluates it, and K0312 says so,
+/// naming the diode and the sources; with RS, or a resistor in series, the
+/// junction is not forced and nothing is said.
+#[test]
+fn a_diode_forced_by_voltage_sources_is_named() {
+    let sort_text = |text: &str| {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("forced.cir");
+        std::fs::write(&path, text).unwrap();
+        pipeline::sort(&path, &FsLoader, &SortOptions::default())
+            .unwrap_or_else(|f| panic!("{:?}", f.errors().map(|d| &d.message).collect::<Vec<_>>()))
+    };
+    let forced = "forced\nV1 a 0 PWL(0 0 1m 14)\nV2 a b 1\nD1 b 0 dm\nR1 a 0 1k\n.model dm d(is=1e-9 n=2)\n.tran 10u 1m\n.end\n";
+    let s = sort_text(forced);
+    let msgs: Vec<String> = s.faults.iter().map(|f| f.message()).collect();
+    let m = msgs
+        .iter()
+        .find(|m| m.contains("D1 has no series resistance"))
+        .unwrap_or_else(|| panic!("{msgs:?}"));
+    assert!(m.contains("V1 and V2 fix its voltage"), "{m}");
+    assert!(
+        s.faults
+            .iter()
+            .any(|f| f.to_diagnostic().code == kausal::diag::codes::FORCED_JUNCTION)
+    );
+    for free in [
+        forced.replace("d(is=1e-9 n=2)", "d(is=1e-9 n=2 rs=1)"),
+        forced.replace("D1 b 0 dm", "D1 b c dm\nRS c 0 1"),
+    ] {
+        let s = sort_text(&free);
+        assert!(
+            s.faults
+                .iter()
+                .all(|f| !f.message().contains("series resistance")),
+            "{free}"
+        );
+    }
+}
