@@ -338,12 +338,24 @@ pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
         |id, k| k != root && comp_all[id.0 as usize] == ground,
         |e| matches!(defines(&e.kind), Defines::Current | Defines::Inductor),
     );
-    for (part_nodes, cut) in parts {
-        let inductors: Vec<ElemId> = cut
-            .iter()
+    // Each cutset fixes a different inductor: those with fewest inductors
+    // choose first (a cutset of L2 alone fixes L2, and a wider one through
+    // L1, L2 and L3 is left L1 or L3, not L2 a second time).
+    let inductors_of = |cut: &[ElemId]| -> Vec<ElemId> {
+        cut.iter()
             .copied()
             .filter(|&e| defines(&c.elements[e].kind) == Defines::Inductor)
-            .collect();
+            .collect()
+    };
+    let mut parts: Vec<(Vec<NodeId>, Vec<ElemId>, Vec<ElemId>)> = parts
+        .into_iter()
+        .map(|(nodes, cut)| {
+            let inductors = inductors_of(&cut);
+            (nodes, cut, inductors)
+        })
+        .collect();
+    parts.sort_by_key(|(_, _, inductors)| inductors.len());
+    for (part_nodes, cut, inductors) in parts {
         match pick_fixed(&inductors, keep, &tied, &mut taken) {
             Some(fixed) => out.push(Fault::InductorCutset {
                 elements: cut,
