@@ -21,17 +21,6 @@ fn write_expr(sys: &EquationSystem, x: &ExprArena, e: ExprId, out: &mut String) 
     print::write_expr_in(sys, x, e, out);
 }
 
-fn assignment_text(sys: &EquationSystem, s: &Schedule, a: &Assignment) -> String {
-    let name = &sys.vars[a.var].name;
-    match a.solved {
-        Solved::Explicit(e) => format!("{name} := {}", expr(sys, &s.exprs, e)),
-        Solved::Implicit(e) => format!(
-            "0 = {}  (solved numerically for {name})",
-            expr(sys, &s.exprs, e)
-        ),
-    }
-}
-
 /// Summary figures of a schedule.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Summary {
@@ -90,21 +79,57 @@ pub fn shortened<S: AsRef<str>>(names: &[S], shown: usize) -> String {
 
 /// The numbered sorted assignments with blocks marked, then a summary.
 pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
-    let mut rows: Vec<(String, String, String)> = Vec::new();
+    // Rows are written once into one buffer (a listing of 10^6 equations
+    // would otherwise allocate several strings a row), then padded to the
+    // widest assignment row when copied out.
+    enum Row {
+        Assign {
+            end: usize,
+            chars: usize,
+            eq: crate::ir::EqId,
+        },
+        Plain {
+            end: usize,
+        },
+    }
+    let n_rows = s.assignments().count() + 2 * s.blocks().count();
+    let mut buf = String::with_capacity(n_rows * 40);
+    let mut rows: Vec<Row> = Vec::with_capacity(n_rows);
     let mut k = 0;
     let mut line =
-        |rows: &mut Vec<(String, String, String)>, a: &Assignment, indent: &str, note: &str| {
+        |buf: &mut String, rows: &mut Vec<Row>, a: &Assignment, indent: &str, note: &str| {
             k += 1;
-            let origin = &sys.eqs[a.eq].origin;
-            rows.push((
-                format!("{k:>5}  {indent}{}{note}", assignment_text(sys, s, a)),
-                a.eq.to_string(),
-                origin.describe(),
-            ));
+            let start = buf.len();
+            let name = &sys.vars[a.var].name;
+            let _ = write!(buf, "{k:>5}  {indent}");
+            match a.solved {
+                Solved::Explicit(e) => {
+                    let _ = write!(buf, "{name} := ");
+                    write_expr(sys, &s.exprs, e, buf);
+                }
+                Solved::Implicit(e) => {
+                    buf.push_str("0 = ");
+                    write_expr(sys, &s.exprs, e, buf);
+                    let _ = write!(buf, "  (solved numerically for {name})");
+                }
+            }
+            buf.push_str(note);
+            let text = &buf[start..];
+            // Most listings are ASCII: count characters only when they are not.
+            let chars = if text.is_ascii() {
+                text.len()
+            } else {
+                text.chars().count()
+            };
+            rows.push(Row::Assign {
+                end: buf.len(),
+                chars,
+                eq: a.eq,
+            });
         };
     for step in &s.steps {
         match step {
-            Step::Assign(a) => line(&mut rows, a, "", ""),
+            Step::Assign(a) => line(&mut buf, &mut rows, a, "", ""),
             Step::Block(b) => {
                 let tears: Vec<&str> = b.tears.iter().map(|&v| sys.vars[v].name.as_str()).collect();
                 let whole = if b.solved_whole() {
@@ -112,46 +137,55 @@ pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
                 } else {
                     String::new()
                 };
-                rows.push((
-                    format!(
-                        "       block {}: {}; tearing: {}{whole}",
-                        b.index,
-                        block_header(b),
-                        shortened(&tears, ELEMENTS_SHOWN)
-                    ),
-                    String::new(),
-                    String::new(),
-                ));
+                let _ = write!(
+                    buf,
+                    "       block {}: {}; tearing: {}{whole}",
+                    b.index,
+                    block_header(b),
+                    shortened(&tears, ELEMENTS_SHOWN)
+                );
+                rows.push(Row::Plain { end: buf.len() });
                 for a in &b.inner {
-                    line(&mut rows, a, "  ", "");
+                    line(&mut buf, &mut rows, a, "  ", "");
                 }
                 for a in &b.residuals {
-                    line(&mut rows, a, "  ", "  (residual)");
+                    line(&mut buf, &mut rows, a, "  ", "  (residual)");
                 }
-                rows.push((
-                    format!("       end of block {}", b.index),
-                    String::new(),
-                    String::new(),
-                ));
+                let _ = write!(buf, "       end of block {}", b.index);
+                rows.push(Row::Plain { end: buf.len() });
             }
         }
     }
     let width = rows
         .iter()
-        .filter(|r| !r.1.is_empty())
-        .map(|r| r.0.chars().count())
+        .filter_map(|r| match r {
+            Row::Assign { chars, .. } => Some(*chars),
+            Row::Plain { .. } => None,
+        })
         .max()
         .unwrap_or(0)
         .min(72);
-    let mut out = String::new();
+    let mut out = String::with_capacity(buf.len() + rows.len() * 40);
     let _ = writeln!(out, "* {}", sys.title);
     let _ = writeln!(out, "sorted assignments:");
-    for (text, id, origin) in rows {
-        if id.is_empty() {
-            let _ = writeln!(out, "{text}");
-        } else {
-            let pad = width.saturating_sub(text.chars().count());
-            let _ = writeln!(out, "{text}{}    ; {id} {origin}", " ".repeat(pad));
+    let mut start = 0;
+    for row in &rows {
+        match *row {
+            Row::Plain { end } => {
+                out.push_str(&buf[start..end]);
+                out.push('\n');
+                start = end;
+            }
+            Row::Assign { end, chars, eq } => {
+                out.push_str(&buf[start..end]);
+                for _ in chars..width {
+                    out.push(' ');
+                }
+                let _ = write!(out, "    ; {eq} ");
+                let _ = sys.eqs[eq].origin.write_description(&mut out);
+                out.push('\n');
+                start = end;
+            }
         }
     }
     let sm = summary(sys, s);

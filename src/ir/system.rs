@@ -109,13 +109,20 @@ pub enum OriginKind {
 impl Origin {
     /// The circuit entity this names, for messages: an element or node name.
     pub fn describe(&self) -> String {
+        let mut out = String::new();
+        let _ = self.write_description(&mut out);
+        out
+    }
+
+    /// [`Origin::describe`] into a buffer (listings of 10^6 equations).
+    pub fn write_description(&self, out: &mut impl std::fmt::Write) -> std::fmt::Result {
         match &self.kind {
-            OriginKind::Element { name } => name.to_string(),
-            OriginKind::Branch { name } => format!("branch of {name}"),
-            OriginKind::Kcl { node } => format!("KCL at node {node}"),
-            OriginKind::Kvl { link, .. } => format!("KVL on the loop of {link}"),
-            OriginKind::Derivative { of } => format!("d/dt of {of}"),
-            OriginKind::Node { name } => format!("node {name}"),
+            OriginKind::Element { name } => out.write_str(name),
+            OriginKind::Branch { name } => write!(out, "branch of {name}"),
+            OriginKind::Kcl { node } => write!(out, "KCL at node {node}"),
+            OriginKind::Kvl { link, .. } => write!(out, "KVL on the loop of {link}"),
+            OriginKind::Derivative { of } => write!(out, "d/dt of {of}"),
+            OriginKind::Node { name } => write!(out, "node {name}"),
         }
     }
 
