@@ -224,8 +224,10 @@ pub enum SimError {
     #[error("no DC operating point: {reason}")]
     DcFailed { reason: DcFailure },
     #[error(
-        "no DC operating point: the DC Jacobian is singular: a node or loop has no DC path (a capacitor-only node, an inductor loop); use `.tran ... uic`"
+        "no DC operating point: the DC Jacobian is singular where Newton stopped, though every node has a DC path to ground: a conductance vanishes there (junctions or transistors cut off, a switch open) or controlled sources cancel each other"
     )]
+    /// Only where no node lacks a DC path: those are named by
+    /// [`DcFailure::NoDcPath`] instead.
     DcSingular,
     #[error("cannot write the waveforms: {}{source}", path_prefix(path.as_deref()))]
     Write {
@@ -357,9 +359,13 @@ impl crate::diag::ToDiagnostic for SimError {
             SimError::Solver { .. } | SimError::TooManyStates { .. } => {
                 (codes::SOLVER_FAILED, "try another --method")
             }
-            SimError::DcFailed { .. } | SimError::DcSingular => (
+            SimError::DcFailed { .. } => (
                 codes::DC_FAILED,
                 "give initial conditions and use `.tran ... uic`",
+            ),
+            SimError::DcSingular => (
+                codes::DC_FAILED,
+                "give a `.nodeset` near the operating point, or initial conditions with `.tran ... uic`",
             ),
             SimError::Write { .. } => (codes::WRITE_FAILED, "check the output path and free space"),
             SimError::BadTolerance { .. } => (codes::BAD_TOLERANCE, "e.g. rtol 1e-6, atol 1e-9"),
