@@ -346,6 +346,9 @@ pub struct SimOptions {
     /// Circuit and nominal temperatures, °C (ngspice's defaults: 27).
     pub temp: Option<f64>,
     pub tnom: Option<f64>,
+    /// ngspice's SCALE: MOSFETs' L, W, PD and PS given on their lines are
+    /// multiplied by it, AD and AS by its square (defaults are not).
+    pub scale: Option<f64>,
 }
 
 impl SimOptions {

@@ -370,7 +370,7 @@ impl Elab {
                 num.is_some_and(|x| x > 0.0 && x < 1.0),
             )),
             "maxord" => Some(("1 to 6", num.is_some_and(|x| (1.0..=6.0).contains(&x)))),
-            "abstol" | "vntol" | "chgtol" | "trtol" => {
+            "abstol" | "vntol" | "chgtol" | "trtol" | "scale" => {
                 Some(("above 0", num.is_some_and(|x| x > 0.0 && x.is_finite())))
             }
             "temp" | "tnom" => Some((
@@ -402,6 +402,7 @@ impl Elab {
             "maxord" => Some(&mut opt.maxord),
             "temp" => Some(&mut opt.temp),
             "tnom" => Some(&mut opt.tnom),
+            "scale" => Some(&mut opt.scale),
             _ => None,
         };
         if matches!(key.as_str(), "temp" | "tnom") {

@@ -368,8 +368,16 @@ impl Elab {
             m: inherited,
         };
         let mut ok = true;
+        // `.options scale`: lengths on the line scale by it, areas by its
+        // square (as ngspice's instance parameters; L and W's defaults not).
+        let scale = self.circuit.options.scale.unwrap_or(1.0);
         for p in params {
             let key = p.name.key();
+            let factor = match key.as_str() {
+                "l" | "w" | "pd" | "ps" => scale,
+                "ad" | "as" => scale * scale,
+                _ => 1.0,
+            };
             let slot = match key.as_str() {
                 "l" => &mut g.l,
                 "w" => &mut g.w,
@@ -389,7 +397,7 @@ impl Elab {
                 }
             };
             match self.value(&p.value, scope) {
-                Some(v) => *slot = v,
+                Some(v) => *slot = v * factor,
                 None => ok = false,
             }
         }
