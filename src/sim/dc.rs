@@ -124,15 +124,31 @@ where
     // `.nodeset`: the operating point with those nodes held is the first
     // guess of the free one (ngspice holds them for its first iterations);
     // where it cannot be had, the guess is zero as without.
+    let mut held_start = false;
     if !c.nodesets.is_empty()
         && let Ok(held) =
             ic::held_operating_point(sorted, &tape.states, outputs, opts, &c.nodesets, ".nodeset")
     {
         y = held.y;
         warnings.extend(held.warnings);
+        held_start = true;
     }
     let ptc = Continuation::of(c);
-    let r = tape.in_mode(Mode::Dc, || dc_point::<M>(ode, t0, y, atol, ptc));
+    // Without `.nodeset`, Newton starts where ngspice's does: every diode at
+    // its critical voltage. Where the circuit has several operating points
+    // (a negative resistance that a diode clamps), that is the one ngspice
+    // finds; where none is found from there, the solve starts again from 0 V.
+    let r = match diodes_on(c, tape).filter(|_| !held_start) {
+        Some(start) => tape
+            .in_mode(Mode::Dc, || dc_point::<M>(ode, t0, start, atol, ptc))
+            .or_else(|_| {
+                // The blocks start from their first guesses again, not
+                // where the failed solve left them.
+                ode.reset_tears();
+                tape.in_mode(Mode::Dc, || dc_point::<M>(ode, t0, y, atol, ptc))
+            }),
+        None => tape.in_mode(Mode::Dc, || dc_point::<M>(ode, t0, y, atol, ptc)),
+    };
     // Where no operating point is found from zero, the transistors are
     // started conducting, as ngspice starts them (each base-emitter
     // junction at its critical voltage, the others at 0 V), and the solve
@@ -151,6 +167,33 @@ where
         warnings,
         row: None,
     })
+}
+
+/// The states with every diode's junction at its critical voltage
+/// `vte ln(vte / (√2 IS))` (ngspice's first iterate, MODEINITJCT) and every
+/// other state at 0: each diode's charge from its law. `None` without a
+/// diode whose charge is a state.
+fn diodes_on(c: &Circuit, tape: &crate::tape::Tape) -> Option<Vec<f64>> {
+    let mut y = vec![0.0; tape.states.len()];
+    let mut any = false;
+    for (k, ci) in tape.charge_states().into_iter().enumerate() {
+        // Transistors' junctions come first in the device-function table;
+        // the diodes' follow.
+        let Some(ci) = ci.filter(|ci| ci.diode as usize >= c.junctions.len()) else {
+            continue;
+        };
+        let p = &tape.diodes[ci.diode as usize];
+        if !(p.is > 0.0 && p.vte > 0.0) {
+            continue;
+        }
+        let vcrit = p.vte * (p.vte / (std::f64::consts::SQRT_2 * p.is)).ln();
+        let q = p.charge(vcrit)[0];
+        if q.is_finite() {
+            y[k] = q;
+            any = true;
+        }
+    }
+    any.then_some(y)
 }
 
 /// The states with every BJT's base-emitter junction at its critical voltage
