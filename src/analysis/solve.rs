@@ -218,6 +218,20 @@ pub fn solve_for(x: &mut ExprArena, lhs: ExprId, rhs: ExprId, v: VarId) -> Solve
             return Solved::Implicit(f);
         }
     };
+    // One operation away from `v` (Ohm's law, a KCL of two terms): solved
+    // without the general linear walk, which builds maps per equation.
+    let direct = |x: &mut ExprArena, a: ExprId, w: ExprId| {
+        x.get(w) == Expr::Var(v) && x.occurrences(a, v) == 0
+    };
+    match x.get(side) {
+        Expr::Mul(a, w) | Expr::Mul(w, a) if direct(x, a, w) && x.as_const(a) != Some(0.0) => {
+            return Solved::Explicit(x.div(other, a));
+        }
+        Expr::Add(a, w) | Expr::Add(w, a) if direct(x, a, w) => {
+            return Solved::Explicit(x.sub(other, a));
+        }
+        _ => {}
+    }
     if let Some((a, b)) = linear_coeffs(x, side, v)
         && x.as_const(a) != Some(0.0)
     {
