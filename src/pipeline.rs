@@ -234,7 +234,11 @@ pub fn sort_built(
             }
         }
     }
-    let faults = topology::faults(c, &keep);
+    // The build's, when no state is kept by choice (the same computation).
+    let faults = match &built.faults {
+        Some(f) if keep.is_empty() => f.clone(),
+        _ => topology::faults(c, &keep),
+    };
     let errors: Vec<TopologyError> = faults.iter().map(|f| TopologyError::new(c, f)).collect();
     let (fixable, fatal): (Vec<TopologyError>, Vec<TopologyError>) =
         errors.into_iter().partition(|e| e.fault.is_warning());

@@ -62,6 +62,9 @@ pub struct Built {
     /// The state of each pivot of `reduced`: `fluxes[g][k]` is the
     /// magnetizing current `im` of pivot `k` of group `g`.
     pub fluxes: Vec<Vec<VarId>>,
+    /// The circuit's loops and cutsets with no state kept by choice, where
+    /// the branch equations needed them (`Kvl::Nodes`): the sort reuses them.
+    pub faults: Option<Vec<crate::elab::topology::Fault>>,
 }
 
 /// Build the equations of `circuit`.
@@ -96,16 +99,20 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
     };
     b.element_equations(&elem_vars, &node_pot);
     b.kcl(&elem_vars);
-    match opts.kvl {
-        Kvl::Nodes => b.branch_equations(&elem_vars, &node_pot),
-        Kvl::Loops => tree::loop_equations(&mut b.sys, circuit, &elem_vars, &node_pot),
-    }
+    let faults = match opts.kvl {
+        Kvl::Nodes => Some(b.branch_equations(&elem_vars, &node_pot)),
+        Kvl::Loops => {
+            tree::loop_equations(&mut b.sys, circuit, &elem_vars, &node_pot);
+            None
+        }
+    };
     let mut built = Built {
         system: b.sys,
         elem_vars,
         node_pot,
         reduced: b.reduced,
         fluxes: b.fluxes,
+        faults,
     };
     if opts.alias {
         alias::eliminate(&mut built, circuit);
@@ -694,13 +701,18 @@ impl Builder<'_> {
     /// constraint: the two potentials would match the two branch equations,
     /// index reduction would never start, and the loop's block would be
     /// singular at run time (two parallel capacitors between internal nodes).
-    fn branch_equations(&mut self, vars: &[Option<ElemVars>], pots: &[ExprId]) {
+    fn branch_equations(
+        &mut self,
+        vars: &[Option<ElemVars>],
+        pots: &[ExprId],
+    ) -> Vec<crate::elab::topology::Fault> {
         let mut loops: HashMap<ElemId, Vec<(ElemId, f64)>> = HashMap::new();
-        for f in crate::elab::topology::faults(self.c, &[]) {
+        let faults = crate::elab::topology::faults(self.c, &[]);
+        for f in &faults {
             if let crate::elab::topology::Fault::CapacitorLoop { elements, fixed } = f
-                && let Some(path) = loop_path(self.c, &elements, fixed)
+                && let Some(path) = loop_path(self.c, elements, *fixed)
             {
-                loops.insert(fixed, path);
+                loops.insert(*fixed, path);
             }
         }
         for (id, e) in self.c.elements.iter() {
@@ -749,6 +761,7 @@ impl Builder<'_> {
                 },
             );
         }
+        faults
     }
 }
 
