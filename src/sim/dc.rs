@@ -746,9 +746,9 @@ const ROUGH: f64 = 1e-4;
 /// before the DC solve moves on: a circuit whose blocks cost much per
 /// evaluation (a bipolar IC's) ends its DC solve in tens of seconds at most.
 const PTC_STEPS: usize = 600;
-const PTC_EVALS: usize = 2000;
+const PTC_EVALS: usize = 10_000;
 /// The continuation's work, in evaluations of `f` at its start.
-const PTC_WORK: u64 = 30_000;
+const PTC_WORK: u64 = 100_000;
 
 /// `f` into its argument, returning its max-norm.
 pub(super) type Residual<'a> = dyn Fn(&[f64], &mut Vec<f64>) -> Result<f64, SimError> + 'a;
