@@ -518,7 +518,7 @@ where
         let per_eval = (tape.work() - before).max(1);
         tape.limit_work(
             tape.work()
-                .saturating_add(PTC_WORK.saturating_mul(per_eval)),
+                .saturating_add(PTC_WORK.saturating_mul(per_eval).min(PTC_MAX_WORK)),
         );
         let found = pseudo_transient(
             y0.clone(),
@@ -747,8 +747,11 @@ const ROUGH: f64 = 1e-4;
 /// evaluation (a bipolar IC's) ends its DC solve in tens of seconds at most.
 const PTC_STEPS: usize = 600;
 const PTC_EVALS: usize = 10_000;
-/// The continuation's work, in evaluations of `f` at its start.
+/// The continuation's work, in evaluations of `f` at its start, and at most
+/// this many tape instructions in all (about a second): a large circuit's
+/// failing continuation must not hold up GMIN and source stepping.
 const PTC_WORK: u64 = 100_000;
+const PTC_MAX_WORK: u64 = 1_000_000_000;
 
 /// `f` into its argument, returning its max-norm.
 pub(super) type Residual<'a> = dyn Fn(&[f64], &mut Vec<f64>) -> Result<f64, SimError> + 'a;
