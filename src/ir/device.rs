@@ -191,9 +191,19 @@ impl DiodeParams {
     /// critical voltage, or a step deeper into breakdown, advances by the
     /// logarithm of what the exponential would have grown by.
     pub fn limit(&self, new: f64, old: f64) -> f64 {
-        let vte = self.vte;
-        let vcrit = vte * (vte / (std::f64::consts::SQRT_2 * self.is)).ln();
-        junction_limit(new, old, vte, vcrit, self.bv.unwrap_or(f64::INFINITY))
+        junction_limit(
+            new,
+            old,
+            self.vte,
+            self.vcrit(),
+            self.bv.unwrap_or(f64::INFINITY),
+        )
+    }
+
+    /// ngspice's critical voltage `vte ln(vte / (√2 IS))`: where limiting
+    /// starts, and where its first Newton iterate puts a junction.
+    pub fn vcrit(&self) -> f64 {
+        self.vte * (self.vte / (std::f64::consts::SQRT_2 * self.is)).ln()
     }
 
     /// The junction voltage whose charge is `q` (the charge grows with the

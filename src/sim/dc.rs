@@ -138,7 +138,8 @@ where
     // its critical voltage. Where the circuit has several operating points
     // (a negative resistance that a diode clamps), that is the one ngspice
     // finds; where none is found from there, the solve starts again from 0 V.
-    let r = match diodes_on(c, tape).filter(|_| !held_start) {
+    let diode_start = if held_start { None } else { diodes_on(c, tape) };
+    let r = match diode_start {
         Some(start) => tape
             .in_mode(Mode::Dc, || dc_point::<M>(ode, t0, start, atol, ptc))
             .or_else(|_| {
@@ -186,8 +187,7 @@ fn diodes_on(c: &Circuit, tape: &crate::tape::Tape) -> Option<Vec<f64>> {
         if !(p.is > 0.0 && p.vte > 0.0) {
             continue;
         }
-        let vcrit = p.vte * (p.vte / (std::f64::consts::SQRT_2 * p.is)).ln();
-        let q = p.charge(vcrit)[0];
+        let q = p.charge(p.vcrit())[0];
         if q.is_finite() {
             y[k] = q;
             any = true;
@@ -222,7 +222,7 @@ fn transistors_on(sorted: &Sorted, states: &[VarId]) -> Option<Vec<f64>> {
         let Some(ev) = sorted.built.elem_vars.get(id.0 as usize).copied().flatten() else {
             continue;
         };
-        vals[ev.u.0 as usize] = p.vte * (p.vte / (std::f64::consts::SQRT_2 * p.is)).ln();
+        vals[ev.u.0 as usize] = p.vcrit();
         any = true;
     }
     if !any {
