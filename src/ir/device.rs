@@ -293,9 +293,101 @@ pub fn pnjlim(new: f64, old: f64, vt: f64, vcrit: f64) -> f64 {
     }
 }
 
+/// A MOSFET's gate voltage step limited as ngspice limits it (DEVfetlim):
+/// around the threshold `von` the step is bounded by regions (off: at most
+/// to half a volt above threshold; within 3.5 V above it: at most to 4 V
+/// above and half a volt below; far on: by twice the overdrive plus 2 V), so
+/// that a channel far from its operating region turns on or off over a few
+/// iterations instead of one step out of its square law's reach.
+pub fn fet_limit(new: f64, old: f64, von: f64) -> f64 {
+    let hi = (2.0 * (old - von)).abs() + 2.0;
+    let lo = (old - von).abs() + 1.0;
+    let on_far = von + 3.5;
+    let delta = new - old;
+    if old >= von {
+        if old >= on_far {
+            if delta <= 0.0 {
+                if new >= on_far {
+                    if -delta > lo { old - lo } else { new }
+                } else {
+                    new.max(von + 2.0)
+                }
+            } else if delta >= hi {
+                old + hi
+            } else {
+                new
+            }
+        } else if delta <= 0.0 {
+            new.max(von - 0.5)
+        } else {
+            new.min(von + 4.0)
+        }
+    } else if delta <= 0.0 {
+        if -delta > hi { old - hi } else { new }
+    } else if new <= von + 0.5 {
+        if delta > lo { old + lo } else { new }
+    } else {
+        von + 0.5
+    }
+}
+
+/// A MOSFET's drain–source step limited as ngspice limits it (DEVlimvds):
+/// from above 3.5 V up to three times the old value plus 2 V and down to
+/// 2 V at most; from below, up to 4 V and down to −0.5 V at most.
+pub fn vds_limit(new: f64, old: f64) -> f64 {
+    if old >= 3.5 {
+        if new > old {
+            new.min(3.0 * old + 2.0)
+        } else if new < 3.5 {
+            new.max(2.0)
+        } else {
+            new
+        }
+    } else if new > old {
+        new.min(4.0)
+    } else {
+        new.max(-0.5)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fet_limit_bounds_each_region_as_ngspice() {
+        let von = 1.0;
+        // Off: up to half a volt above threshold, down by at most
+        // 2|old − von| + 2.
+        assert_eq!(fet_limit(5.0, 0.0, von), 1.5);
+        assert_eq!(fet_limit(1.2, 0.0, von), 1.2);
+        assert_eq!(fet_limit(-20.0, 0.0, von), -4.0);
+        // A rise that stays within half a volt above threshold is taken.
+        assert_eq!(fet_limit(1.4, -5.0, von), 1.4);
+        assert_eq!(fet_limit(1.4, -0.5, von), 1.4);
+        // Within 3.5 V above threshold: up to 4 V above, down to 0.5 V below.
+        assert_eq!(fet_limit(10.0, 2.0, von), 5.0);
+        assert_eq!(fet_limit(-3.0, 2.0, von), 0.5);
+        assert_eq!(fet_limit(3.0, 2.0, von), 3.0);
+        // Far on: rises by at most 2|old − von| + 2; a fall out of the far
+        // region stops 2 V above threshold.
+        assert_eq!(fet_limit(30.0, 6.0, von), 18.0);
+        assert_eq!(fet_limit(0.0, 6.0, von), 3.0);
+        assert_eq!(fet_limit(5.0, 9.0, von), 5.0);
+        assert_eq!(fet_limit(4.5, 12.0, von), 4.5);
+        assert_eq!(fet_limit(4.6, 16.0, von), 4.6);
+        assert_eq!(fet_limit(4.4, 6.0, von), 4.4);
+    }
+
+    #[test]
+    fn vds_limit_bounds_each_region_as_ngspice() {
+        assert_eq!(vds_limit(10.0, 1.0), 4.0);
+        assert_eq!(vds_limit(-3.0, 1.0), -0.5);
+        assert_eq!(vds_limit(50.0, 5.0), 17.0);
+        assert_eq!(vds_limit(0.0, 5.0), 2.0);
+        assert_eq!(vds_limit(4.0, 5.0), 4.0);
+        assert_eq!(vds_limit(2.5, 1.0), 2.5);
+    }
 
     fn d() -> DiodeParams {
         DiodeParams {

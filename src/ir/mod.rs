@@ -14,7 +14,8 @@ mod system;
 mod verify;
 
 pub use device::{
-    DeviceFn, DiodeParams, DiodePart, VT_27C, junction_limit, pnjlim, thermal_voltage,
+    DeviceFn, DiodeParams, DiodePart, VT_27C, fet_limit, junction_limit, pnjlim, thermal_voltage,
+    vds_limit,
 };
 pub use entity::{EntityId, IdVec};
 pub use expr::{Cmp, Expr, ExprArena, ExprId, Func, Slope, bits, select};

@@ -252,10 +252,11 @@ pub(super) fn held_operating_point(
     let tape = Rc::new(tape::compile(sys, &dc.causal.graph, &dc.schedule, &refs));
     let atol = atols(sys, &dc_states, opts, &dc.elaborated.circuit);
     let ptc = Continuation::of(&dc.elaborated.circuit);
+    let fets = super::dc::fets(&dc, &tape);
     let (y, values) = if dc_states.len() > DENSE_STATES {
-        solve::<FaerSparseMat<f64>>(tape, &atol, true, ptc)
+        solve::<FaerSparseMat<f64>>(tape, &atol, true, ptc, &fets)
     } else {
-        solve::<NalgebraMat<f64>>(tape, &atol, false, ptc)
+        solve::<NalgebraMat<f64>>(tape, &atol, false, ptc, &fets)
     }
     .map_err(Unheld::Sim)?;
     let y = from
@@ -279,6 +280,7 @@ fn solve<M: Matrix<T = f64>>(
     atol: &[f64],
     sparse: bool,
     ptc: Continuation,
+    fets: &[super::dc::Fet],
 ) -> Result<(Vec<f64>, Vec<f64>), SimError>
 where
     M::V: HostVec,
@@ -286,7 +288,7 @@ where
     let n = tape.states.len();
     let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; n], sparse);
     tape.in_mode(tape::Mode::Dc, || {
-        let y = dc_point::<M>(&ode, 0.0, vec![0.0; n], atol, ptc)?;
+        let y = dc_point::<M>(&ode, 0.0, vec![0.0; n], atol, ptc, fets)?;
         let mut out = vec![0.0; tape.out_regs.len()];
         ode.outputs(0.0, &y, &mut out)
             .map_err(|error| SimError::Eval { error })?;

@@ -142,6 +142,11 @@ where
         self.tape.junction_voltages(&self.regs.borrow(), out)
     }
 
+    /// Register `r` as the last [`CircuitOde::eval`] left it.
+    pub fn reg_value(&self, r: crate::tape::Reg) -> f64 {
+        self.regs.borrow()[r]
+    }
+
     /// The outputs at `(t, y)`.
     pub fn outputs(&self, t: f64, y: &[f64], out: &mut [f64]) -> Result<(), EvalError> {
         self.tangents.borrow_mut().valid = false;

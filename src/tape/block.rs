@@ -693,6 +693,7 @@ mod tests {
             diodes: Vec::new(),
             coverage: Coverage::default(),
             reg_var: Vec::new(),
+            var_regs: Vec::new(),
             mode: std::cell::Cell::new(Mode::Transient),
             source_scale: std::cell::Cell::new(1.0),
             gmin_step: std::cell::Cell::new(0.0),

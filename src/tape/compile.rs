@@ -594,6 +594,7 @@ pub fn compile(
         }
     }
     let deriv_regs: Vec<Reg> = ders.iter().map(|d| c.var_reg[d.0 as usize]).collect();
+    let var_regs = c.var_reg.clone();
     // The output program gets its own registers for everything computed.
     c.memo
         .retain(|&e, _| matches!(sched.exprs.get(e), Expr::Const(_)));
@@ -676,6 +677,7 @@ pub fn compile(
             unused: sys.eqs.len() - n_in_f - n_at_outputs,
         },
         reg_var: c.reg_var,
+        var_regs,
         mode: std::cell::Cell::new(Mode::Transient),
         source_scale: std::cell::Cell::new(1.0),
         gmin_step: std::cell::Cell::new(0.0),

@@ -182,6 +182,10 @@ pub struct Tape {
     /// For each register, the assignment (variable) whose value it holds,
     /// when it holds one: to name the source of a NaN.
     pub reg_var: Vec<Option<VarId>>,
+    /// The register of each variable `code` computes (`NONE` for the
+    /// others): what the operating point's Newton reads of a device after
+    /// an evaluation (see [`Tape::reg_of`]).
+    var_regs: Vec<Reg>,
     /// The mode evaluations run in (see [`Tape::in_mode`]).
     mode: std::cell::Cell<Mode>,
     /// Every independent source's value is multiplied by this (1 but while
@@ -270,6 +274,15 @@ impl Tape {
 }
 
 impl Tape {
+    /// The register that holds `v` after an evaluation of `f`, if `f`
+    /// computes it.
+    pub fn reg_of(&self, v: VarId) -> Option<Reg> {
+        self.var_regs
+            .get(v.0 as usize)
+            .copied()
+            .filter(|&r| r != instr::NONE)
+    }
+
     /// Run `f` with evaluations in `mode`, then return to the mode before.
     pub fn in_mode<R>(&self, mode: Mode, f: impl FnOnce() -> R) -> R {
         let before = self.mode.replace(mode);

@@ -200,7 +200,8 @@ fn rounding_is_not_its_own_scale() {
 /// Operating points that Newton from all-zero cannot reach without junction
 /// limiting: zeners in breakdown, a clamp in a high-gain loop (without
 /// limiting the solve stops silently at a point violating KCL by 2 mA), a
-/// bridge from 300 V. Each starts where ngspice's operating point is.
+/// bridge from 300 V; and without FET limiting, 50 CMOS inverters in a row.
+/// Each starts where ngspice's operating point is.
 #[test]
 fn hard_operating_points_agree_with_ngspice() {
     require_ngspice();
@@ -210,6 +211,7 @@ fn hard_operating_points_agree_with_ngspice() {
         "dc_bridge_300v",
         "dc_current_into_zener",
         "dc_clamp_rounding",
+        "dc_inverter_chain_50",
     ] {
         hard_case_validates(name);
     }
