@@ -91,6 +91,7 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
         reduced: coupling::singular_groups(circuit),
         fluxes: Vec::new(),
         intermediates: HashMap::new(),
+        floor: None,
     };
     let elem_vars = b.element_vars();
     let node_pot = match opts.kvl {
@@ -129,6 +130,8 @@ struct Builder<'c> {
     fluxes: Vec<Vec<VarId>>,
     /// The variable of each device intermediate, by element.
     intermediates: HashMap<ElemId, VarId>,
+    /// The factor on capacitance floors, once a floor asks for it.
+    floor: Option<crate::ir::ParamId>,
 }
 
 impl Builder<'_> {
@@ -446,6 +449,14 @@ impl Builder<'_> {
             let at = |k: u32| ids[k as usize];
             let id = match *n {
                 BNode::Num(v) => self.sys.exprs.constant(v),
+                BNode::Floor(v) => {
+                    let sys = &mut self.sys;
+                    let p = *self
+                        .floor
+                        .get_or_insert_with(|| sys.add_floor_param("floor_factor".into()));
+                    let (v, p) = (sys.exprs.constant(v), sys.exprs.param(p));
+                    sys.exprs.mul(v, p)
+                }
                 BNode::Time => self.sys.exprs.time(),
                 BNode::Pot(node) => pots[node.0 as usize],
                 BNode::Current(k) => self.ctrl_current(vars, controls[k as usize]),

@@ -224,6 +224,10 @@ pub enum BNode {
     Ddt(u32),
     /// The branch voltage of the element's `k`-th control (device branches).
     Volt(u32),
+    /// A capacitance floor: the value times the system's floor factor
+    /// (1 but while the operating point is solved, see
+    /// `EquationSystem::add_floor_param`).
+    Floor(f64),
     /// A junction function of [`Circuit::junctions`] (a device's junction
     /// current or depletion charge) of its operand.
     Junction {

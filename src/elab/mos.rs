@@ -712,7 +712,11 @@ impl Elab {
             } else {
                 MEYER_FLOOR * cox
             };
-            let constant = x.num(overlap[k] + floor);
+            let constant = if floor > 0.0 {
+                x.push(BNode::Floor(floor))
+            } else {
+                x.num(overlap[k])
+            };
             if let Some(half) = half {
                 let two = x.num(2.0);
                 let full = x.arith(Arith::Mul, two, half);

@@ -153,6 +153,9 @@ pub struct Param {
     /// A switch's conductance, which the simulator sets as the switch's
     /// state changes (a register of its own, never a constant).
     pub switch: bool,
+    /// The factor on the MOSFET gate capacitances' floors (1; larger while
+    /// the operating point is solved, see [`EquationSystem::add_floor_param`]).
+    pub floor: bool,
 }
 
 /// A waveform of an independent source (ngspice semantics, defaults resolved).
@@ -553,6 +556,7 @@ impl EquationSystem {
             value,
             source: false,
             switch: false,
+            floor: false,
         })
     }
 
@@ -563,6 +567,7 @@ impl EquationSystem {
             value,
             source: true,
             switch: false,
+            floor: false,
         })
     }
 
@@ -573,6 +578,25 @@ impl EquationSystem {
             value,
             source: false,
             switch: true,
+            floor: false,
+        })
+    }
+
+    /// The factor on capacitance floors: 1 in a transient, larger while the
+    /// operating point is solved. The operating point does not depend on
+    /// capacitances (every capacitor current is zero there), but the
+    /// Jacobian's rounding does: a junction charge beside a floored gate
+    /// capacitance 10^6 times smaller has its current computed as the
+    /// difference of two currents amplified by that ratio, which cancels the
+    /// junction's own conductance to zero (CircuitSim90's gm6: an exactly
+    /// singular DC Jacobian).
+    pub fn add_floor_param(&mut self, name: String) -> ParamId {
+        self.params.push(Param {
+            name,
+            value: 1.0,
+            source: false,
+            switch: false,
+            floor: true,
         })
     }
 

@@ -453,12 +453,38 @@ pub(super) fn fets(sorted: &Sorted, tape: &Tape) -> Vec<Fet> {
         .collect()
 }
 
+/// The factor on capacitance floors while the operating point is solved:
+/// MOSFET gate capacitances floored at 1e-6 of the oxide's are raised to
+/// 1e-2 of it, which leaves the operating point as it is and the Jacobian's
+/// rounding well away from cancelling junction conductances (see
+/// [`crate::ir::EquationSystem::add_floor_param`]).
+const DC_FLOOR_FACTOR: f64 = 1e4;
+
 /// DC operating point by damped Newton on f(t0, y) = 0 in DC mode, with the
 /// states that `.ic` fixes held: the sparse LU of the coloured Jacobian above
 /// `DENSE_STATES` states, else a dense solve. Junction charges take limited
 /// steps (as ngspice limits junction voltages); when Newton still fails,
-/// the sources are ramped up from zero (source stepping).
+/// the sources are ramped up from zero (source stepping). Capacitance floors are raised
+/// meanwhile ([`DC_FLOOR_FACTOR`]).
 pub(super) fn dc_point<M: Matrix<T = f64>>(
+    ode: &CircuitOde<M>,
+    t0: f64,
+    y: Vec<f64>,
+    atol: &[f64],
+    ptc: Continuation,
+    fets: &[Fet],
+) -> Result<Vec<f64>, SimError>
+where
+    M::V: HostVec,
+{
+    ode.set_floor_factor(DC_FLOOR_FACTOR);
+    let found = operating_point(ode, t0, y, atol, ptc, fets);
+    ode.set_floor_factor(1.0);
+    found
+}
+
+/// [`dc_point`] with the floors raised.
+fn operating_point<M: Matrix<T = f64>>(
     ode: &CircuitOde<M>,
     t0: f64,
     y: Vec<f64>,

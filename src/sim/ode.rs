@@ -191,6 +191,18 @@ where
         self.tangents.borrow_mut().valid = false;
     }
 
+    /// The factor on capacitance floors (see
+    /// [`crate::ir::EquationSystem::add_floor_param`]; 1 restores).
+    pub fn set_floor_factor(&self, s: f64) {
+        if self.tape.floor_regs.is_empty() {
+            return;
+        }
+        self.tape.set_floor_factor(&mut self.regs.borrow_mut(), s);
+        self.tape
+            .set_floor_factor(&mut self.side_regs.borrow_mut(), s);
+        self.tangents.borrow_mut().valid = false;
+    }
+
     /// Every block's tears back at their first guesses (see
     /// [`crate::tape::Tape::reset_tears`]).
     pub fn reset_tears(&self) {

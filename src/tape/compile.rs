@@ -93,7 +93,7 @@ impl Compiler<'_> {
             // Sources' and switches' values change at run time.
             Expr::Param(p) => {
                 let p = &self.sys.params[p];
-                (!p.source && !p.switch).then_some(p.value)
+                (!p.source && !p.switch && !p.floor).then_some(p.value)
             }
             _ => None,
         }
@@ -164,8 +164,9 @@ impl Compiler<'_> {
                 if self.param_reg[k] == NONE {
                     let param = &self.sys.params[p];
                     // A source's value gets a register of its own (source
-                    // stepping scales it); other parameters share constants.
-                    self.param_reg[k] = if param.source || param.switch {
+                    // stepping scales it), as do a switch's conductance and
+                    // the floor factor; other parameters share constants.
+                    self.param_reg[k] = if param.source || param.switch || param.floor {
                         self.reg(param.value)
                     } else {
                         self.const_reg(param.value)
@@ -640,9 +641,18 @@ pub fn compile(
         .filter(|((_, p), _)| p.switch)
         .map(|(_, &r)| r)
         .collect();
+    // The floor factor changes between the operating point and the run.
+    let floor_regs: Vec<Reg> = sys
+        .params
+        .iter()
+        .zip(&c.param_reg)
+        .filter(|((_, p), r)| p.floor && **r != NONE)
+        .map(|(_, &r)| r)
+        .collect();
     let varying: Vec<Reg> = state_regs
         .iter()
         .chain(switch_regs.iter().filter(|&&r| r != NONE))
+        .chain(&floor_regs)
         .copied()
         .collect();
     set_constant_jacobians(&mut c.blocks, &[&code, &out_code], &varying);
@@ -683,6 +693,7 @@ pub fn compile(
         gmin_step: std::cell::Cell::new(0.0),
         source_params,
         switch_regs,
+        floor_regs,
         modes: c.modes,
         source_memo: vec![std::cell::Cell::new((f64::NAN, 0.0)); sys.sources.len()],
         work: std::cell::Cell::new(0),

@@ -111,6 +111,13 @@ impl Tape {
         }
     }
 
+    /// Set the factor on capacitance floors in `regs`.
+    pub fn set_floor_factor(&self, regs: &mut [f64], s: f64) {
+        for &r in &self.floor_regs {
+            regs[r] = s;
+        }
+    }
+
     pub fn scale_sources(&self, regs: &mut [f64], s: f64) {
         self.source_scale.set(s);
         for &(r, v) in &self.source_params {

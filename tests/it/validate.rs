@@ -201,7 +201,9 @@ fn rounding_is_not_its_own_scale() {
 /// limiting: zeners in breakdown, a clamp in a high-gain loop (without
 /// limiting the solve stops silently at a point violating KCL by 2 mA), a
 /// bridge from 300 V; and without FET limiting, 50 CMOS inverters in a row.
-/// Each starts where ngspice's operating point is.
+/// A stack of cut-off NMOS whose DC Jacobian rounding made singular (floored
+/// gate capacitances beside junction charges). Each starts where ngspice's
+/// operating point is.
 #[test]
 fn hard_operating_points_agree_with_ngspice() {
     require_ngspice();
@@ -212,6 +214,7 @@ fn hard_operating_points_agree_with_ngspice() {
         "dc_current_into_zener",
         "dc_clamp_rounding",
         "dc_inverter_chain_50",
+        "dc_off_nmos_stack",
     ] {
         hard_case_validates(name);
     }
