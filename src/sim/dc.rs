@@ -460,12 +460,27 @@ pub(super) fn fets(sorted: &Sorted, tape: &Tape) -> Vec<Fet> {
 /// [`crate::ir::EquationSystem::add_floor_param`]).
 const DC_FLOOR_FACTOR: f64 = 1e4;
 
+/// The floors raised for as long as it lives, back at 1 when it drops (on
+/// every return of the operating point's solve).
+struct RaisedFloors<'a, M: Matrix<T = f64>>(&'a CircuitOde<M>)
+where
+    M::V: HostVec;
+
+impl<M: Matrix<T = f64>> Drop for RaisedFloors<'_, M>
+where
+    M::V: HostVec,
+{
+    fn drop(&mut self) {
+        self.0.set_floor_factor(1.0);
+    }
+}
+
 /// DC operating point by damped Newton on f(t0, y) = 0 in DC mode, with the
 /// states that `.ic` fixes held: the sparse LU of the coloured Jacobian above
-/// `DENSE_STATES` states, else a dense solve. Junction charges take limited
-/// steps (as ngspice limits junction voltages); when Newton still fails,
-/// the sources are ramped up from zero (source stepping). Capacitance floors are raised
-/// meanwhile ([`DC_FLOOR_FACTOR`]).
+/// `DENSE_STATES` states, else a dense solve. Junctions and MOSFETs take
+/// limited steps (as ngspice limits them); when Newton still fails, the
+/// sources are ramped up from zero (source stepping). Capacitance floors
+/// are raised meanwhile ([`DC_FLOOR_FACTOR`]).
 pub(super) fn dc_point<M: Matrix<T = f64>>(
     ode: &CircuitOde<M>,
     t0: f64,
@@ -478,23 +493,7 @@ where
     M::V: HostVec,
 {
     ode.set_floor_factor(DC_FLOOR_FACTOR);
-    let found = operating_point(ode, t0, y, atol, ptc, fets);
-    ode.set_floor_factor(1.0);
-    found
-}
-
-/// [`dc_point`] with the floors raised.
-fn operating_point<M: Matrix<T = f64>>(
-    ode: &CircuitOde<M>,
-    t0: f64,
-    y: Vec<f64>,
-    atol: &[f64],
-    ptc: Continuation,
-    fets: &[Fet],
-) -> Result<Vec<f64>, SimError>
-where
-    M::V: HostVec,
-{
+    let _floors = RaisedFloors(ode);
     use diffsol::{OdeEquations, Op, Vector};
     let n = y.len();
     let tape = &ode.tape;
@@ -529,9 +528,9 @@ where
         // would leave every later iterate beyond what the exponential can
         // represent; steps that turn every stage of a chain of 50 inverters
         // from off to far on at once overshoot their square laws, and
-        // damping alone stalls. (Limiting each gate voltage among the states
-        // on its own, nearer ngspice's per-device limiting, converged on
-        // fewer of the corpus's MOS circuits than this common factor.)
+        // damping alone stalls. One factor for the whole step keeps Newton's
+        // direction, which limiting each gate-voltage state on its own
+        // (ngspice limits each device) would not.
         let mut shortened = false;
         before.clear();
         if (junction_tears || !fets.is_empty()) && resid(y, &mut scratch).is_ok() {
