@@ -251,6 +251,9 @@ pub fn sort_built(
         return Err(fail(el, diags));
     }
     let state_of = |e: crate::elab::ElemId| -> Option<crate::ir::VarId> {
+        if let Some(&q) = built.charges.get(&e) {
+            return Some(q);
+        }
         let ev = built.elem_vars.get(e.0 as usize).copied().flatten()?;
         [ev.u, ev.i]
             .into_iter()

@@ -430,8 +430,8 @@ pub fn assign(g: &BondGraph, mut opts: scap::Options) -> (Causality, ReadOff) {
 }
 
 /// The state a loop of junctions alone is to be broken at: of the states
-/// reaching the loop through balances and hand-overs only, the one whose
-/// port SCAP decided last.
+/// reaching the loop through balances, hand-overs and storage laws only,
+/// the one whose port SCAP decided last.
 fn junction_loop_state(g: &BondGraph, c: &Causality, r: &ReadOff) -> Option<StateKey> {
     let computed: HashMap<equations::QRef, usize> = r
         .equations
@@ -458,7 +458,12 @@ fn junction_loop_state(g: &BondGraph, c: &Causality, r: &ReadOff) -> Option<Stat
                 }
                 if let Some(&j) = computed.get(&d) {
                     let e = &r.equations[j];
-                    if (e.element.is_none() || !e.law) && !seen.contains(&j) {
+                    // Balances and hand-overs, and a storage port's own
+                    // law from its state (a junction charge's voltage
+                    // `Q^-1(q)`), lead back to the states.
+                    let through =
+                        e.element.is_none() || !e.law || g.vertices[e.vertex].kind.is_storage();
+                    if through && !seen.contains(&j) {
                         seen.push(j);
                         stack.push(j);
                     }

@@ -65,6 +65,9 @@ pub struct Built {
     /// The circuit's loops and cutsets with no state kept by choice, where
     /// the branch equations needed them (`Kvl::Nodes`): the sort reuses them.
     pub faults: Option<Vec<crate::elab::topology::Fault>>,
+    /// The charge state `q` of each junction charge (diodes' and
+    /// transistors' charge branches).
+    pub charges: HashMap<ElemId, VarId>,
 }
 
 /// Build the equations of `circuit`.
@@ -91,6 +94,7 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
         reduced: coupling::singular_groups(circuit),
         fluxes: Vec::new(),
         intermediates: HashMap::new(),
+        charges: HashMap::new(),
         floor: None,
     };
     let elem_vars = b.element_vars();
@@ -114,6 +118,7 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
         reduced: b.reduced,
         fluxes: b.fluxes,
         faults,
+        charges: b.charges,
     };
     if opts.alias {
         alias::eliminate(&mut built, circuit);
@@ -130,6 +135,8 @@ struct Builder<'c> {
     fluxes: Vec<Vec<VarId>>,
     /// The variable of each device intermediate, by element.
     intermediates: HashMap<ElemId, VarId>,
+    /// The charge state of each junction charge, by element.
+    charges: HashMap<ElemId, VarId>,
     /// The factor on capacitance floors, once a floor asks for it.
     floor: Option<crate::ir::ParamId>,
 }
@@ -549,6 +556,7 @@ impl Builder<'_> {
         if let Some(q) = charge {
             let name = joined(&["q_", &self.c.elements[id].name]);
             let qv = self.sys.add_var(name, VarKind::Charge, origin.clone());
+            self.charges.insert(id, qv);
             let der = self.sys.add_state(qv);
             let law = self.behavioural(id, q, controls, vars, pots);
             let x = &mut self.sys.exprs;
@@ -639,6 +647,7 @@ impl Builder<'_> {
             let q = self
                 .sys
                 .add_var(format!("q_{name}"), VarKind::Charge, origin.clone());
+            self.charges.insert(id, q);
             let der = self.sys.add_state(q);
             let x = &mut self.sys.exprs;
             let (qx, dq) = (x.var(q), x.var(der));

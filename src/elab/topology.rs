@@ -33,7 +33,23 @@ fn defines(k: &ElementKind) -> Defines {
         | ElementKind::DeviceBranch {
             controlled: true, ..
         } => Defines::Current,
-        ElementKind::Capacitor { .. } => Defines::Capacitor,
+        // A state fixes the voltage of a capacitor, of a junction charge
+        // with nothing in series (a diode without RS, a transistor's
+        // charge branch) and of a Meyer gate capacitance: in a loop they are
+        // capacitors alike.
+        ElementKind::Capacitor { .. }
+        | ElementKind::DeviceBranch {
+            charge: Some(_), ..
+        }
+        | ElementKind::DeviceBranch {
+            capacitance: Some(_),
+            ..
+        } => Defines::Capacitor,
+        ElementKind::Diode { model, .. }
+            if model.rs == 0.0 && (model.cjo != 0.0 || model.tt != 0.0) =>
+        {
+            Defines::Capacitor
+        }
         ElementKind::Inductor { .. } => Defines::Inductor,
         _ => Defines::Other,
     }
@@ -218,9 +234,27 @@ fn tied_to_sources(c: &Circuit, degree: &[usize]) -> Vec<bool> {
         .collect()
 }
 
+/// How readily a storage element gives up its state in a loop: a Meyer
+/// gate capacitance first (it can vanish to its floor, and a state behind a
+/// vanishing capacitance is ill-conditioned), then a capacitor or inductor,
+/// a junction charge last (its voltage, solved from the charge, is what the
+/// operating point's Newton limits as ngspice limits junctions).
+fn fix_rank(k: &ElementKind) -> u8 {
+    match k {
+        ElementKind::DeviceBranch {
+            capacitance: Some(_),
+            ..
+        } => 0,
+        ElementKind::DeviceBranch { .. } | ElementKind::Diode { .. } => 2,
+        _ => 1,
+    }
+}
+
 /// The storage element of a loop or cutset that loses its state: not one the
-/// user keeps, then one tied to a source, then the last in netlist order.
+/// user keeps, then one tied to a source, then by [`fix_rank`], then the
+/// last in netlist order.
 fn pick_fixed(
+    c: &Circuit,
     storage: &[ElemId],
     keep: &[ElemId],
     tied: &[bool],
@@ -232,6 +266,7 @@ fn pick_fixed(
             taken[e.0 as usize],
             keep.contains(&e),
             !tied[e.0 as usize],
+            fix_rank(&c.elements[e].kind),
             std::cmp::Reverse(e),
         )
     })?;
@@ -253,19 +288,22 @@ pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
     let mut out = Vec::new();
     let mut taken = vec![false; c.elements.len()];
     let tied = tied_to_sources(c, &degree);
+    // Nodes joined by voltage sources alone, and so those whose potential
+    // they fix against ground.
+    let joined = components(
+        n,
+        c.elements
+            .values()
+            .filter(|e| defines(&e.kind) == Defines::Voltage)
+            .map(two),
+    );
+    let fixed_node = |k: NodeId| joined[k.0 as usize] == joined[GROUND.0 as usize];
     // Loops: voltage sources first, then capacitors.
     let mut f = Forest::new(n);
     for pass in [Defines::Voltage, Defines::Capacitor] {
         if pass == Defines::Capacitor {
             // The forest holds the voltage sources alone: a diode without
             // series resistance whose terminals it joins is forced.
-            let joined = components(
-                n,
-                c.elements
-                    .values()
-                    .filter(|e| defines(&e.kind) == Defines::Voltage)
-                    .map(two),
-            );
             for (id, e) in c.elements.iter() {
                 if let ElementKind::Diode { model, .. } = &e.kind
                     && model.rs == 0.0
@@ -289,12 +327,27 @@ pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
                 let mut elements = path;
                 elements.push(id);
                 elements.sort();
+                // A loop through a device's charges or gate capacitances
+                // that touches ground or a source-fixed node is left to
+                // index reduction, which sees its constraint on the node
+                // potentials (every MOSFET with grounded bulk and source
+                // has one); only a loop that would hide it is written as
+                // KVL here.
+                let device = elements.iter().any(|&e| fix_rank(&c.elements[e].kind) != 1);
+                if device
+                    && elements
+                        .iter()
+                        .flat_map(|&e| &c.elements[e].nodes[..2])
+                        .any(|&k| fixed_node(k))
+                {
+                    continue;
+                }
                 let caps: Vec<ElemId> = elements
                     .iter()
                     .copied()
                     .filter(|&e| defines(&c.elements[e].kind) == Defines::Capacitor)
                     .collect();
-                match pick_fixed(&caps, keep, &tied, &mut taken) {
+                match pick_fixed(c, &caps, keep, &tied, &mut taken) {
                     Some(fixed) => out.push(Fault::CapacitorLoop { elements, fixed }),
                     None => out.push(Fault::VoltageLoop { elements }),
                 }
@@ -356,7 +409,7 @@ pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
         .collect();
     parts.sort_by_key(|(_, _, inductors)| inductors.len());
     for (part_nodes, cut, inductors) in parts {
-        match pick_fixed(&inductors, keep, &tied, &mut taken) {
+        match pick_fixed(c, &inductors, keep, &tied, &mut taken) {
             Some(fixed) => out.push(Fault::InductorCutset {
                 elements: cut,
                 fixed,
@@ -442,6 +495,9 @@ struct Part {
     name: String,
     span: Span,
     defines: Defines,
+    /// A device's storage (a junction charge or a gate capacitance), not
+    /// a capacitor.
+    device: bool,
 }
 
 impl TopologyError {
@@ -460,6 +516,7 @@ impl TopologyError {
                 name: x.name.clone(),
                 span: x.span,
                 defines: defines(&x.kind),
+                device: fix_rank(&x.kind) != 1,
             };
             (e, part)
         };
@@ -513,13 +570,15 @@ impl TopologyError {
         match &self.fault {
             Fault::CapacitorLoop { elements, fixed } => {
                 let others = Self::others(elements, fixed);
-                let kind = if others
+                let sources = others
                     .iter()
-                    .any(|e| self.elements[e].defines == Defines::Voltage)
-                {
-                    "a loop of capacitors and voltage sources"
-                } else {
-                    "a loop of capacitors"
+                    .any(|e| self.elements[e].defines == Defines::Voltage);
+                let device = elements.iter().any(|e| self.elements[e].device);
+                let kind = match (device, sources) {
+                    (false, false) => "a loop of capacitors",
+                    (false, true) => "a loop of capacitors and voltage sources",
+                    (true, false) => "a loop of capacitors and device charges",
+                    (true, true) => "a loop of capacitors, device charges and voltage sources",
                 };
                 format!(
                     "{} form {kind}: {}'s voltage is fixed by {}, so {} cannot hold an independent state (derivative causality)",

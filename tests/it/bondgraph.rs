@@ -276,6 +276,33 @@ fn cv_loop_has_c2_in_derivative_causality() {
     assert!(bondgraph::check(&s, &a).agrees());
 }
 
+/// Four junction charges in a ring away from ground (two paralleled BJTs
+/// behind base resistors): the loop of junctions alone reaches the states
+/// only through each charge's own law (`v = Q^-1(q)`), and SCAP puts the
+/// charge index reduction removes in derivative causality. The loops of the
+/// two views still differ: the read-off differentiates the dependent
+/// charge's whole chain (the transport currents' laws among it) and solves
+/// it with the loop, where the colouring differentiates the constraint alone.
+#[test]
+fn a_ring_of_junction_charges_has_a_dependent_charge() {
+    let s = sorted("hard/bjt_paralleled.cir");
+    let a = analysed(&s);
+    assert_eq!(derivative(&a), ["Q1a:bc"]);
+    assert_eq!(removed(&s), ["Q1a:bc"]);
+    let check = bondgraph::check(&s, &a);
+    let agrees: Vec<(Item, bool)> = check.findings.iter().map(|f| (f.item, f.agrees)).collect();
+    assert_eq!(
+        agrees,
+        [
+            (Item::States, true),
+            (Item::Dependent, true),
+            (Item::Arbitrary, true),
+            (Item::Loops, false),
+            (Item::Laws, true)
+        ]
+    );
+}
+
 /// An inductor cutset with a current source: the inductor in derivative
 /// causality, as Pantelides has it; two in series, both.
 #[test]

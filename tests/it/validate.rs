@@ -220,6 +220,16 @@ fn hard_operating_points_agree_with_ngspice() {
     }
 }
 
+/// Junction charges in a loop away from ground and every source (two
+/// paralleled BJTs behind base resistors): on node potentials the loop hid
+/// its constraint and its block was singular at t = 0. Found on the
+/// circuit's graph, one charge gets the loop's KVL and loses its state.
+#[test]
+fn a_hidden_loop_of_junction_charges_agrees_with_ngspice() {
+    require_ngspice();
+    hard_case_validates("bjt_paralleled");
+}
+
 #[test]
 fn the_suite_agrees_with_ngspice() {
     require_ngspice();
