@@ -135,6 +135,7 @@ where
     }
     let ptc = Continuation::of(c);
     let fets = fets(sorted, tape);
+    let work = DcWork::from_now(tape, opts.dc_work.unwrap_or(DC_MAX_WORK));
     // Without `.nodeset`, Newton starts where ngspice's does: every diode at
     // its critical voltage. Where the circuit has several operating points
     // (a negative resistance that a diode clamps), that is the one ngspice
@@ -142,14 +143,20 @@ where
     let diode_start = if held_start { None } else { diodes_on(c, tape) };
     let r = match diode_start {
         Some(start) => tape
-            .in_mode(Mode::Dc, || dc_point::<M>(ode, t0, start, atol, ptc, &fets))
+            .in_mode(Mode::Dc, || {
+                dc_point::<M>(ode, t0, start, atol, ptc, &fets, work)
+            })
             .or_else(|_| {
                 // The blocks start from their first guesses again, not
                 // where the failed solve left them.
                 ode.reset_tears();
-                tape.in_mode(Mode::Dc, || dc_point::<M>(ode, t0, y, atol, ptc, &fets))
+                tape.in_mode(Mode::Dc, || {
+                    dc_point::<M>(ode, t0, y, atol, ptc, &fets, work)
+                })
             }),
-        None => tape.in_mode(Mode::Dc, || dc_point::<M>(ode, t0, y, atol, ptc, &fets)),
+        None => tape.in_mode(Mode::Dc, || {
+            dc_point::<M>(ode, t0, y, atol, ptc, &fets, work)
+        }),
     };
     // Where no operating point is found from zero, the transistors are
     // started conducting, as ngspice starts them (each base-emitter
@@ -158,7 +165,9 @@ where
     let r = match r {
         Err(e) => match transistors_on(sorted, &tape.states) {
             Some(start) => tape
-                .in_mode(Mode::Dc, || dc_point::<M>(ode, t0, start, atol, ptc, &fets))
+                .in_mode(Mode::Dc, || {
+                    dc_point::<M>(ode, t0, start, atol, ptc, &fets, work)
+                })
                 .map_err(|_| e),
             None => Err(e),
         },
@@ -460,8 +469,9 @@ pub(super) fn fets(sorted: &Sorted, tape: &Tape) -> Vec<Fet> {
 /// [`crate::ir::EquationSystem::add_floor_param`]).
 const DC_FLOOR_FACTOR: f64 = 1e4;
 
-/// The floors raised for as long as it lives, back at 1 when it drops (on
-/// every return of the operating point's solve).
+/// The floors raised and the work limited for as long as it lives: floors
+/// back at 1 and no limit when it drops (on every return of the operating
+/// point's solve).
 struct RaisedFloors<'a, M: Matrix<T = f64>>(&'a CircuitOde<M>)
 where
     M::V: HostVec;
@@ -472,6 +482,34 @@ where
 {
     fn drop(&mut self) {
         self.0.set_floor_factor(1.0);
+        self.0.tape.limit_work(u64::MAX);
+    }
+}
+
+/// The operating point's whole work, in tape instructions, shared by every
+/// start it is tried from: a circuit whose blocks cost much per evaluation
+/// (a 700-equation block Newton in every `f`) ends its DC solve with a
+/// diagnostic, not after minutes of GMIN and source stepping. Measured on
+/// CircuitSim90's MOS decks, a DC solve runs about 1.2·10^8 instructions a
+/// second (the sparse factorizations in between are not counted), so this
+/// is about a minute; the slowest operating point found in the corpus
+/// (jge's) takes 4.7·10^9.
+pub const DC_MAX_WORK: u64 = 8_000_000_000;
+
+/// The operating point's work limit: `limit` instructions, spent when the
+/// tape's count reaches `deadline`.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct DcWork {
+    pub deadline: u64,
+    pub limit: u64,
+}
+
+impl DcWork {
+    pub(super) fn from_now(tape: &Tape, limit: u64) -> DcWork {
+        DcWork {
+            deadline: tape.work().saturating_add(limit),
+            limit,
+        }
     }
 }
 
@@ -488,6 +526,7 @@ pub(super) fn dc_point<M: Matrix<T = f64>>(
     atol: &[f64],
     ptc: Continuation,
     fets: &[Fet],
+    work: DcWork,
 ) -> Result<Vec<f64>, SimError>
 where
     M::V: HostVec,
@@ -497,7 +536,15 @@ where
     use diffsol::{OdeEquations, Op, Vector};
     let n = y.len();
     let tape = &ode.tape;
+    let dc_limit = work.deadline;
+    tape.limit_work(dc_limit);
+    let out_of_work = || SimError::DcFailed {
+        reason: DcFailure::WorkLimit { work: work.limit },
+    };
     let resid = |y: &[f64], f: &mut Vec<f64>| -> Result<f64, SimError> {
+        if tape.over_budget() {
+            return Err(out_of_work());
+        }
         ode.eval(t0, y, f)
             .map_err(|error| SimError::Eval { error })?;
         Ok(f.iter().map(|x| x.abs()).fold(0.0, f64::max))
@@ -600,6 +647,9 @@ where
         let ctx = ode.context().clone();
         let mut jm = M::new_from_sparsity(n, n, op.jacobian_sparsity(), ctx.clone());
         Box::new(move |y: &[f64], shift: f64| {
+            if tape.over_budget() {
+                return Err(out_of_work());
+            }
             let yv = M::V::from_vec(y.to_vec(), ctx.clone());
             op.jacobian_inplace(&yv, t0, &mut jm);
             if let Some(error) = ode.error.borrow_mut().take() {
@@ -619,6 +669,9 @@ where
         let (mut cols, mut fy) = (vec![0.0; n * n], vec![0.0; n]);
         let all: Vec<usize> = (0..n).collect();
         Box::new(move |y: &[f64], shift: f64| {
+            if tape.over_budget() {
+                return Err(out_of_work());
+            }
             ode.jacobian_columns(Regs::Solver, t0, y, &all, &mut cols, &mut fy)
                 .map_err(|error| SimError::Eval { error })?;
             for k in 0..n {
@@ -659,7 +712,8 @@ where
         let per_eval = (tape.work() - before).max(1);
         tape.limit_work(
             tape.work()
-                .saturating_add(PTC_WORK.saturating_mul(per_eval).min(PTC_MAX_WORK)),
+                .saturating_add(PTC_WORK.saturating_mul(per_eval).min(PTC_MAX_WORK))
+                .min(dc_limit),
         );
         let found = pseudo_transient(
             y0.clone(),
@@ -670,7 +724,7 @@ where
             &mut rough,
             tape,
         );
-        tape.limit_work(u64::MAX);
+        tape.limit_work(dc_limit);
         if let Ok(found) = found {
             return Ok(found);
         }
@@ -746,6 +800,9 @@ where
     // convergence tolerances, where nothing converged further.
     if let Some((_, y)) = rough {
         return Ok(y);
+    }
+    if tape.over_budget() {
+        return Err(out_of_work());
     }
     // Report the direct attempt's failure, which names what went wrong at
     // the full sources.
@@ -889,8 +946,9 @@ const ROUGH: f64 = 1e-4;
 const PTC_STEPS: usize = 600;
 const PTC_EVALS: usize = 10_000;
 /// The continuation's work, in evaluations of `f` at its start, and at most
-/// this many tape instructions in all (about a second): a large circuit's
-/// failing continuation must not hold up GMIN and source stepping.
+/// this many tape instructions in all (about eight seconds, see
+/// [`DC_MAX_WORK`]): a large circuit's failing continuation must not hold
+/// up GMIN and source stepping.
 const PTC_WORK: u64 = 100_000;
 const PTC_MAX_WORK: u64 = 1_000_000_000;
 

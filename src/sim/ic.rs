@@ -288,7 +288,15 @@ where
     let n = tape.states.len();
     let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; n], sparse);
     tape.in_mode(tape::Mode::Dc, || {
-        let y = dc_point::<M>(&ode, 0.0, vec![0.0; n], atol, ptc, fets)?;
+        let y = dc_point::<M>(
+            &ode,
+            0.0,
+            vec![0.0; n],
+            atol,
+            ptc,
+            fets,
+            super::dc::DcWork::from_now(&ode.tape, super::dc::DC_MAX_WORK),
+        )?;
         let mut out = vec![0.0; tape.out_regs.len()];
         ode.outputs(0.0, &y, &mut out)
             .map_err(|error| SimError::Eval { error })?;

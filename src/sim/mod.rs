@@ -134,6 +134,9 @@ pub struct Options {
     pub tmax: Option<f64>,
     /// The step of the fixed-step methods (euler, rk2, rk4).
     pub step: Option<f64>,
+    /// The operating point's work limit in tape instructions (default
+    /// 8·10^9, about a minute).
+    pub dc_work: Option<u64>,
 }
 
 /// Solver statistics of a run.
@@ -298,6 +301,13 @@ pub enum DcFailure {
     NoDcPath {
         islands: Vec<(Vec<String>, Vec<String>)>,
     },
+    /// Newton, continuation, GMIN and source stepping ran out of the
+    /// operating point's work limit.
+    #[error(
+        "Newton, continuation, GMIN and source stepping found none within {:.0e} tape instructions (about a minute)",
+        *work as f64
+    )]
+    WorkLimit { work: u64 },
     /// Newton at the full sources was skipped (a test's switch).
     #[error("not tried (test)")]
     NotTried,

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use kausal::io::FsLoader;
 use kausal::pipeline::{self, SortOptions, Sorted};
-use kausal::sim::{self, Method, SimError};
+use kausal::sim::{self, DcFailure, Method, SimError};
 
 use crate::root;
 
@@ -846,6 +846,26 @@ fn a_run_that_cannot_finish_ends_with_a_diagnostic() {
         sim::simulate(&s, &opts),
         Err(SimError::TooManySteps { steps: 101, .. })
     ));
+}
+
+/// The operating point's work is bounded: where its blocks' Newton solves
+/// cost much per evaluation, Newton, continuation, GMIN and source stepping
+/// end together with a diagnostic once the limit is spent (a 700-equation
+/// block of an op-amp macromodel took 342 s to fail without it). Here a
+/// limit far below what 50 inverters need.
+#[test]
+fn an_operating_point_that_runs_out_of_work_says_so() {
+    let s = sort_file("hard/dc_inverter_chain_50.cir");
+    let opts = sim::Options {
+        dc_work: Some(1_000_000),
+        ..Default::default()
+    };
+    match sim::simulate(&s, &opts) {
+        Err(SimError::DcFailed {
+            reason: DcFailure::WorkLimit { work: 1_000_000 },
+        }) => {}
+        other => panic!("expected the DC work limit, got {other:?}"),
+    }
 }
 
 /// What is stored follows ngspice: `.print` selects nothing (every node

@@ -113,6 +113,7 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
         max_steps: args.max_steps,
         tmax: args.tmax,
         step: args.step,
+        dc_work: None,
     };
     let (waves, csv) = match simulate(&sorted, &sim_opts, &args) {
         Ok(x) => x,
