@@ -1006,12 +1006,16 @@ where
 
 /// A circuit without states: every output is a function of time alone, so
 /// it is evaluated on the grid (and at the source corners with `--all-steps`).
+/// Its switches change state at their controls' crossings, located between
+/// the grid's points and the sources' corners by bisection in time (see
+/// [`super::events::Switches::first_crossing_stateless`]).
 pub(super) fn algebraic(
     sorted: &Sorted,
     tape: Rc<Tape>,
     tran: &crate::elab::Tran,
     outputs: &[Output],
     opts: &Options,
+    switches: &super::events::Switches,
     sink: Option<RowSink<'_>>,
 ) -> Result<Waveforms, SimError> {
     let sys = sorted.system();
@@ -1019,7 +1023,7 @@ pub(super) fn algebraic(
     // The operating point with the `.ic` nodes held, output at t = 0.
     let mut warnings = Vec::new();
     let mut held = None;
-    if !tran.uic && !c.ics.is_empty() {
+    if !tran.uic && !c.ics.is_empty() && switches.is_empty() {
         match ic::held_operating_point(sorted, &[], outputs, opts, &c.ics, ".ic") {
             Ok(h) => {
                 held = Some(h.row);
@@ -1033,18 +1037,56 @@ pub(super) fn algebraic(
         .times
         .clone()
         .map_or_else(|| Grid::of(tran), Grid::Times);
+    let hard = breakpoints(sys, 0.0, tran.tstop);
     if opts.all_steps {
-        let hard = breakpoints(sys, 0.0, tran.tstop);
         let mut all: Vec<f64> = (0..times.len()).map(|k| times.at(k)).collect();
-        all.extend(hard.into_iter().filter(|&t| t >= tran.tstart));
+        all.extend(hard.iter().copied().filter(|&t| t >= tran.tstart));
         all.sort_by(f64::total_cmp);
         all.dedup();
         times = Grid::Times(all);
     }
-    let mut regs = tape.registers();
+    let ode = CircuitOde::<NalgebraMat<f64>>::new(tape.clone(), Vec::new(), false);
     let mut out = vec![0.0; tape.out_regs.len()];
     let mut rows = Rows::new(out.len(), sink);
     let mut stats = Stats::default();
+    // The switches' states at the operating point (off unless `on`, then
+    // by their controls, as the operating point of a circuit with states).
+    let t0 = 0.0;
+    switches.apply(&ode);
+    if !switches.is_empty() && !tran.uic {
+        for _ in 0..=switches.len() {
+            if !switches.settle(&ode, t0, &[])? {
+                break;
+            }
+        }
+    }
+    // The crossings are searched from 0 over every output point and source
+    // corner; the search's resolution is that of the time axis.
+    let resolution = 1e-12 * tran.tstop.abs().max(f64::MIN_POSITIVE);
+    let mut corners = hard.into_iter().filter(|&t| t > t0).peekable();
+    let mut searched = t0;
+    let mut search_to = |t: f64, ode: &CircuitOde<NalgebraMat<f64>>| -> Result<(), SimError> {
+        if switches.is_empty() {
+            return Ok(());
+        }
+        while searched < t {
+            let b = match corners.peek() {
+                Some(&k) if k < t => {
+                    corners.next();
+                    k
+                }
+                _ => t,
+            };
+            while let Some((te, x)) =
+                switches.first_crossing_stateless(ode, searched, b, resolution)?
+            {
+                switches.commit_chain(ode, te, x)?;
+                searched = te;
+            }
+            searched = b;
+        }
+        Ok(())
+    };
     for k in 0..times.len() {
         let t = times.at(k);
         let first = k == 0 && t == 0.0;
@@ -1052,18 +1094,20 @@ pub(super) fn algebraic(
             rows.push(t, &row)?;
             continue;
         }
+        search_to(t, &ode)?;
         // The first point is the DC operating point unless `uic`.
         let mode = if first && !tran.uic {
             Mode::Dc
         } else {
             Mode::Transient
         };
-        tape.in_mode(mode, || tape.outputs(&mut regs, t, &[], &mut out))
+        tape.in_mode(mode, || ode.outputs(t, &[], &mut out))
             .map_err(|error| SimError::Eval { error })?;
         stats.rhs_evals += 1;
         rows.push(t, &out)?;
     }
     let mut w = rows.into_waveforms(stats);
     w.warnings = warnings;
+    w.events = switches.events.take();
     Ok(w)
 }

@@ -116,6 +116,11 @@ impl Switches {
         self.models.is_empty()
     }
 
+    /// How many switches.
+    pub(super) fn len(&self) -> usize {
+        self.models.len()
+    }
+
     /// No switch and no held comparison of `ode`'s tape: no event to search.
     fn none<M: Matrix<T = f64>>(&self, ode: &CircuitOde<M>) -> bool
     where
@@ -453,6 +458,90 @@ impl Switches {
             }
         }
         Ok(None)
+    }
+
+    /// In a circuit without states (switches, resistors, sources), the first
+    /// crossing in `(a, b]`: its time, within `resolution`, and the controls
+    /// there. Between events the controls are functions of time alone, read
+    /// at `b` and at [`SAMPLES`] points before it; the first sample past a
+    /// threshold is bisected against the one before it.
+    pub(super) fn first_crossing_stateless<M: Matrix<T = f64>>(
+        &self,
+        ode: &CircuitOde<M>,
+        a: f64,
+        b: f64,
+        resolution: f64,
+    ) -> Result<Option<(f64, Vec<f64>)>, SimError>
+    where
+        M::V: HostVec,
+    {
+        let read = |t: f64| -> Result<(bool, Vec<f64>), SimError> {
+            let x = self.controls(ode, t, &[])?;
+            Ok((self.past(&[], &x), x))
+        };
+        let mut lo = a;
+        for j in 1..=SAMPLES + 1 {
+            let t = if j == SAMPLES + 1 {
+                b
+            } else {
+                a + (b - a) * j as f64 / (SAMPLES + 1) as f64
+            };
+            let (past, x) = read(t)?;
+            if !past {
+                lo = t;
+                continue;
+            }
+            let (mut hi, mut at) = (t, x);
+            while hi - lo > resolution {
+                let mid = 0.5 * (lo + hi);
+                if mid <= lo || mid >= hi {
+                    break;
+                }
+                match read(mid)? {
+                    (true, x) => (hi, at) = (mid, x),
+                    (false, _) => lo = mid,
+                }
+            }
+            return Ok(Some((hi, at)));
+        }
+        Ok(None)
+    }
+
+    /// Commit the crossing at `t` whose controls are `x`, then every change
+    /// it causes at the same instant (a switch whose conductance moves
+    /// another's control past its threshold); a chain that does not end
+    /// within two changes per switch is a switch driving its own control
+    /// back and forth, which no time step resolves.
+    pub(super) fn commit_chain<M: Matrix<T = f64>>(
+        &self,
+        ode: &CircuitOde<M>,
+        t: f64,
+        mut x: Vec<f64>,
+    ) -> Result<(), SimError>
+    where
+        M::V: HostVec,
+    {
+        for _ in 0..2 * self.models.len() + 2 {
+            self.commit(ode, t, &x)?;
+            x = self.controls(ode, t, &[])?;
+            if !self.past(&[], &x) {
+                return Ok(());
+            }
+        }
+        let k = self
+            .models
+            .iter()
+            .zip(self.on.borrow().iter())
+            .zip(&x)
+            .position(|((m, &on), &x)| m.next(on, x) != on)
+            .unwrap_or(0);
+        Err(SimError::Chatter {
+            element: self.names.get(k).cloned().unwrap_or_default(),
+            condition: "its control against its threshold".into(),
+            flips: (2 * self.models.len() + 2) as u32,
+            steps: 0,
+            t,
+        })
     }
 
     /// The switches whose controls `x` at `t` are past their thresholds

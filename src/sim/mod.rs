@@ -513,12 +513,7 @@ fn simulate_rows(
         switches: &switches,
     };
     let mut w = if n == 0 {
-        if !switches.is_empty() {
-            return Err(SimError::SwitchMethod(
-                "a circuit with switches and no capacitor, inductor or junction charge has no integration to locate their events in".into(),
-            ));
-        }
-        algebraic(sorted, tape.clone(), &tran, &list, opts, sink)?
+        algebraic(sorted, tape.clone(), &tran, &list, opts, &switches, sink)?
     } else if method == Method::Circuit && n > DENSE_STATES {
         return Err(SimError::TooManyStates {
             n,

@@ -848,6 +848,49 @@ fn a_run_that_cannot_finish_ends_with_a_diagnostic() {
     ));
 }
 
+/// Switches in a circuit with nothing to integrate change state at their
+/// controls' crossings, located between the output points by bisection in
+/// time: S1 on a PWL ramp, S2 on a sine, each crossing at its analytic time
+/// (it was refused: K0417).
+#[test]
+fn switches_without_states_change_at_their_crossings() {
+    let s = sort_file("switch_stateless.cir");
+    let w = sim::simulate(&s, &sim::Options::default()).unwrap_or_else(|e| panic!("{e}"));
+    let span = 3e-3;
+    let w_sin = 2.0 * std::f64::consts::PI * 1e3;
+    let (up, down) = (
+        0.6f64.asin() / w_sin,
+        (std::f64::consts::PI - 0.4f64.asin()) / w_sin,
+    );
+    let mut exact = vec![("S1", 0.625e-3, true), ("S1", 1.575e-3, false)];
+    for k in 0..3 {
+        let base = k as f64 * 1e-3;
+        exact.push(("S2", base + up, true));
+        exact.push(("S2", base + down, false));
+    }
+    exact.sort_by(|a, b| a.1.total_cmp(&b.1));
+    assert_eq!(w.events.len(), exact.len(), "{:?}", w.events);
+    for (e, (name, t, on)) in w.events.iter().zip(&exact) {
+        assert_eq!((e.element.as_str(), e.on), (*name, *on), "{e:?}");
+        assert!(
+            (e.t - t).abs() <= 1e-9 * span,
+            "{name} at {:e}, the crossing is at {t:e}",
+            e.t
+        );
+    }
+    // Between the events the outputs are the resistive divider's: at 0.7 ms
+    // S1 is on (10 ohm under 1 kohm) and S2 off.
+    let k = w
+        .time
+        .iter()
+        .position(|&t| (t - 0.7e-3).abs() < 1e-12)
+        .unwrap();
+    let col = |name: &str| w.names.iter().position(|n| n == name).unwrap();
+    let vs = (w_sin * 0.7e-3).sin();
+    let va = w.data[col("v(a)")][k];
+    assert!((va - vs * 10.0 / 1010.0).abs() < 1e-9, "v(a) = {va}");
+}
+
 /// The operating point's work is bounded: where its blocks' Newton solves
 /// cost much per evaluation, Newton, continuation, GMIN and source stepping
 /// end together with a diagnostic once the limit is spent (a 700-equation
