@@ -250,6 +250,12 @@ fn fix_rank(k: &ElementKind) -> u8 {
     }
 }
 
+/// A device's storage that counts as a capacitor in loops (a junction
+/// charge, a gate capacitance), not a capacitor itself.
+fn device_storage(k: &ElementKind) -> bool {
+    defines(k) == Defines::Capacitor && !matches!(k, ElementKind::Capacitor { .. })
+}
+
 /// The storage element of a loop or cutset that loses its state: not one the
 /// user keeps, then one tied to a source, then by [`fix_rank`], then the
 /// last in netlist order.
@@ -333,7 +339,9 @@ pub fn faults(c: &Circuit, keep: &[ElemId]) -> Vec<Fault> {
                 // potentials (every MOSFET with grounded bulk and source
                 // has one); only a loop that would hide it is written as
                 // KVL here.
-                let device = elements.iter().any(|&e| fix_rank(&c.elements[e].kind) != 1);
+                let device = elements
+                    .iter()
+                    .any(|&e| device_storage(&c.elements[e].kind));
                 if device
                     && elements
                         .iter()
@@ -516,7 +524,7 @@ impl TopologyError {
                 name: x.name.clone(),
                 span: x.span,
                 defines: defines(&x.kind),
-                device: fix_rank(&x.kind) != 1,
+                device: device_storage(&x.kind),
             };
             (e, part)
         };
