@@ -135,7 +135,7 @@ pub struct Options {
     /// The step of the fixed-step methods (euler, rk2, rk4).
     pub step: Option<f64>,
     /// The operating point's work limit in tape instructions (default
-    /// 8·10^9, about a minute).
+    /// 1.2·10^10, about a minute and a half).
     pub dc_work: Option<u64>,
 }
 
@@ -304,7 +304,7 @@ pub enum DcFailure {
     /// Newton, continuation, GMIN and source stepping ran out of the
     /// operating point's work limit.
     #[error(
-        "Newton, continuation, GMIN and source stepping found none within {:.0e} tape instructions (about a minute)",
+        "Newton, continuation, GMIN and source stepping found none within {:.1e} tape instructions (the operating point's work limit)",
         *work as f64
     )]
     WorkLimit { work: u64 },
