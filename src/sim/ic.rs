@@ -253,10 +253,11 @@ pub(super) fn held_operating_point(
     let atol = atols(sys, &dc_states, opts, &dc.elaborated.circuit);
     let ptc = Continuation::of(&dc.elaborated.circuit);
     let fets = super::dc::fets(&dc, &tape);
+    let work = opts.dc_work.unwrap_or(super::dc::DC_MAX_WORK);
     let (y, values) = if dc_states.len() > DENSE_STATES {
-        solve::<FaerSparseMat<f64>>(tape, &atol, true, ptc, &fets)
+        solve::<FaerSparseMat<f64>>(tape, &atol, true, ptc, &fets, work)
     } else {
-        solve::<NalgebraMat<f64>>(tape, &atol, false, ptc, &fets)
+        solve::<NalgebraMat<f64>>(tape, &atol, false, ptc, &fets, work)
     }
     .map_err(Unheld::Sim)?;
     let y = from
@@ -281,6 +282,7 @@ fn solve<M: Matrix<T = f64>>(
     sparse: bool,
     ptc: Continuation,
     fets: &[super::dc::Fet],
+    work: u64,
 ) -> Result<(Vec<f64>, Vec<f64>), SimError>
 where
     M::V: HostVec,
@@ -295,7 +297,7 @@ where
             atol,
             ptc,
             fets,
-            super::dc::DcWork::from_now(&ode.tape, super::dc::DC_MAX_WORK),
+            super::dc::DcWork::from_now(&ode.tape, work),
         )?;
         let mut out = vec![0.0; tape.out_regs.len()];
         ode.outputs(0.0, &y, &mut out)
