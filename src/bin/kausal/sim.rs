@@ -166,6 +166,25 @@ fn write_files(sorted: &Sorted, waves: &Waveforms, csv: Csv, args: &Args) -> Res
 
 /// The solver's work and the assignments' placement, on standard error.
 fn print_stats(s: &sim::Stats) {
+    if s.states == 0 {
+        // Nothing integrated: the outputs are functions of time (and of
+        // the switches' states), evaluated at each output point.
+        eprintln!(
+            "0 states: no integration, {} output points evaluated; {:.3} s",
+            s.rhs_evals,
+            s.wall.as_secs_f64()
+        );
+    } else {
+        print_solver(s);
+    }
+    eprintln!(
+        "assignments: {} in f, {} at output points only, {} pruned",
+        s.in_f, s.at_outputs, s.unused
+    );
+}
+
+/// The integrator's work.
+fn print_solver(s: &sim::Stats) {
     eprintln!(
         "{} states, {:?}{}: {} steps ({} rejected), {} f-evaluations, {} J·v, {} Jacobians, {} LU factorizations, {} restarts{}; {:.3} s",
         s.states,
@@ -185,10 +204,6 @@ fn print_stats(s: &sim::Stats) {
             String::new()
         },
         s.wall.as_secs_f64()
-    );
-    eprintln!(
-        "assignments: {} in f, {} at output points only, {} pruned",
-        s.in_f, s.at_outputs, s.unused
     );
 }
 
