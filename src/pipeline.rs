@@ -166,6 +166,25 @@ fn coupling_note(c: &crate::elab::Circuit, g: &crate::build::coupling::Reduced) 
     d.with_help("this is what ngspice simulates too; a coupling below 1 (k = 0.999) keeps one state per inductor, with a leakage inductance")
 }
 
+/// A group of coupled inductors whose inductance matrix is indefinite.
+fn indefinite_note(c: &crate::elab::Circuit, couplings: &[crate::elab::ElemId]) -> Diagnostic {
+    let names: Vec<&str> = couplings
+        .iter()
+        .map(|&k| c.elements[k].name.as_str())
+        .collect();
+    let mut d = Diagnostic::warning(
+        codes::INDEFINITE_COUPLING,
+        format!(
+            "the coupling coefficients of {} make an inductance matrix that is not positive semidefinite: some combination of the currents has negative magnetic energy, which no magnetic circuit has, and along it the currents can grow without bound",
+            names.join(", ")
+        ),
+    );
+    for &k in couplings {
+        d = d.with_label(c.elements[k].span, "coupling");
+    }
+    d.with_help("each winding's couplings must fit one magnetic circuit: for three windings, k12² + k13² + k23² − 2·k12·k13·k23 ≤ 1 (with k12 = 1, k13 must equal k23)")
+}
+
 fn fail(el: Elaborated, extra: Vec<Diagnostic>) -> Box<Failed> {
     let mut diagnostics = el.warnings;
     diagnostics.extend(extra);
@@ -199,6 +218,9 @@ pub fn sort_built(
 ) -> Result<Sorted, Box<Failed>> {
     for g in &built.reduced {
         el.warnings.push(coupling_note(&el.circuit, g));
+    }
+    for couplings in crate::build::coupling::indefinite_groups(&el.circuit) {
+        el.warnings.push(indefinite_note(&el.circuit, &couplings));
     }
     let c = &el.circuit;
     let mut keep = Vec::new();

@@ -17,7 +17,8 @@
 //!   (its flux is a combination of the pivots': an ideal transformer).
 //!
 //! A group whose matrix is regular keeps one state per inductor; one that
-//! is indefinite (coefficients that no magnetic circuit has) too: its
+//! is indefinite (coefficients that no magnetic circuit has) too, with a
+//! warning that names its K elements (K0331, [`indefinite_groups`]): its
 //! matrix is invertible, which is all the per-inductor form needs.
 
 use std::collections::HashMap;
@@ -48,8 +49,16 @@ pub struct Reduced {
     pub l_pivot: Vec<f64>,
 }
 
-/// The coupled groups of `c` whose inductance matrix is singular.
-pub fn singular_groups(c: &Circuit) -> Vec<Reduced> {
+/// A group of inductors joined by K elements and its inductance matrix.
+struct Group {
+    members: Vec<ElemId>,
+    couplings: Vec<ElemId>,
+    /// Row-major, `members.len()` square.
+    l: Vec<f64>,
+}
+
+/// The coupled groups of `c`, with their inductance matrices.
+fn groups(c: &Circuit) -> Vec<Group> {
     let inductance = |e: ElemId| match c.elements[e].kind {
         ElementKind::Inductor { l, .. } => Some(l),
         _ => None,
@@ -87,7 +96,7 @@ pub fn singular_groups(c: &Circuit) -> Vec<Reduced> {
             g.0.push(id);
         }
     }
-    let mut out: Vec<Reduced> = groups
+    let mut out: Vec<Group> = groups
         .into_values()
         .filter_map(|(members, couplings)| {
             let n = members.len();
@@ -106,13 +115,10 @@ pub fn singular_groups(c: &Circuit) -> Vec<Reduced> {
                 l[a * n + b] += m;
                 l[b * n + a] += m;
             }
-            reduce(&l, n).map(|(pivots, flux, ratio)| Reduced {
-                l_pivot: pivots.iter().map(|&p| l[p * n + p]).collect(),
+            Some(Group {
                 members,
                 couplings,
-                pivots,
-                flux,
-                ratio,
+                l,
             })
         })
         .collect();
@@ -120,18 +126,63 @@ pub fn singular_groups(c: &Circuit) -> Vec<Reduced> {
     out
 }
 
-/// Pivots, flux rows and voltage ratios of the row-major `n`×`n`
-/// inductance matrix `l` when it is singular and positive semidefinite;
-/// `None` when it is regular or indefinite.
-#[allow(clippy::type_complexity)]
-fn reduce(l: &[f64], n: usize) -> Option<(Vec<usize>, Vec<Vec<f64>>, Vec<(usize, Vec<f64>)>)> {
+/// The coupled groups of `c` whose inductance matrix is singular.
+pub fn singular_groups(c: &Circuit) -> Vec<Reduced> {
+    groups(c)
+        .into_iter()
+        .filter_map(|g| {
+            let n = g.members.len();
+            reduce(&g.l, n).map(|(pivots, flux, ratio)| Reduced {
+                l_pivot: pivots.iter().map(|&p| g.l[p * n + p]).collect(),
+                members: g.members,
+                couplings: g.couplings,
+                pivots,
+                flux,
+                ratio,
+            })
+        })
+        .collect()
+}
+
+/// The K elements of each coupled group of `c` whose inductance matrix is
+/// indefinite: coefficients no magnetic circuit has (`k12 = 1` beside
+/// `k13 = 0.99` with `k23 = 0`), a direction of negative magnetic energy
+/// along which the currents grow without bound. ngspice simulates them as
+/// written; so does kausal, with a warning.
+pub fn indefinite_groups(c: &Circuit) -> Vec<Vec<ElemId>> {
+    groups(c)
+        .into_iter()
+        .filter(|g| matches!(factor(&g.l, g.members.len()), Shape::Indefinite))
+        .map(|g| g.couplings)
+        .collect()
+}
+
+/// What a pivoted Cholesky factorization finds of an inductance matrix.
+enum Shape {
+    /// Positive definite: every winding a pivot.
+    Regular,
+    /// Positive semidefinite of rank `pivots.len()`; `left` the rest.
+    Singular {
+        pivots: Vec<usize>,
+        left: Vec<usize>,
+    },
+    /// A remainder that is not zero after the positive pivots: a negative
+    /// diagonal, or a coupling left between windings.
+    Indefinite,
+    /// No finite, nonzero self inductance to scale by.
+    Degenerate,
+}
+
+/// Pivoted Cholesky of the row-major `n`×`n` matrix `l`, largest diagonal
+/// first, stopping below [`RANK_TOL`] of the largest self inductance.
+fn factor(l: &[f64], n: usize) -> Shape {
     let scale = (0..n).map(|k| l[k * n + k].abs()).fold(0.0, f64::max);
     if !(scale > 0.0 && scale.is_finite()) {
-        return None;
+        return Shape::Degenerate;
     }
     let tol = RANK_TOL * scale;
-    // Pivoted Cholesky on a copy: after each pivot, `a` holds the Schur
-    // complement of the pivots so far.
+    // On a copy: after each pivot, `a` holds the Schur complement of the
+    // pivots so far.
     let mut a = l.to_vec();
     let mut pivots = Vec::new();
     let mut left: Vec<usize> = (0..n).collect();
@@ -154,15 +205,30 @@ fn reduce(l: &[f64], n: usize) -> Option<(Vec<usize>, Vec<Vec<f64>>, Vec<(usize,
             }
         }
     }
-    // Regular: every winding was a pivot. Indefinite: a remainder that is
-    // not zero (a negative diagonal, or a coupling left between windings).
-    if left.is_empty()
-        || left
-            .iter()
-            .any(|&i| left.iter().any(|&j| a[i * n + j].abs() > tol))
+    if left.is_empty() {
+        Shape::Regular
+    } else if left
+        .iter()
+        .any(|&i| left.iter().any(|&j| a[i * n + j].abs() > tol))
     {
-        return None;
+        Shape::Indefinite
+    } else {
+        Shape::Singular { pivots, left }
     }
+}
+
+/// Pivots, flux rows and voltage ratios of the row-major `n`×`n`
+/// inductance matrix `l` when it is singular and positive semidefinite;
+/// `None` when it is regular or indefinite.
+#[allow(clippy::type_complexity)]
+fn reduce(l: &[f64], n: usize) -> Option<(Vec<usize>, Vec<Vec<f64>>, Vec<(usize, Vec<f64>)>)> {
+    let Shape::Singular {
+        mut pivots,
+        mut left,
+    } = factor(l, n)
+    else {
+        return None;
+    };
     pivots.sort_unstable();
     left.sort_unstable();
     let r = pivots.len();
@@ -194,6 +260,20 @@ fn reduce(l: &[f64], n: usize) -> Option<(Vec<usize>, Vec<Vec<f64>>, Vec<(usize,
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// k12 = 1 beside k13 = 0.9957 with k23 = 0 (a fuzzed netlist's) is
+    /// indefinite; k13 = k23 = 0.5 with k12 = 1 is singular, k12 = 0.9
+    /// regular.
+    #[test]
+    fn couplings_no_magnetic_circuit_has_are_indefinite() {
+        let m = |k12: f64, k13: f64, k23: f64| vec![1.0, k12, k13, k12, 1.0, k23, k13, k23, 1.0];
+        assert!(matches!(factor(&m(1.0, 0.9957, 0.0), 3), Shape::Indefinite));
+        assert!(matches!(
+            factor(&m(1.0, 0.5, 0.5), 3),
+            Shape::Singular { .. }
+        ));
+        assert!(matches!(factor(&m(0.9, 0.1, 0.0), 3), Shape::Regular));
+    }
 
     #[test]
     fn perfect_coupling_of_two_windings_is_an_ideal_transformer() {

@@ -118,6 +118,7 @@ codes! {
     PREFER_STATE_UNKNOWN = "K0320", "--prefer-state names no element.";
     PREFER_STATE_NOT_STORAGE = "K0321", "--prefer-state names an element without a state.";
     PERFECT_COUPLING = "K0330", "Coupled inductors with a singular inductance matrix: fluxes are the states.";
+    INDEFINITE_COUPLING = "K0331", "Coupled inductors whose inductance matrix is indefinite: a negative magnetic energy.";
     NO_TRAN = "K0400", "The netlist has no .tran line.";
     UNKNOWN_PROBE = "K0401", "An output vector names no node or element.";
     EVAL_FAILED = "K0402", "An algebraic loop has no solution at some time.";
