@@ -707,13 +707,8 @@ impl Elab {
                 }
                 (None, _) => None,
             };
-            let floor = if overlap[k] > 0.0 {
-                0.0
-            } else {
-                MEYER_FLOOR * cox
-            };
-            let constant = if floor > 0.0 {
-                x.push(BNode::Floor(floor))
+            let constant = if overlap[k] <= 0.0 && cox > 0.0 {
+                x.push(BNode::Floor(MEYER_FLOOR * cox))
             } else {
                 x.num(overlap[k])
             };

@@ -469,14 +469,14 @@ pub(super) fn fets(sorted: &Sorted, tape: &Tape) -> Vec<Fet> {
 /// [`crate::ir::EquationSystem::add_floor_param`]).
 const DC_FLOOR_FACTOR: f64 = 1e4;
 
-/// The floors raised and the work limited for as long as it lives: floors
-/// back at 1 and no limit when it drops (on every return of the operating
-/// point's solve).
-struct RaisedFloors<'a, M: Matrix<T = f64>>(&'a CircuitOde<M>)
+/// The operating point's settings for as long as it lives (floors raised,
+/// work limited): floors back at 1 and no limit when it drops, on every
+/// return of the solve.
+struct DcScope<'a, M: Matrix<T = f64>>(&'a CircuitOde<M>)
 where
     M::V: HostVec;
 
-impl<M: Matrix<T = f64>> Drop for RaisedFloors<'_, M>
+impl<M: Matrix<T = f64>> Drop for DcScope<'_, M>
 where
     M::V: HostVec,
 {
@@ -532,12 +532,11 @@ where
     M::V: HostVec,
 {
     ode.set_floor_factor(DC_FLOOR_FACTOR);
-    let _floors = RaisedFloors(ode);
+    let _scope = DcScope(ode);
     use diffsol::{OdeEquations, Op, Vector};
     let n = y.len();
     let tape = &ode.tape;
-    let dc_limit = work.deadline;
-    tape.limit_work(dc_limit);
+    tape.limit_work(work.deadline);
     let out_of_work = || SimError::DcFailed {
         reason: DcFailure::WorkLimit { work: work.limit },
     };
@@ -713,7 +712,7 @@ where
         tape.limit_work(
             tape.work()
                 .saturating_add(PTC_WORK.saturating_mul(per_eval).min(PTC_MAX_WORK))
-                .min(dc_limit),
+                .min(work.deadline),
         );
         let found = pseudo_transient(
             y0.clone(),
@@ -724,7 +723,7 @@ where
             &mut rough,
             tape,
         );
-        tape.limit_work(dc_limit);
+        tape.limit_work(work.deadline);
         if let Ok(found) = found {
             return Ok(found);
         }

@@ -194,7 +194,7 @@ where
     /// The factor on capacitance floors (see
     /// [`crate::ir::EquationSystem::add_floor_param`]; 1 restores).
     pub fn set_floor_factor(&self, s: f64) {
-        if self.tape.floor_regs.is_empty() {
+        if self.tape.floor_reg.is_none() {
             return;
         }
         self.tape.set_floor_factor(&mut self.regs.borrow_mut(), s);

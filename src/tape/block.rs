@@ -694,7 +694,7 @@ mod tests {
             coverage: Coverage::default(),
             reg_var: Vec::new(),
             var_regs: Vec::new(),
-            floor_regs: Vec::new(),
+            floor_reg: None,
             mode: std::cell::Cell::new(Mode::Transient),
             source_scale: std::cell::Cell::new(1.0),
             gmin_step: std::cell::Cell::new(0.0),

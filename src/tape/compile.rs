@@ -642,17 +642,16 @@ pub fn compile(
         .map(|(_, &r)| r)
         .collect();
     // The floor factor changes between the operating point and the run.
-    let floor_regs: Vec<Reg> = sys
+    let floor_reg: Option<Reg> = sys
         .params
         .iter()
         .zip(&c.param_reg)
-        .filter(|((_, p), r)| p.floor && **r != NONE)
-        .map(|(_, &r)| r)
-        .collect();
+        .find(|((_, p), r)| p.floor && **r != NONE)
+        .map(|(_, &r)| r);
     let varying: Vec<Reg> = state_regs
         .iter()
         .chain(switch_regs.iter().filter(|&&r| r != NONE))
-        .chain(&floor_regs)
+        .chain(&floor_reg)
         .copied()
         .collect();
     set_constant_jacobians(&mut c.blocks, &[&code, &out_code], &varying);
@@ -693,7 +692,7 @@ pub fn compile(
         gmin_step: std::cell::Cell::new(0.0),
         source_params,
         switch_regs,
-        floor_regs,
+        floor_reg,
         modes: c.modes,
         source_memo: vec![std::cell::Cell::new((f64::NAN, 0.0)); sys.sources.len()],
         work: std::cell::Cell::new(0),

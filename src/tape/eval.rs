@@ -113,7 +113,7 @@ impl Tape {
 
     /// Set the factor on capacitance floors in `regs`.
     pub fn set_floor_factor(&self, regs: &mut [f64], s: f64) {
-        for &r in &self.floor_regs {
+        if let Some(r) = self.floor_reg {
             regs[r] = s;
         }
     }

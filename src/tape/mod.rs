@@ -200,9 +200,9 @@ pub struct Tape {
     /// Each switch's conductance register (in element order; `NONE` where
     /// no code reads it).
     pub switch_regs: Vec<Reg>,
-    /// The registers of the capacitance floors' factor (see
-    /// [`crate::ir::EquationSystem::add_floor_param`]; at most one).
-    pub floor_regs: Vec<Reg>,
+    /// The register of the capacitance floors' factor, where code reads it
+    /// (see [`crate::ir::EquationSystem::add_floor_param`]).
+    pub floor_reg: Option<Reg>,
     /// The comparisons written in B sources, each a state event: its value
     /// held through a step (see [`HeldCmp`]).
     pub modes: Vec<HeldCmp>,
