@@ -16,7 +16,7 @@ fn eval(c: &mut Criterion) {
     let s = pipeline::sort_text("ladder.cir", text, &SortOptions::default())
         .ok()
         .expect("the ladder sorts");
-    let t = tape::compile(s.system(), &s.causal.graph, &s.schedule, &[]);
+    let t = tape::compile(s.system(), &s.schedule, &[]);
     assert_eq!(t.states.len(), n);
     let y: Vec<f64> = (0..n).map(|k| (k as f64 * 0.37).sin()).collect();
     let mut dy = vec![0.0; n];

@@ -61,7 +61,9 @@ impl Block {
 #[derive(Clone, Debug)]
 pub enum Step {
     Assign(Assignment),
-    Block(Block),
+    /// Boxed: a block is five times the size of an assignment, and nearly
+    /// every step is an assignment.
+    Block(Box<Block>),
 }
 
 /// Execution order of a causalized system. Back ends follow it and never
@@ -76,7 +78,7 @@ pub struct Schedule {
 impl Schedule {
     pub fn blocks(&self) -> impl Iterator<Item = &Block> {
         self.steps.iter().filter_map(|s| match s {
-            Step::Block(b) => Some(b),
+            Step::Block(b) => Some(&**b),
             Step::Assign(_) => None,
         })
     }
@@ -199,7 +201,9 @@ pub fn schedule(sys: &EquationSystem, c: &Causalization) -> Schedule {
             continue;
         }
         n_blocks += 1;
-        steps.push(Step::Block(block(&mut x, sys, c, comp, &edges, n_blocks)));
+        steps.push(Step::Block(Box::new(block(
+            &mut x, sys, c, comp, &edges, n_blocks,
+        ))));
     }
     Schedule { exprs: x, steps }
 }

@@ -54,6 +54,10 @@ struct Factors {
     q: Vec<usize>,
     /// `pinv[row]`: the step whose pivot row is `row`.
     pinv: Vec<usize>,
+    /// Their inverses, for the solve's gathers: `prow[k]`, the pivot row of
+    /// step `k`; `qinv[col]`, the step that eliminates column `col`.
+    prow: Vec<usize>,
+    qinv: Vec<usize>,
     /// Strictly lower part of `L`, rows in step numbering.
     lp: Vec<usize>,
     li: Vec<usize>,
@@ -176,6 +180,16 @@ impl Factors {
         for i in self.li.iter_mut() {
             *i = self.pinv[*i];
         }
+        self.prow.clear();
+        self.prow.resize(n, 0);
+        self.qinv.clear();
+        self.qinv.resize(n, 0);
+        for (row, &k) in self.pinv.iter().enumerate() {
+            self.prow[k] = row;
+        }
+        for (k, &col) in self.q.iter().enumerate() {
+            self.qinv[col] = k;
+        }
         self.valid = true;
         Ok(())
     }
@@ -281,29 +295,38 @@ impl Factors {
     }
 
     /// Solve `A x = b` in place; `y` is scratch of length `n`.
+    ///
+    /// Written for columns of one or two entries (a ladder's): the sweeps
+    /// walk one running position through `L` and `U` rather than slicing
+    /// each column, and the permutations are gathers.
     fn solve(&self, b: &mut [f64], y: &mut [f64]) {
         let n = self.n;
         let y = &mut y[..n];
-        for (&k, &bi) in self.pinv.iter().zip(b.iter()) {
-            y[k] = bi;
+        for (yk, &row) in y.iter_mut().zip(&self.prow) {
+            *yk = b[row];
         }
-        for j in 0..n {
+        let (li, lx) = (&self.li[..], &self.lx[..]);
+        let mut p = 0;
+        for (j, &end) in self.lp[1..].iter().enumerate() {
             let yj = y[j];
-            let (a, e) = (self.lp[j], self.lp[j + 1]);
-            for (&r, &l) in self.li[a..e].iter().zip(&self.lx[a..e]) {
-                y[r] -= l * yj;
+            while p < end {
+                y[li[p]] -= lx[p] * yj;
+                p += 1;
             }
         }
+        let (ui, ux) = (&self.ui[..], &self.ux[..]);
+        let mut p = self.up[n];
         for j in (0..n).rev() {
             let yj = y[j] * self.inv_pivot[j];
             y[j] = yj;
-            let (a, e) = (self.up[j], self.up[j + 1]);
-            for (&r, &u) in self.ui[a..e].iter().zip(&self.ux[a..e]) {
-                y[r] -= u * yj;
+            let start = self.up[j];
+            while p > start {
+                p -= 1;
+                y[ui[p]] -= ux[p] * yj;
             }
         }
-        for (&col, &yk) in self.q.iter().zip(y.iter()) {
-            b[col] = yk;
+        for (bi, &k) in b.iter_mut().zip(&self.qinv) {
+            *bi = y[k];
         }
     }
 

@@ -249,7 +249,7 @@ pub(super) fn held_operating_point(
         };
         refs.push(output_ref(&dc.built, &o));
     }
-    let tape = Rc::new(tape::compile(sys, &dc.causal.graph, &dc.schedule, &refs));
+    let tape = Rc::new(tape::compile(sys, &dc.schedule, &refs));
     let atol = atols(sys, &dc_states, opts, &dc.elaborated.circuit);
     let ptc = Continuation::of(&dc.elaborated.circuit);
     let fets = super::dc::fets(&dc, &tape);

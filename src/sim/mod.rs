@@ -496,12 +496,7 @@ fn simulate_rows(
             return Err(SimError::SwitchMethod(why));
         }
     }
-    let tape = Rc::new(tape::compile(
-        sys,
-        &sorted.causal.graph,
-        &sorted.schedule,
-        &refs,
-    ));
+    let tape = Rc::new(tape::compile(sys, &sorted.schedule, &refs));
     let n = tape.states.len();
     let job = Job {
         sorted,

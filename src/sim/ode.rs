@@ -7,8 +7,8 @@ use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
 use diffsol::{
-    ConstantOp, FaerVec, JacobianColoring, Matrix, NalgebraVec, NonLinearOp, NonLinearOpJacobian,
-    OdeEquations, OdeEquationsRef, Op, ParameterisedOp, UnitCallable, Vector, VectorCommon,
+    ConstantOp, FaerVec, Matrix, NalgebraVec, NonLinearOp, NonLinearOpJacobian, OdeEquations,
+    OdeEquationsRef, Op, ParameterisedOp, UnitCallable, Vector, VectorCommon, VectorIndex,
 };
 
 use diffsol_la::matrix::sparsity::MatrixSparsity;
@@ -39,6 +39,71 @@ impl HostVec for FaerVec<f64> {
     }
 }
 
+/// The Jacobian's columns grouped by colour (`numeric::colour_columns`:
+/// columns that share no row), so that one `J v` per colour fills them all.
+/// diffsol's own colouring clears an array of length `n` for every column,
+/// quadratic on a ladder of 10^5 sections.
+struct Colouring<M: Matrix> {
+    /// Per colour: the columns seeded, the rows read from `J v`, and where
+    /// those entries sit in the matrix's data.
+    colours: Vec<[<M::V as Vector>::Index; 3]>,
+    seed: RefCell<M::V>,
+    column: RefCell<M::V>,
+}
+
+impl<M: Matrix<T = f64>> Colouring<M> {
+    /// `nz`: the pattern's `(row, column)` entries, sorted.
+    fn new(sp: &M::Sparsity, nz: &[(usize, usize)], ctx: M::C) -> Colouring<M> {
+        let n = sp.ncols();
+        let mut rows: Vec<Vec<u32>> = vec![Vec::new(); sp.nrows()];
+        for &(i, j) in nz {
+            rows[i].push(j as u32);
+        }
+        let (colour, n_colours) = crate::numeric::colour::colour_columns(n, &rows);
+        let mut entries: Vec<Vec<(usize, usize)>> = vec![Vec::new(); n_colours as usize];
+        for &(i, j) in nz {
+            entries[colour[j] as usize].push((i, j));
+        }
+        let mut seeded: Vec<Vec<usize>> = vec![Vec::new(); n_colours as usize];
+        for (j, &c) in colour.iter().enumerate() {
+            seeded[c as usize].push(j);
+        }
+        let colours = entries
+            .iter()
+            .zip(seeded)
+            .map(|(e, cols)| {
+                let index = |v: Vec<usize>| <M::V as Vector>::Index::from_vec(v, ctx.clone());
+                [
+                    index(cols),
+                    index(e.iter().map(|&(i, _)| i).collect()),
+                    sp.get_index(e, ctx.clone()),
+                ]
+            })
+            .collect();
+        Colouring {
+            colours,
+            seed: RefCell::new(M::V::zeros(n, ctx.clone())),
+            column: RefCell::new(M::V::zeros(sp.nrows(), ctx)),
+        }
+    }
+
+    fn jacobian<F: NonLinearOpJacobian<M = M, V = M::V, T = f64, C = M::C>>(
+        &self,
+        op: &F,
+        x: &M::V,
+        t: f64,
+        y: &mut M,
+    ) {
+        let (mut seed, mut column) = (self.seed.borrow_mut(), self.column.borrow_mut());
+        for [cols, rows, dst] in &self.colours {
+            seed.assign_at_indices(cols, 1.0);
+            op.jac_mul_inplace(x, t, &seed, &mut column);
+            y.set_data_with_indices(dst, rows, &column);
+            seed.assign_at_indices(cols, 0.0);
+        }
+    }
+}
+
 /// Counters of the evaluations the solver asked for.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct EvalCounts {
@@ -58,7 +123,7 @@ where
     /// The initial state, set before each (re)start.
     pub y0: RefCell<Vec<f64>>,
     sparsity: Option<M::Sparsity>,
-    coloring: Option<JacobianColoring<M>>,
+    coloring: Option<Colouring<M>>,
     ctx: M::C,
     p: M::V,
     /// The first evaluation error, kept for the report (diffsol only sees NaN).
@@ -90,7 +155,7 @@ where
             nz.dedup();
             let sp = <M::Sparsity as MatrixSparsity<M>>::try_from_indices(n, n, nz.clone())
                 .expect("the tape's pattern is in range");
-            let col = JacobianColoring::new(&sp, &nz, ctx.clone());
+            let col = Colouring::new(&sp, &nz, ctx.clone());
             (Some(sp), Some(col))
         } else {
             (None, None)
@@ -341,7 +406,7 @@ where
     fn jacobian_inplace(&self, x: &M::V, t: f64, y: &mut M) {
         self.eqn.bump(|c| c.jacobians += 1);
         match self.eqn.coloring.as_ref() {
-            Some(col) => col.jacobian_inplace(self, x, t, y),
+            Some(col) => col.jacobian(self, x, t, y),
             None => {
                 // Dense: every column in one multi-direction tangent pass.
                 let n = self.eqn.tape.states.len();

@@ -9,35 +9,41 @@ use super::*;
 /// Mark the blocks whose body values (other than the tears) are read only
 /// inside the body itself.
 pub(super) fn set_private(blocks: &mut [TapeBlock], programs: &[&[Instr]], direct: &[&[Reg]]) {
-    // Who reads each register: `None` for top-level code, `Some(k)` for the
-    // body of block k, and a conflict (read by two) as top level.
-    let mut reader: HashMap<Reg, Option<usize>> = HashMap::new();
-    let mut note = |r: Reg, by: Option<usize>| {
-        reader
-            .entry(r)
-            .and_modify(|old| {
-                if *old != by {
-                    *old = None;
-                }
-            })
-            .or_insert(by);
+    // Who reads each register, by register: unseen, top-level code, or the
+    // body of block k; read by two counts as top level.
+    const UNSEEN: u32 = u32::MAX;
+    const TOP: u32 = u32::MAX - 1;
+    let mut reader: Vec<u32> = Vec::new();
+    let mut note = |r: Reg, by: u32| {
+        if r == NONE {
+            return;
+        }
+        let i = r.idx();
+        if i >= reader.len() {
+            reader.resize(i + 1, UNSEEN);
+        }
+        reader[i] = match reader[i] {
+            UNSEEN => by,
+            old if old == by => old,
+            _ => TOP,
+        };
     };
     for code in programs {
         for ins in code.iter() {
             for r in ins.operands() {
-                note(r, None);
+                note(r, TOP);
             }
         }
     }
     for regs in direct {
         for &r in regs.iter() {
-            note(r, None);
+            note(r, TOP);
         }
     }
     for (k, b) in blocks.iter().enumerate() {
         for ins in &b.body {
             for r in ins.operands() {
-                note(r, Some(k));
+                note(r, k as u32);
             }
         }
     }
@@ -46,7 +52,11 @@ pub(super) fn set_private(blocks: &mut [TapeBlock], programs: &[&[Instr]], direc
         let tears: std::collections::HashSet<Reg> = b.tears.iter().copied().collect();
         b.private = b.body.iter().all(|ins| {
             let d = ins.dest();
-            d == NONE || reader.get(&d).is_none_or(|by| *by == Some(k)) || tears.contains(&d)
+            d == NONE
+                || reader
+                    .get(d.idx())
+                    .is_none_or(|&by| by == UNSEEN || by == k as u32)
+                || tears.contains(&d)
         });
     }
 }

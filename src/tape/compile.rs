@@ -438,42 +438,86 @@ impl Compiler<'_> {
     }
 }
 
-/// The variables a step computes and the ones it reads.
-pub(super) fn step_vars(
-    sys: &EquationSystem,
-    c: &crate::analysis::StructureGraph,
-    step: &Step,
-) -> (Vec<VarId>, Vec<VarId>) {
-    let assigns: Vec<&Assignment> = match step {
-        Step::Assign(a) => vec![a],
-        Step::Block(b) => b.inner.iter().chain(&b.residuals).collect(),
-    };
-    let writes: Vec<VarId> = assigns.iter().map(|a| a.var).collect();
-    // A block can write 10^5 variables: look them up in a set, not a scan.
-    let written: std::collections::HashSet<VarId> = writes.iter().copied().collect();
-    let mut reads = Vec::new();
-    let (mut vars, mut stack) = (Vec::new(), Vec::new());
-    for a in &assigns {
-        sys.eq_vars(a.eq, &mut vars, &mut stack);
-        reads.extend(vars.iter().copied().filter(|v| !written.contains(v)));
-    }
-    let _ = c;
-    (writes, reads)
+/// The variables each step computes and the ones it reads, flat (a
+/// ladder of 10^5 sections has half a million steps: two vectors each would
+/// be a million allocations).
+struct StepVars {
+    writes: Vec<VarId>,
+    reads: Vec<VarId>,
+    /// Step `k` writes `writes[w[k]..w[k + 1]]` and reads `reads[r[k]..r[k + 1]]`.
+    w: Vec<usize>,
+    r: Vec<usize>,
 }
 
-/// Which steps compute something `needed` marks, walking the schedule
-/// backwards; what those steps read is marked needed on the way.
-fn steps_needed(info: &[(Vec<VarId>, Vec<VarId>)], needed: &mut [bool]) -> Vec<bool> {
-    let mut steps = vec![false; info.len()];
-    for (k, (writes, reads)) in info.iter().enumerate().rev() {
-        if writes.iter().any(|w| needed[w.0 as usize]) {
-            steps[k] = true;
-            for r in reads {
-                needed[r.0 as usize] = true;
+impl StepVars {
+    fn of(sys: &EquationSystem, steps: &[Step]) -> StepVars {
+        let mut sv = StepVars {
+            writes: Vec::with_capacity(steps.len()),
+            reads: Vec::with_capacity(2 * steps.len()),
+            w: Vec::with_capacity(steps.len() + 1),
+            r: Vec::with_capacity(steps.len() + 1),
+        };
+        sv.w.push(0);
+        sv.r.push(0);
+        let (mut vars, mut stack) = (Vec::new(), Vec::new());
+        for step in steps {
+            let assigns: &mut dyn Iterator<Item = &Assignment> = match step {
+                Step::Assign(a) => &mut std::iter::once(a),
+                Step::Block(b) => &mut b.inner.iter().chain(&b.residuals),
+            };
+            let w0 = sv.writes.len();
+            let r0 = sv.reads.len();
+            for a in assigns {
+                sv.writes.push(a.var);
+                sys.eq_vars(a.eq, &mut vars, &mut stack);
+                sv.reads.extend_from_slice(&vars);
+            }
+            // What the step writes itself is not a read. A block can write
+            // 10^5 variables: look them up in a set, not a scan; a step of a
+            // few (nearly every one) scans.
+            let writes = &sv.writes[w0..];
+            if writes.len() > 16 {
+                let set: std::collections::HashSet<VarId> = writes.iter().copied().collect();
+                let kept: Vec<VarId> = sv.reads[r0..]
+                    .iter()
+                    .copied()
+                    .filter(|v| !set.contains(v))
+                    .collect();
+                sv.reads.truncate(r0);
+                sv.reads.extend(kept);
+            } else {
+                let mut k = r0;
+                for i in r0..sv.reads.len() {
+                    let v = sv.reads[i];
+                    if !writes.contains(&v) {
+                        sv.reads[k] = v;
+                        k += 1;
+                    }
+                }
+                sv.reads.truncate(k);
+            }
+            sv.w.push(sv.writes.len());
+            sv.r.push(sv.reads.len());
+        }
+        sv
+    }
+
+    /// Which steps compute something `needed` marks, walking the schedule
+    /// backwards; what those steps read is marked needed on the way.
+    fn needed(&self, needed: &mut [bool]) -> Vec<bool> {
+        let n = self.w.len() - 1;
+        let mut steps = vec![false; n];
+        for k in (0..n).rev() {
+            let writes = &self.writes[self.w[k]..self.w[k + 1]];
+            if writes.iter().any(|w| needed[w.0 as usize]) {
+                steps[k] = true;
+                for r in &self.reads[self.r[k]..self.r[k + 1]] {
+                    needed[r.0 as usize] = true;
+                }
             }
         }
+        steps
     }
-    steps
 }
 
 /// The variables the outputs read: one pass over their expression DAG,
@@ -537,12 +581,7 @@ fn states_read(
 }
 
 /// Compile `sched` of `sys`. `outputs` are evaluated at output points only.
-pub fn compile(
-    sys: &EquationSystem,
-    graph: &crate::analysis::StructureGraph,
-    sched: &Schedule,
-    outputs: &[OutputRef],
-) -> Tape {
+pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) -> Tape {
     let states: Vec<VarId> = sys.states().collect();
     let mut c = Compiler {
         sys,
@@ -574,19 +613,16 @@ pub fn compile(
             _ => unreachable!("states have derivatives"),
         })
         .collect();
-    let info: Vec<(Vec<VarId>, Vec<VarId>)> = sched
-        .steps
-        .iter()
-        .map(|s| step_vars(sys, graph, s))
-        .collect();
+    let info = StepVars::of(sys, &sched.steps);
     let mut needed = vec![false; sys.vars.len()];
     for &d in &ders {
         needed[d.0 as usize] = true;
     }
-    let in_f = steps_needed(&info, &mut needed);
+    let in_f = info.needed(&mut needed);
     // Every step the outputs need, in f or not: the output program is
     // independent of `code`, so output points cost only what they read.
-    let for_out = steps_needed(&info, &mut output_vars(sys, outputs));
+    let for_out = info.needed(&mut output_vars(sys, outputs));
+    drop(info);
     let at_out: Vec<bool> = for_out.iter().zip(&in_f).map(|(o, f)| *o && !f).collect();
     let mut code = Vec::new();
     for (k, step) in sched.steps.iter().enumerate() {

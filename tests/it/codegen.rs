@@ -126,7 +126,7 @@ fn generated_rust_and_c_agree_with_the_evaluator() {
                 .unwrap()
         };
         let sys = s.system();
-        let t = tape::compile(sys, &s.causal.graph, &s.schedule, &[]);
+        let t = tape::compile(sys, &s.schedule, &[]);
         let n = t.states.len();
         // Random states around plausible magnitudes, a few times.
         let mut seed = 0x9e3779b97f4a7c15u64;
@@ -233,7 +233,7 @@ fn evaluator_jacobian_matches_finite_differences() {
             .ok()
             .unwrap();
         let sys = s.system();
-        let t = tape::compile(sys, &s.causal.graph, &s.schedule, &[]);
+        let t = tape::compile(sys, &s.schedule, &[]);
         let n_affine = t.blocks.iter().filter(|b| b.constant_jacobian).count();
         let n_scalar = t
             .blocks

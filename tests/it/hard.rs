@@ -221,7 +221,7 @@ fn junction_following_is_exact_where_the_tape_claims_it() {
         let Ok(s) = pipeline::sort(path, &FsLoader, &SortOptions::default()) else {
             continue;
         };
-        let t = tape::compile(s.system(), &s.causal.graph, &s.schedule, &[]);
+        let t = tape::compile(s.system(), &s.schedule, &[]);
         let n = t.states.len();
         let name = path.file_name().unwrap().to_string_lossy().to_string();
         if !t.jacobian_follows_junctions() {
