@@ -413,7 +413,8 @@ impl CircuitLu {
 /// (pivoting, AMD order) for several right-hand sides.
 #[derive(Clone)]
 pub struct TripletLu {
-    f: Factors,
+    /// Boxed: `Factored` holds either this or a small dense LU.
+    f: Box<Factors>,
 }
 
 impl TripletLu {
@@ -449,7 +450,7 @@ impl TripletLu {
             val: &val,
         };
         f.factor(&csc, &mut Work::default()).ok()?;
-        Some(TripletLu { f })
+        Some(TripletLu { f: Box::new(f) })
     }
 
     /// `b := A⁻¹ b`; `tmp` is scratch of length `n`.
