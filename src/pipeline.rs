@@ -135,6 +135,14 @@ pub struct Sorted {
 }
 
 impl Sorted {
+    /// Drop the causalization and the schedule (the listing's and the tape
+    /// compiler's, the bulk of a big circuit's memory after the system): a
+    /// simulation needs neither once its tape is compiled.
+    pub fn release_sorting(&mut self) {
+        self.causal = Default::default();
+        self.schedule = Default::default();
+    }
+
     /// The system that was sorted: the index-reduced one when there is one.
     pub fn system(&self) -> &EquationSystem {
         match &self.reduction {

@@ -49,7 +49,7 @@ pub struct Stall {
 
 /// The result of colouring: which equation computes which unknown, the sort
 /// numbers, the trace, the tears and the stalls.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Causalization {
     pub graph: StructureGraph,
     eq_var: Vec<u32>,

@@ -68,7 +68,7 @@ pub enum Step {
 
 /// Execution order of a causalized system. Back ends follow it and never
 /// reorder it.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Schedule {
     /// The system's expressions plus the solved forms.
     pub exprs: ExprArena,

@@ -18,7 +18,8 @@ use std::collections::HashMap;
 
 use crate::elab::{Circuit, ElemId, ElementKind, GROUND, NodeId};
 use crate::ir::{
-    EquationSystem, ExprId, Name, Origin, OriginKind, SourceFn, VarId, VarKind, Waveform, joined,
+    EquationSystem, ExprId, KvlLoop, Name, Origin, OriginKind, SourceFn, VarId, VarKind, Waveform,
+    joined,
 };
 
 pub use crate::ir::{VT_27C, thermal_voltage};
@@ -758,10 +759,10 @@ impl Builder<'_> {
                     u,
                     rhs,
                     Origin {
-                        kind: OriginKind::Kvl {
+                        kind: OriginKind::Kvl(Box::new(KvlLoop {
                             link: self.names[id.0 as usize].clone(),
                             elements,
-                        },
+                        })),
                         span: Some(e.span),
                     },
                 );

@@ -4,7 +4,7 @@
 
 use super::ElemVars;
 use crate::elab::{Circuit, ElementKind, GROUND};
-use crate::ir::{EquationSystem, ExprId, Name, Origin, OriginKind, VarKind};
+use crate::ir::{EquationSystem, ExprId, KvlLoop, Name, Origin, OriginKind, VarKind};
 use crate::numeric::UnionFind;
 
 /// Tree preference of an element: lower goes into the tree first.
@@ -229,10 +229,10 @@ pub fn loop_equations(
             u,
             rhs,
             Origin {
-                kind: OriginKind::Kvl {
+                kind: OriginKind::Kvl(Box::new(KvlLoop {
                     link: Name::from(e.name.as_str()),
                     elements,
-                },
+                })),
                 span: Some(e.span),
             },
         );

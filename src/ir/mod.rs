@@ -20,7 +20,7 @@ pub use device::{
 pub use entity::{EntityId, IdVec};
 pub use expr::{Cmp, Expr, ExprArena, ExprId, Func, Slope, bits, select};
 pub use system::{
-    EqId, Equation, EquationSystem, Name, Origin, OriginKind, Param, ParamId, SourceFn, SourceId,
-    Var, VarId, VarKind, VarRole, Waveform, joined,
+    EqId, Equation, EquationSystem, KvlLoop, Name, Origin, OriginKind, Param, ParamId, SourceFn,
+    SourceId, Var, VarId, VarKind, VarRole, Waveform, joined,
 };
 pub use verify::{VerifyError, verify};

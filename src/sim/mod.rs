@@ -421,6 +421,26 @@ fn simulate_rows(
     opts: &Options,
     sink: Option<RowSink<'_>>,
 ) -> Result<Waveforms, SimError> {
+    let prepared = prepare(sorted, opts)?;
+    run_prepared(sorted, prepared, opts, sink)
+}
+
+/// A simulation ready to run: its options checked, its outputs resolved and
+/// its tape compiled. Once it exists the simulation no longer reads the
+/// schedule or the causalization, so a caller that owns the [`Sorted`] can
+/// release them ([`Sorted::release_sorting`]) before the integrator
+/// allocates its own.
+pub struct Prepared {
+    start: Instant,
+    tran: crate::elab::Tran,
+    method: Method,
+    list: Vec<Output>,
+    switches: events::Switches,
+    tape: Rc<Tape>,
+}
+
+/// Check `opts` against the circuit and compile its tape.
+pub fn prepare(sorted: &Sorted, opts: &Options) -> Result<Prepared, SimError> {
     let start = Instant::now();
     let c = &sorted.elaborated.circuit;
     let tran = c.tran.clone().ok_or(SimError::NoTran)?;
@@ -497,6 +517,33 @@ fn simulate_rows(
         }
     }
     let tape = Rc::new(tape::compile(sys, &sorted.schedule, &refs));
+    Ok(Prepared {
+        start,
+        tran,
+        method,
+        list,
+        switches,
+        tape,
+    })
+}
+
+/// Run a [`Prepared`] simulation of `sorted`, handing rows to `sink` when
+/// there is one (as [`simulate_to`]).
+pub fn run_prepared(
+    sorted: &Sorted,
+    prepared: Prepared,
+    opts: &Options,
+    sink: Option<RowSink<'_>>,
+) -> Result<Waveforms, SimError> {
+    let Prepared {
+        start,
+        tran,
+        method,
+        list,
+        switches,
+        tape,
+    } = prepared;
+    let c = &sorted.elaborated.circuit;
     let n = tape.states.len();
     let job = Job {
         sorted,

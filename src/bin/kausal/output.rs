@@ -85,6 +85,7 @@ pub fn json(value: &impl serde::Serialize) -> Result<String, Error> {
 /// output (a closed pipe, `| head`, ends the writing, not the run).
 pub fn stream_csv(
     sorted: &Sorted,
+    prepared: sim::Prepared,
     opts: &sim::Options,
     out: Option<&PathBuf>,
 ) -> Result<(sim::Waveforms, Option<AtomicFile>), sim::SimError> {
@@ -99,6 +100,7 @@ pub fn stream_csv(
     };
     // One row writer for both destinations.
     let run = |w: &mut dyn Write| -> Result<sim::Waveforms, sim::SimError> {
+        let prepared = prepared;
         let mut line = String::new();
         sim::output::csv_header(&mut line, &names);
         w.write_all(line.as_bytes()).map_err(write_err)?;
@@ -107,7 +109,7 @@ pub fn stream_csv(
             sim::output::csv_row(&mut line, t, v);
             w.write_all(line.as_bytes())
         };
-        let mut wf = sim::simulate_to(sorted, opts, &mut sink)?;
+        let mut wf = sim::run_prepared(sorted, prepared, opts, Some(&mut sink))?;
         w.flush().map_err(write_err)?;
         wf.names = names.clone();
         Ok(wf)

@@ -98,7 +98,7 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
         prefer_state: std::mem::take(&mut args.prefer_state),
         ..Default::default()
     };
-    let sorted = pipeline::sort(&args.netlist, &FsLoader, &opts).map_err(Error::netlist)?;
+    let mut sorted = pipeline::sort(&args.netlist, &FsLoader, &opts).map_err(Error::netlist)?;
     print_diags(&sorted.elaborated.sources, &sorted.elaborated.warnings);
     let sim_opts = sim::Options {
         method: args.method.map(Into::into),
@@ -115,7 +115,13 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
         step: args.step,
         dc_work: None,
     };
-    let (waves, csv) = match simulate(&sorted, &sim_opts, &args) {
+    let prepared = match sim::prepare(&sorted, &sim_opts) {
+        Ok(p) => p,
+        Err(e) => return Err(Error::stage(sorted.elaborated.sources, e)),
+    };
+    // The integrator's memory takes the place of the schedule's.
+    sorted.release_sorting();
+    let (waves, csv) = match simulate(&sorted, prepared, &sim_opts, &args) {
         Ok(x) => x,
         Err(e) => return Err(Error::stage(sorted.elaborated.sources, e)),
     };
@@ -132,12 +138,13 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
 /// circuit, however long the run or many the saved vectors.
 fn simulate(
     sorted: &Sorted,
+    prepared: sim::Prepared,
     opts: &sim::Options,
     args: &Args,
 ) -> Result<(Waveforms, Csv), sim::SimError> {
     let result = match &args.raw {
-        Some(_) => sim::simulate(sorted, opts).map(|w| (w, Csv::Kept)),
-        None => stream_csv(sorted, opts, args.out.as_ref())
+        Some(_) => sim::run_prepared(sorted, prepared, opts, None).map(|w| (w, Csv::Kept)),
+        None => stream_csv(sorted, prepared, opts, args.out.as_ref())
             .map(|(w, f)| (w, f.map_or(Csv::Stdout, Csv::File))),
     };
     if let Some(bar) = PROGRESS.get() {
