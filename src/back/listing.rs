@@ -78,6 +78,28 @@ pub fn shortened<S: AsRef<str>>(names: &[S], shown: usize) -> String {
 }
 
 /// The numbered sorted assignments with blocks marked, then a summary.
+/// Padding for the listing's columns, copied a slice at a time.
+const SPACES: &str = "                                                                        ";
+
+/// `n` in decimal, right-aligned in `width` columns (the listing writes a
+/// million of these: `write!` costs several times more).
+fn push_right(out: &mut String, mut n: usize, width: usize) {
+    let mut digits = [0u8; 20];
+    let mut k = digits.len();
+    loop {
+        k -= 1;
+        digits[k] = b'0' + (n % 10) as u8;
+        n /= 10;
+        if n == 0 {
+            break;
+        }
+    }
+    let len = digits.len() - k;
+    out.push_str(&SPACES[..width.saturating_sub(len).min(SPACES.len())]);
+    // ASCII digits only.
+    out.push_str(std::str::from_utf8(&digits[k..]).unwrap_or_default());
+}
+
 pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
     // Rows are written once into one buffer (a listing of 10^6 equations
     // would otherwise allocate several strings a row), then padded to the
@@ -101,10 +123,13 @@ pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
             k += 1;
             let start = buf.len();
             let name = &sys.vars[a.var].name;
-            let _ = write!(buf, "{k:>5}  {indent}");
+            push_right(buf, k, 5);
+            buf.push_str("  ");
+            buf.push_str(indent);
             match a.solved {
                 Solved::Explicit(e) => {
-                    let _ = write!(buf, "{name} := ");
+                    buf.push_str(name);
+                    buf.push_str(" := ");
                     write_expr(sys, &s.exprs, e, buf);
                 }
                 Solved::Implicit(e) => {
@@ -178,10 +203,11 @@ pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
             }
             Row::Assign { end, chars, eq } => {
                 out.push_str(&buf[start..end]);
-                for _ in chars..width {
-                    out.push(' ');
-                }
-                let _ = write!(out, "    ; {eq} ");
+                // `width` is at most 72, the length of `SPACES`.
+                out.push_str(&SPACES[..width.saturating_sub(chars).min(SPACES.len())]);
+                out.push_str("    ; eq");
+                push_right(&mut out, eq.0 as usize, 0);
+                out.push(' ');
                 let _ = sys.eqs[eq].origin.write_description(&mut out);
                 out.push('\n');
                 start = end;
