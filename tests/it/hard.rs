@@ -134,6 +134,31 @@ fn circuit_integrator_on_the_bridges() {
     }
 }
 
+/// With TMAX equal to the output spacing (ngspice's cap when TSTEP is below
+/// span/50, which the benchmarks give both sides), every interval between
+/// output points is one step of the circuit integrator, a few more where
+/// the diodes switch. A step short of the next point by rounding only once
+/// split each interval into two half steps: 1.6 times ngspice's steps.
+#[test]
+fn circuit_integrator_takes_one_step_per_capped_interval() {
+    for (name, tmax) in [("sin_rectifier.cir", 1e-6), ("rectifier_big_cap.cir", 1e-4)] {
+        let s = sorted(name);
+        let o = sim::Options {
+            method: Some(Method::Circuit),
+            rtol: Some(1e-3),
+            tmax: Some(tmax),
+            ..Default::default()
+        };
+        let w = sim::simulate(&s, &o).expect("simulates");
+        let intervals = w.time.len() - 1;
+        assert!(
+            w.stats.steps >= intervals && w.stats.steps * 100 <= intervals * 105,
+            "{name}: {} steps for {intervals} intervals of TMAX",
+            w.stats.steps
+        );
+    }
+}
+
 /// The diode bridge floats at each zero crossing of its source (every diode
 /// off, its nodes set by the junctions' depletion charges, orders of
 /// magnitude below the diffusion charges of their conduction): the circuit

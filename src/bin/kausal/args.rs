@@ -123,8 +123,10 @@ pub fn relative_tolerance(s: &str) -> Result<f64, String> {
 }
 
 /// An absolute tolerance or bound: a finite number above 0.
+/// A number above 0, in SPICE's notation as well (`1u`, `20n`, `1e-6`).
 pub fn positive(s: &str) -> Result<f64, String> {
-    let x: f64 = s.trim().parse().map_err(|e| format!("`{s}`: {e}"))?;
+    let x = kausal::front::expr::parse_number(s.trim())
+        .ok_or_else(|| format!("`{s}` is not a number (write it as 1e-6, 1u or 0.000001)"))?;
     if x > 0.0 && x.is_finite() {
         Ok(x)
     } else {
@@ -135,6 +137,19 @@ pub fn positive(s: &str) -> Result<f64, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `--tmax 1u` reads as a netlist would; zero, negatives and words are
+    /// refused.
+    #[test]
+    fn positive_numbers_take_spice_suffixes() {
+        assert_eq!(positive("1u"), Ok(1e-6));
+        assert_eq!(positive("20n"), Ok(20e-9));
+        assert_eq!(positive(" 1e-6 "), Ok(1e-6));
+        assert_eq!(positive("0.5"), Ok(0.5));
+        for bad in ["0", "-1u", "abc", "", "1u2"] {
+            assert!(positive(bad).is_err(), "{bad:?} was accepted");
+        }
+    }
 
     /// Every library value has its command-line twin under the same name: a
     /// variant added to the library fails to compile here until it is added

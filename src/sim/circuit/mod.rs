@@ -82,6 +82,9 @@ use diffsol::Matrix;
 
 /// `γ = 2 - √2`: both stages then share one iteration matrix, and the
 /// method is L-stable.
+/// A step within this fraction of the next stop is taken to the stop.
+const STOP_ROUNDING: f64 = 1e-9;
+
 const GAMMA: f64 = 2.0 - std::f64::consts::SQRT_2;
 /// The local error is `C h³ y'''` with `C = (-3γ² + 4γ - 2) / (12 (2 - γ))`.
 const ERROR_CONSTANT: f64 = (-3.0 * GAMMA * GAMMA + 4.0 * GAMMA - 2.0) / (12.0 * (2.0 - GAMMA));
@@ -393,9 +396,16 @@ where
         let mut failures = 0usize;
         loop {
             let mut h = self.h.min(self.h_cap).min(h_max);
-            // No sliver before the stop: two even steps instead.
-            if h < h_max && h > 0.5 * h_max {
-                h = 0.5 * h_max;
+            if h < h_max {
+                if h_max - h <= STOP_ROUNDING * h_max {
+                    // Short of the stop by rounding only (a TMAX equal to
+                    // the output spacing, whose points are products and
+                    // sums of it): land on it.
+                    h = h_max;
+                } else if h > 0.5 * h_max {
+                    // No sliver before the stop: two even steps instead.
+                    h = 0.5 * h_max;
+                }
             }
             if h.is_nan() || h < self.h_min {
                 return Err(self.underflow(sys));
