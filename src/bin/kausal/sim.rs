@@ -115,6 +115,8 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
         step: args.step,
         dc_work: None,
     };
+    // The tape compiler reads the schedule, not the causalization.
+    sorted.causal = Default::default();
     let prepared = match sim::prepare(&sorted, &sim_opts) {
         Ok(p) => p,
         Err(e) => return Err(Error::stage(sorted.elaborated.sources, e)),
