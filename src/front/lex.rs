@@ -2,13 +2,6 @@
 //! splitting of a logical line into words, `=`, parentheses and `{…}`
 //! expressions, each with its byte span.
 
-use nom::IResult;
-use nom::Parser;
-use nom::branch::alt;
-use nom::bytes::complete::{take_till1, take_while};
-use nom::character::complete::char;
-use nom::combinator::map;
-
 use super::error::ParseError;
 use crate::diag::{FileId, SourceMap, Span};
 
@@ -151,21 +144,6 @@ fn is_word_end(c: char) -> bool {
     is_sep(c) || matches!(c, '(' | ')' | '=' | '{' | '}' | '\'' | ';')
 }
 
-/// The raw token shapes, recognized with nom on one line's text.
-fn token(input: &str) -> IResult<&str, (TokKind, &str)> {
-    alt((
-        map(char('='), |_| (TokKind::Eq, "=")),
-        map(char('('), |_| (TokKind::LParen, "(")),
-        map(char(')'), |_| (TokKind::RParen, ")")),
-        map(take_till1(is_word_end), |w| (TokKind::Word, w)),
-    ))
-    .parse(input)
-}
-
-fn separators(input: &str) -> IResult<&str, &str> {
-    take_while(is_sep).parse(input)
-}
-
 /// Split one line body (after any `+`) into tokens appended to `toks`;
 /// `base` is its file offset.
 pub fn tokenize<'a>(
@@ -177,8 +155,8 @@ pub fn tokenize<'a>(
 ) {
     let mut rest = body;
     let at = |rest: &str| base + (body.len() - rest.len());
-    while let Ok((r, _)) = separators(rest) {
-        rest = r;
+    loop {
+        rest = rest.trim_start_matches(is_sep);
         let Some(c) = rest.chars().next() else { break };
         // End-of-line comments: `;` anywhere, `$` and `//` after white space.
         let after_space = rest.len() == body.len()
@@ -221,18 +199,24 @@ pub fn tokenize<'a>(
             rest = &rest[1..];
             continue;
         }
-        match token(rest) {
-            Ok((r, (kind, text))) => {
-                let start = at(rest);
-                toks.push(Token {
-                    kind,
-                    text,
-                    span: Span::new(file, start, start + text.len()),
-                });
-                rest = r;
-            }
-            Err(_) => break,
+        // One character for `=`, `(` and `)`, else a word up to its end.
+        let (kind, len) = match c {
+            '=' => (TokKind::Eq, 1),
+            '(' => (TokKind::LParen, 1),
+            ')' => (TokKind::RParen, 1),
+            _ => (TokKind::Word, rest.find(is_word_end).unwrap_or(rest.len())),
+        };
+        if len == 0 {
+            break;
         }
+        let start = at(rest);
+        let (text, r) = rest.split_at(len);
+        toks.push(Token {
+            kind,
+            text,
+            span: Span::new(file, start, start + len),
+        });
+        rest = r;
     }
 }
 
