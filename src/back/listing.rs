@@ -77,7 +77,6 @@ pub fn shortened<S: AsRef<str>>(names: &[S], shown: usize) -> String {
     out
 }
 
-/// The numbered sorted assignments with blocks marked, then a summary.
 /// Padding for the listing's columns, copied a slice at a time.
 const SPACES: &str = "                                                                        ";
 
@@ -100,6 +99,7 @@ fn push_right(out: &mut String, mut n: usize, width: usize) {
     out.push_str(std::str::from_utf8(&digits[k..]).unwrap_or_default());
 }
 
+/// The numbered sorted assignments with blocks marked, then a summary.
 pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
     // Rows are written once into one buffer (a listing of 10^6 equations
     // would otherwise allocate several strings a row), then padded to the

@@ -115,7 +115,8 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
         step: args.step,
         dc_work: None,
     };
-    // The tape compiler reads the schedule, not the causalization.
+    // The tape compiler reads the schedule, not the causalization: drop it
+    // first (the schedule goes once the tape exists).
     sorted.causal = Default::default();
     let prepared = match sim::prepare(&sorted, &sim_opts) {
         Ok(p) => p,

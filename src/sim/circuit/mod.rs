@@ -80,11 +80,11 @@ use crate::numeric::dense::{lu_factor, lu_solve};
 use crate::tape::{ChargeInverse, EvalError};
 use diffsol::Matrix;
 
-/// `γ = 2 - √2`: both stages then share one iteration matrix, and the
-/// method is L-stable.
 /// A step within this fraction of the next stop is taken to the stop.
 const STOP_ROUNDING: f64 = 1e-9;
 
+/// `γ = 2 - √2`: both stages then share one iteration matrix, and the
+/// method is L-stable.
 const GAMMA: f64 = 2.0 - std::f64::consts::SQRT_2;
 /// The local error is `C h³ y'''` with `C = (-3γ² + 4γ - 2) / (12 (2 - γ))`.
 const ERROR_CONSTANT: f64 = (-3.0 * GAMMA * GAMMA + 4.0 * GAMMA - 2.0) / (12.0 * (2.0 - GAMMA));
