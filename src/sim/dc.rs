@@ -141,22 +141,20 @@ where
     // (a negative resistance that a diode clamps), that is the one ngspice
     // finds; where none is found from there, the solve starts again from 0 V.
     let diode_start = if held_start { None } else { diodes_on(c, tape) };
+    let fets = &fets;
+    let solve = |start: Vec<f64>| {
+        tape.in_mode(Mode::Dc, move || {
+            dc_point::<M>(ode, t0, start, atol, ptc, fets, work)
+        })
+    };
     let r = match diode_start {
-        Some(start) => tape
-            .in_mode(Mode::Dc, || {
-                dc_point::<M>(ode, t0, start, atol, ptc, &fets, work)
-            })
-            .or_else(|_| {
-                // The blocks start from their first guesses again, not
-                // where the failed solve left them.
-                ode.reset_tears();
-                tape.in_mode(Mode::Dc, || {
-                    dc_point::<M>(ode, t0, y, atol, ptc, &fets, work)
-                })
-            }),
-        None => tape.in_mode(Mode::Dc, || {
-            dc_point::<M>(ode, t0, y, atol, ptc, &fets, work)
+        Some(start) => solve(start).or_else(|_| {
+            // The blocks start from their first guesses again, not
+            // where the failed solve left them.
+            ode.reset_tears();
+            solve(y)
         }),
+        None => solve(y),
     };
     // Where no operating point is found from zero, the transistors are
     // started conducting, as ngspice starts them (each base-emitter
@@ -164,11 +162,7 @@ where
     // is tried again from there.
     let r = match r {
         Err(e) => match transistors_on(sorted, &tape.states) {
-            Some(start) => tape
-                .in_mode(Mode::Dc, || {
-                    dc_point::<M>(ode, t0, start, atol, ptc, &fets, work)
-                })
-                .map_err(|_| e),
+            Some(start) => solve(start).map_err(|_| e),
             None => Err(e),
         },
         ok => ok,

@@ -352,28 +352,16 @@ impl Switches {
                 break;
             }
         }
-        let Some((mut lo, (mut hi, mut y, mut x))) = bracket else {
+        let Some((lo, (hi, y, x))) = bracket else {
             return Ok(None);
         };
         // Bisection to the resolution of the time axis.
         let resolution = 4.0 * f64::EPSILON * hi.abs().max(t1 - t0);
-        while hi - lo > resolution {
-            let mid = 0.5 * (lo + hi);
-            if mid <= lo || mid >= hi {
-                break;
-            }
-            let (ym, xm) = at(mid)?;
-            if self.past(modes, &xm) {
-                (hi, y, x) = (mid, ym, xm);
-            } else {
-                lo = mid;
-            }
-        }
-        Ok(Some(Crossing {
-            t: hi,
-            y,
-            controls: x,
-        }))
+        let (t, (y, controls)) = bisect(lo, (hi, (y, x)), resolution, |t| {
+            let (y, x) = at(t)?;
+            Ok(self.past(modes, &x).then_some((y, x)))
+        })?;
+        Ok(Some(Crossing { t, y, controls }))
     }
 
     /// A crossing between three samples `times` whose distances `dist` stay
@@ -491,18 +479,11 @@ impl Switches {
                 lo = t;
                 continue;
             }
-            let (mut hi, mut at) = (t, x);
-            while hi - lo > resolution {
-                let mid = 0.5 * (lo + hi);
-                if mid <= lo || mid >= hi {
-                    break;
-                }
-                match read(mid)? {
-                    (true, x) => (hi, at) = (mid, x),
-                    (false, _) => lo = mid,
-                }
-            }
-            return Ok(Some((hi, at)));
+            return bisect(lo, (t, x), resolution, |t| {
+                let (past, x) = read(t)?;
+                Ok(past.then_some(x))
+            })
+            .map(Some);
         }
         Ok(None)
     }
@@ -614,4 +595,26 @@ impl Switches {
         }
         Ok(())
     }
+}
+
+/// Bisect `(lo, hi.0]`, where `hi.0` is past a threshold and `lo` is not,
+/// until it is narrower than `resolution`: the first point found past and
+/// what `read` gave there (`None`: not past).
+fn bisect<T>(
+    mut lo: f64,
+    mut hi: (f64, T),
+    resolution: f64,
+    mut read: impl FnMut(f64) -> Result<Option<T>, SimError>,
+) -> Result<(f64, T), SimError> {
+    while hi.0 - lo > resolution {
+        let mid = 0.5 * (lo + hi.0);
+        if mid <= lo || mid >= hi.0 {
+            break;
+        }
+        match read(mid)? {
+            Some(v) => hi = (mid, v),
+            None => lo = mid,
+        }
+    }
+    Ok(hi)
 }

@@ -535,27 +535,29 @@ pub fn run_prepared(
     opts: &Options,
     sink: Option<RowSink<'_>>,
 ) -> Result<Waveforms, SimError> {
-    let Prepared {
-        start,
-        tran,
-        method,
-        list,
-        switches,
-        tape,
-    } = prepared;
+    let p = prepared;
+    let (tape, method) = (&p.tape, p.method);
     let c = &sorted.elaborated.circuit;
     let n = tape.states.len();
     let job = Job {
         sorted,
         tape: tape.clone(),
-        tran: &tran,
-        outputs: &list,
+        tran: &p.tran,
+        outputs: &p.list,
         opts,
         method,
-        switches: &switches,
+        switches: &p.switches,
     };
     let mut w = if n == 0 {
-        algebraic(sorted, tape.clone(), &tran, &list, opts, &switches, sink)?
+        algebraic(
+            sorted,
+            tape.clone(),
+            &p.tran,
+            &p.list,
+            opts,
+            &p.switches,
+            sink,
+        )?
     } else if method == Method::Circuit && n > DENSE_STATES {
         return Err(SimError::TooManyStates {
             n,
@@ -566,13 +568,13 @@ pub fn run_prepared(
     } else {
         run::<FaerSparseMat<f64>, CircuitLu>(&job, sink)?
     };
-    w.names = list.iter().map(|o| c.output_name(o)).collect();
+    w.names = p.list.iter().map(|o| c.output_name(o)).collect();
     w.stats.method = Some(method);
     w.stats.states = n;
     w.stats.in_f = tape.coverage.in_f;
     w.stats.at_outputs = tape.coverage.at_outputs;
     w.stats.unused = tape.coverage.unused;
-    w.stats.wall = start.elapsed();
+    w.stats.wall = p.start.elapsed();
     Ok(w)
 }
 
