@@ -342,6 +342,12 @@ impl Tape {
                     }
                     let lambda = lambda * 0.5;
                     if lambda < newton::MIN_DAMPING {
+                        // No step along the exact slope lowers a residual
+                        // that is rounding: the start is the solution (as
+                        // in `newton_iterate`).
+                        if (slope0 * step0).abs() <= STALL_FLOOR && full0 <= 1e-6 {
+                            return finish(r, x0);
+                        }
                         return Err(b.no_convergence(fx.abs(), t));
                     }
                     r[x] = x0 - lambda * step0;
@@ -533,6 +539,14 @@ impl Tape {
 /// below ngspice's ABSTOL (1e-12 A), VNTOL (1e-6 V) and CHGTOL (1e-14 C):
 /// with a correction below 1e-6 relative, a block is solved.
 const RESIDUAL_FLOOR: f64 = 1e-17;
+
+/// The same for a one-tear block where no damped step along the exact slope
+/// lowers the residual (the damping stalled): rounding on sums of
+/// milliampere currents leaves 2e-16 A on an ECL Schmitt trigger's emitter
+/// node. Only after a stall: as the floor of every test above it ended
+/// solves that would still converge, early enough that an op-amp
+/// follower's operating point was lost.
+const STALL_FLOOR: f64 = 1e-15;
 
 /// [`crate::ir::junction_limit`] where the saturation current is not known
 /// (tears inside an `exp()`): the critical voltage taken as 12 thermal

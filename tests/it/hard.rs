@@ -49,6 +49,7 @@ fn hard_cases_do_not_blow_up() {
         ("pwl_sharp.cir", 2.0),
         ("rc_line_10k.cir", 1.0),
         ("rlc_ladder_1k.cir", 1.0),
+        ("ecl_schmitt.cir", 5.2),
     ];
     for (name, bound) in cases {
         let s = sorted(name);
