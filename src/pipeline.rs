@@ -135,14 +135,6 @@ pub struct Sorted {
 }
 
 impl Sorted {
-    /// Drop the causalization and the schedule (the listing's and the tape
-    /// compiler's, the bulk of a big circuit's memory after the system): a
-    /// simulation needs neither once its tape is compiled.
-    pub fn release_sorting(&mut self) {
-        self.causal = Default::default();
-        self.schedule = Default::default();
-    }
-
     /// The system that was sorted: the index-reduced one when there is one.
     pub fn system(&self) -> &EquationSystem {
         match &self.reduction {
@@ -227,8 +219,8 @@ pub fn sort_built(
     for g in &built.reduced {
         el.warnings.push(coupling_note(&el.circuit, g));
     }
-    for couplings in crate::build::coupling::indefinite_groups(&el.circuit) {
-        el.warnings.push(indefinite_note(&el.circuit, &couplings));
+    for couplings in &built.indefinite {
+        el.warnings.push(indefinite_note(&el.circuit, couplings));
     }
     let c = &el.circuit;
     let mut keep = Vec::new();

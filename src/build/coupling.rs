@@ -18,7 +18,7 @@
 //!
 //! A group whose matrix is regular keeps one state per inductor; one that
 //! is indefinite (coefficients that no magnetic circuit has) too, with a
-//! warning that names its K elements (K0331, [`indefinite_groups`]): its
+//! warning that names its K elements (K0331, [`Groups::indefinite`]): its
 //! matrix is invertible, which is all the per-inductor form needs.
 
 use std::collections::HashMap;
@@ -126,35 +126,47 @@ fn groups(c: &Circuit) -> Vec<Group> {
     out
 }
 
-/// The coupled groups of `c` whose inductance matrix is singular.
-pub fn singular_groups(c: &Circuit) -> Vec<Reduced> {
-    groups(c)
-        .into_iter()
-        .filter_map(|g| {
-            let n = g.members.len();
-            reduce(&g.l, n).map(|(pivots, flux, ratio)| Reduced {
-                l_pivot: pivots.iter().map(|&p| g.l[p * n + p]).collect(),
-                members: g.members,
-                couplings: g.couplings,
-                pivots,
-                flux,
-                ratio,
-            })
-        })
-        .collect()
+/// The coupled groups of `c` by the shape of their inductance matrix.
+#[derive(Debug, Default)]
+pub struct Groups {
+    /// Those whose matrix is singular (and positive semidefinite), reduced.
+    pub singular: Vec<Reduced>,
+    /// The K elements of each whose matrix is indefinite: coefficients no
+    /// magnetic circuit has (`k12 = 1` beside `k13 = 0.99` with `k23 = 0`),
+    /// a direction of negative magnetic energy along which the currents
+    /// grow without bound. ngspice simulates them as written; so does
+    /// kausal, with a warning.
+    pub indefinite: Vec<Vec<ElemId>>,
 }
 
-/// The K elements of each coupled group of `c` whose inductance matrix is
-/// indefinite: coefficients no magnetic circuit has (`k12 = 1` beside
-/// `k13 = 0.99` with `k23 = 0`), a direction of negative magnetic energy
-/// along which the currents grow without bound. ngspice simulates them as
-/// written; so does kausal, with a warning.
-pub fn indefinite_groups(c: &Circuit) -> Vec<Vec<ElemId>> {
-    groups(c)
-        .into_iter()
-        .filter(|g| matches!(factor(&g.l, g.members.len()), Shape::Indefinite))
-        .map(|g| g.couplings)
-        .collect()
+/// Each coupled group of `c`, factored once.
+pub fn classify(c: &Circuit) -> Groups {
+    let mut out = Groups::default();
+    for g in groups(c) {
+        let n = g.members.len();
+        match factor(&g.l, n) {
+            Shape::Singular { pivots, left } => {
+                if let Some((pivots, flux, ratio)) = reduce(&g.l, n, pivots, left) {
+                    out.singular.push(Reduced {
+                        l_pivot: pivots.iter().map(|&p| g.l[p * n + p]).collect(),
+                        members: g.members,
+                        couplings: g.couplings,
+                        pivots,
+                        flux,
+                        ratio,
+                    });
+                }
+            }
+            Shape::Indefinite => out.indefinite.push(g.couplings),
+            Shape::Regular | Shape::Degenerate => {}
+        }
+    }
+    out
+}
+
+/// The coupled groups of `c` whose inductance matrix is singular.
+pub fn singular_groups(c: &Circuit) -> Vec<Reduced> {
+    classify(c).singular
 }
 
 /// What a pivoted Cholesky factorization finds of an inductance matrix.
@@ -217,18 +229,17 @@ fn factor(l: &[f64], n: usize) -> Shape {
     }
 }
 
-/// Pivots, flux rows and voltage ratios of the row-major `n`×`n`
-/// inductance matrix `l` when it is singular and positive semidefinite;
-/// `None` when it is regular or indefinite.
+/// Flux rows and voltage ratios of the row-major `n`×`n` inductance matrix
+/// `l`, singular and positive semidefinite with `pivots` and the windings
+/// `left` (as [`factor`] found them), pivots sorted; `None` when the pivots'
+/// block cannot be factored.
 #[allow(clippy::type_complexity)]
-fn reduce(l: &[f64], n: usize) -> Option<(Vec<usize>, Vec<Vec<f64>>, Vec<(usize, Vec<f64>)>)> {
-    let Shape::Singular {
-        mut pivots,
-        mut left,
-    } = factor(l, n)
-    else {
-        return None;
-    };
+fn reduce(
+    l: &[f64],
+    n: usize,
+    mut pivots: Vec<usize>,
+    mut left: Vec<usize>,
+) -> Option<(Vec<usize>, Vec<Vec<f64>>, Vec<(usize, Vec<f64>)>)> {
     pivots.sort_unstable();
     left.sort_unstable();
     let r = pivots.len();
@@ -261,6 +272,15 @@ fn reduce(l: &[f64], n: usize) -> Option<(Vec<usize>, Vec<Vec<f64>>, Vec<(usize,
 mod tests {
     use super::*;
 
+    /// [`reduce`] of `l` where [`factor`] finds it singular.
+    #[allow(clippy::type_complexity)]
+    fn reduced(l: &[f64], n: usize) -> Option<(Vec<usize>, Vec<Vec<f64>>, Vec<(usize, Vec<f64>)>)> {
+        match factor(l, n) {
+            Shape::Singular { pivots, left } => reduce(l, n, pivots, left),
+            _ => None,
+        }
+    }
+
     /// k12 = 1 beside k13 = 0.9957 with k23 = 0 (a fuzzed netlist's) is
     /// indefinite; k13 = k23 = 0.5 with k12 = 1 is singular, k12 = 0.9
     /// regular.
@@ -278,7 +298,7 @@ mod tests {
     #[test]
     fn perfect_coupling_of_two_windings_is_an_ideal_transformer() {
         // L1 = 4, L2 = 1, k = 1: M = 2; pivot L1, im = i1 + i2/2, u2 = u1/2.
-        let (pivots, flux, ratio) = reduce(&[4.0, 2.0, 2.0, 1.0], 2).expect("singular");
+        let (pivots, flux, ratio) = reduced(&[4.0, 2.0, 2.0, 1.0], 2).expect("singular");
         assert_eq!(pivots, [0]);
         assert_eq!(flux, [vec![1.0, 0.5]]);
         assert_eq!(ratio.len(), 1);
@@ -290,7 +310,7 @@ mod tests {
     fn three_windings_coupled_pairwise_at_one_have_one_flux() {
         let ls: [f64; 3] = [1.0, 4.0, 9.0];
         let l: Vec<f64> = (0..9).map(|k| (ls[k / 3] * ls[k % 3]).sqrt()).collect();
-        let (pivots, _, ratio) = reduce(&l, 3).expect("singular");
+        let (pivots, _, ratio) = reduced(&l, 3).expect("singular");
         assert_eq!(pivots, [2]);
         // u_q = √(L_q/L_p)·u_p: turns ratios 1:2:3.
         let r: Vec<f64> = ratio.iter().map(|(_, c)| c[0]).collect();
@@ -300,10 +320,10 @@ mod tests {
     #[test]
     fn regular_and_indefinite_matrices_keep_one_state_per_inductor() {
         // k = 0.99: regular.
-        assert!(reduce(&[1.0, 0.99, 0.99, 1.0], 2).is_none());
+        assert!(reduced(&[1.0, 0.99, 0.99, 1.0], 2).is_none());
         // k12 = 1 and k13 = 0.9957 on one winding: indefinite, invertible.
         let k13 = 0.9957;
         let l = [1.0, 1.0, k13, 1.0, 1.0, 0.0, k13, 0.0, 1.0];
-        assert!(reduce(&l, 3).is_none());
+        assert!(reduced(&l, 3).is_none());
     }
 }

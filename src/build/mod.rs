@@ -60,6 +60,9 @@ pub struct Built {
     /// Coupled inductors with a singular inductance matrix, written with
     /// fluxes as states (see [`coupling`]).
     pub reduced: Vec<coupling::Reduced>,
+    /// The K elements of each coupled group whose inductance matrix is
+    /// indefinite (see [`coupling::Groups::indefinite`]).
+    pub indefinite: Vec<Vec<ElemId>>,
     /// The state of each pivot of `reduced`: `fluxes[g][k]` is the
     /// magnetizing current `im` of pivot `k` of group `g`.
     pub fluxes: Vec<Vec<VarId>>,
@@ -74,6 +77,7 @@ pub struct Built {
 /// Build the equations of `circuit`.
 pub fn build(circuit: &Circuit, opts: Options) -> Built {
     let n = circuit.elements.len() + circuit.nodes.len();
+    let groups = coupling::classify(circuit);
     let mut b = Builder {
         c: circuit,
         sys: {
@@ -92,7 +96,7 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
             .values()
             .map(|e| Name::from(e.name.as_str()))
             .collect(),
-        reduced: coupling::singular_groups(circuit),
+        reduced: groups.singular,
         fluxes: Vec::new(),
         intermediates: HashMap::new(),
         charges: HashMap::new(),
@@ -117,6 +121,7 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
         elem_vars,
         node_pot,
         reduced: b.reduced,
+        indefinite: groups.indefinite,
         fluxes: b.fluxes,
         faults,
         charges: b.charges,

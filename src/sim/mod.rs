@@ -428,8 +428,8 @@ fn simulate_rows(
 /// A simulation ready to run: its options checked, its outputs resolved and
 /// its tape compiled. Once it exists the simulation no longer reads the
 /// schedule or the causalization, so a caller that owns the [`Sorted`] can
-/// release them ([`Sorted::release_sorting`]) before the integrator
-/// allocates its own.
+/// drop them (the bulk of a big circuit's memory after the system) before
+/// the integrator allocates its own.
 pub struct Prepared {
     start: Instant,
     tran: crate::elab::Tran,
@@ -531,11 +531,10 @@ pub fn prepare(sorted: &Sorted, opts: &Options) -> Result<Prepared, SimError> {
 /// there is one (as [`simulate_to`]).
 pub fn run_prepared(
     sorted: &Sorted,
-    prepared: Prepared,
+    p: Prepared,
     opts: &Options,
     sink: Option<RowSink<'_>>,
 ) -> Result<Waveforms, SimError> {
-    let p = prepared;
     let (tape, method) = (&p.tape, p.method);
     let c = &sorted.elaborated.circuit;
     let n = tape.states.len();

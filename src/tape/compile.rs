@@ -476,26 +476,20 @@ impl StepVars {
             // 10^5 variables: look them up in a set, not a scan; a step of a
             // few (nearly every one) scans.
             let writes = &sv.writes[w0..];
-            if writes.len() > 16 {
-                let set: std::collections::HashSet<VarId> = writes.iter().copied().collect();
-                let kept: Vec<VarId> = sv.reads[r0..]
-                    .iter()
-                    .copied()
-                    .filter(|v| !set.contains(v))
-                    .collect();
-                sv.reads.truncate(r0);
-                sv.reads.extend(kept);
-            } else {
-                let mut k = r0;
-                for i in r0..sv.reads.len() {
-                    let v = sv.reads[i];
-                    if !writes.contains(&v) {
-                        sv.reads[k] = v;
-                        k += 1;
-                    }
+            let set: Option<std::collections::HashSet<VarId>> =
+                (writes.len() > 16).then(|| writes.iter().copied().collect());
+            let mut k = r0;
+            for i in r0..sv.reads.len() {
+                let v = sv.reads[i];
+                if !set
+                    .as_ref()
+                    .map_or_else(|| writes.contains(&v), |s| s.contains(&v))
+                {
+                    sv.reads[k] = v;
+                    k += 1;
                 }
-                sv.reads.truncate(k);
             }
+            sv.reads.truncate(k);
             sv.w.push(sv.writes.len());
             sv.r.push(sv.reads.len());
         }

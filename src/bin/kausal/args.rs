@@ -122,8 +122,8 @@ pub fn relative_tolerance(s: &str) -> Result<f64, String> {
     }
 }
 
-/// An absolute tolerance or bound: a finite number above 0.
-/// A number above 0, in SPICE's notation as well (`1u`, `20n`, `1e-6`).
+/// An absolute tolerance or bound: a finite number above 0, in SPICE's
+/// notation as well (`1u`, `20n`, `1e-6`).
 pub fn positive(s: &str) -> Result<f64, String> {
     let x = kausal::front::expr::parse_number(s.trim())
         .ok_or_else(|| format!("`{s}` is not a number (write it as 1e-6, 1u or 0.000001)"))?;

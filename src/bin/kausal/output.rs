@@ -100,7 +100,6 @@ pub fn stream_csv(
     };
     // One row writer for both destinations.
     let run = |w: &mut dyn Write| -> Result<sim::Waveforms, sim::SimError> {
-        let prepared = prepared;
         let mut line = String::new();
         sim::output::csv_header(&mut line, &names);
         w.write_all(line.as_bytes()).map_err(write_err)?;

@@ -123,7 +123,7 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
         Err(e) => return Err(Error::stage(sorted.elaborated.sources, e)),
     };
     // The integrator's memory takes the place of the schedule's.
-    sorted.release_sorting();
+    sorted.schedule = Default::default();
     let (waves, csv) = match simulate(&sorted, prepared, &sim_opts, &args) {
         Ok(x) => x,
         Err(e) => return Err(Error::stage(sorted.elaborated.sources, e)),
