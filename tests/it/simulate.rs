@@ -1164,3 +1164,37 @@ fn switch_events_land_on_every_threshold_crossing() {
     let last = *w.data[x].last().unwrap();
     assert!(last > 4.0 && last < 5.0, "v(x) = {last}");
 }
+
+/// Three windings coupled by `k12` and `k13` (`k23 = 0`): one flux fewer
+/// than windings is a note (K0330), coefficients no magnetic circuit has a
+/// warning naming both K elements (K0331), a regular matrix neither; every
+/// one simulates.
+#[test]
+fn coupling_matrices_are_told_apart_by_their_shape() {
+    // k13 = 0: no K13 line (ngspice takes k in (0, 1]).
+    let deck = |k12: f64, k13: f64| {
+        let k13 = if k13 > 0.0 {
+            format!("K13 L1 L3 {k13}\n")
+        } else {
+            String::new()
+        };
+        format!(
+            "three windings\nV1 a 0 sin(0 1 1k)\nR1 a b 10\nL1 b 0 1m\nL2 c 0 1m\nL3 d 0 1m\n\
+             R2 c 0 100\nR3 d 0 100\nK12 L1 L2 {k12}\n{k13}.tran 10u 1m\n.end\n"
+        )
+    };
+    for (k12, k13, want) in [(1.0, 0.0, "K0330"), (1.0, 0.9957, "K0331"), (0.9, 0.1, "")] {
+        let s = sort_text(&deck(k12, k13));
+        let found: Vec<_> = (s.elaborated.warnings.iter())
+            .filter(|d| d.code == "K0330" || d.code == "K0331")
+            .collect();
+        let codes: Vec<&str> = found.iter().map(|d| d.code.id).collect();
+        assert_eq!(codes.join(","), want, "k12 = {k12}, k13 = {k13}");
+        if want == "K0331" {
+            let m = &found[0].message;
+            assert!(m.contains("K12") && m.contains("K13"), "{m}");
+        }
+        sim::simulate(&s, &sim::Options::default())
+            .unwrap_or_else(|e| panic!("k12 = {k12}, k13 = {k13}: {e}"));
+    }
+}
