@@ -11,7 +11,7 @@
 use super::*;
 
 /// The absolute tolerances of voltages and currents.
-pub(super) fn atol_pair(opts: &Options, c: &Circuit) -> (f64, f64) {
+pub fn atol_pair(opts: &Options, c: &Circuit) -> (f64, f64) {
     match opts.atol {
         Some(a) => (a, a * 1e-3),
         None => (
@@ -302,7 +302,7 @@ where
 
 /// The run's relative tolerance: `--rtol`, else the netlist's RELTOL (at
 /// most a thousand times kausal's default), else the default.
-fn run_rtol(opts: &Options, c: &crate::elab::Circuit) -> f64 {
+pub fn run_rtol(opts: &Options, c: &crate::elab::Circuit) -> f64 {
     opts.rtol.unwrap_or_else(|| {
         c.options
             .reltol

@@ -49,6 +49,7 @@ use modes::*;
 use record::*;
 
 pub use budget::DEFAULT_MAX_STEPS;
+pub use driver::{atol_pair, run_rtol};
 pub use grid::RowSink;
 use probe::output_ref;
 pub use probe::{output_list, outputs};

@@ -495,3 +495,80 @@ fn the_reference_falls_back_to_gear() {
     );
     assert!(stdout.contains("verdict: pass"), "{stdout}");
 }
+
+/// `kausal validate` on `netlists/rc_lowpass_step.cir` with a stand-in
+/// ngspice running `body` (`$net` is the netlist it was given).
+fn validate_with_stand_in(name: &str, body: &str) -> (bool, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let stand_in = fake(
+        dir.path(),
+        name,
+        &format!("for a; do net=\"$a\"; done\n{body}"),
+    );
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_kausal"))
+        .args(["validate", "netlists/rc_lowpass_step.cir"])
+        .current_dir(root())
+        .env("KAUSAL_NGSPICE", &stand_in)
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
+}
+
+const TOO_SMALL: &str = "echo 'doAnalyses: TRAN:  Timestep too small; time = 1e-9' >&2\nexit 1";
+
+/// Where ngspice's steps collapse at picovolt and attocoulomb floors with
+/// either method (digital MOS decks: `mux8`, `cram`), the reference is run at
+/// ngspice's default absolute tolerances with the tight reltol, and the
+/// report says so.
+#[test]
+fn the_reference_falls_back_to_ngspices_default_absolute_tolerances() {
+    require_ngspice();
+    let (ok, out) = validate_with_stand_in(
+        "floors-fail",
+        &format!("if grep -q 'vntol=1e-12' \"$net\"; then {TOO_SMALL}; fi\nexec ngspice \"$@\""),
+    );
+    assert!(ok, "{out}");
+    assert!(
+        out.contains("at reltol=1e-8 and ngspice's default abstol=1e-12 vntol=1e-6 chgtol=1e-14"),
+        "{out}"
+    );
+    assert!(out.contains("verdict: pass"), "{out}");
+}
+
+/// Where no tight ngspice run finishes but its default run does, the
+/// reference is kausal's own run at a hundredth of its tolerances, confirmed
+/// by ngspice's default run; a default run that disagrees (here a stand-in
+/// that simulates R1 10 % high) confirms nothing and the verdict fails.
+#[test]
+fn the_reference_falls_back_to_kausal_confirmed_by_ngspice() {
+    require_ngspice();
+    let (ok, out) = validate_with_stand_in(
+        "tight-fails",
+        &format!("if grep -q 'reltol=' \"$net\"; then {TOO_SMALL}; fi\nexec ngspice \"$@\""),
+    );
+    assert!(ok, "{out}");
+    assert!(
+        out.contains(
+            "against kausal at rtol=1.00e-9 atol=1.00e-11 V, cross-checked by ngspice's default run"
+        ),
+        "{out}"
+    );
+    assert!(out.contains("Timestep too small"), "{out}");
+    assert!(out.contains("confirmed\n"), "{out}");
+    assert!(out.contains("verdict: pass"), "{out}");
+
+    let (ok, out) = validate_with_stand_in(
+        "tight-fails-default-wrong",
+        &format!(
+            "if grep -q 'reltol=' \"$net\"; then {TOO_SMALL}; fi\nsed -i 's/^R1 in out 1k/R1 in out 1.1k/' \"$net\"\nexec ngspice \"$@\""
+        ),
+    );
+    assert!(!ok, "{out}");
+    assert!(out.contains("NOT confirmed"), "{out}");
+    assert!(out.contains("verdict: FAIL"), "{out}");
+}
