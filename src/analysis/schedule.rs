@@ -244,7 +244,7 @@ fn block(
     let linear = comp.iter().all(|&e| {
         let eq = &sys.eqs[EqId(e)];
         let f = x.sub(eq.lhs, eq.rhs);
-        solve::is_linear_in(x, f, &|v| block_vars.contains(&v))
+        solve::is_piecewise_affine_in(x, f, &|v| block_vars.contains(&v))
     });
     // The elements in equation order, each once (a set: a loop can hold
     // 10^5 of them).

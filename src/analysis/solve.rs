@@ -68,6 +68,25 @@ pub fn is_linear_in(x: &ExprArena, root: ExprId, is_var: &dyn Fn(VarId) -> bool)
     })
 }
 
+/// Whether `root` is affine in the selected variables once every other
+/// variable is fixed: as [`is_linear_in`], but a select whose condition does
+/// not depend on them takes one of two affine branches. A block's solve holds
+/// the states fixed, so a junction's diffusion charge under a guarded square
+/// root (`x > 0 ? sqrt(x) : 0` of the states) leaves its derivative affine.
+pub fn is_piecewise_affine_in(x: &ExprArena, root: ExprId, is_var: &dyn Fn(VarId) -> bool) -> bool {
+    let nodes = subtree(x, root);
+    let dep = dependence(x, &nodes, is_var);
+    nodes.iter().all(|&n| match x.get(n) {
+        Expr::Mul(a, b) => !(dep[&a] && dep[&b]),
+        Expr::Div(_, b) => !dep[&b],
+        Expr::Pow(a, b) => !(dep[&a] || dep[&b]),
+        Expr::Call(_, a) | Expr::Device(_, a) => !dep[&a],
+        Expr::Cmp(_, a, b) => !(dep[&a] || dep[&b]),
+        Expr::Select(c, _, _) => !dep[&c],
+        _ => true,
+    })
+}
+
 /// Write `root = a*v + b` with `a`, `b` free of `v`, if `root` is affine in `v`.
 pub fn linear_coeffs(x: &mut ExprArena, root: ExprId, v: VarId) -> Option<(ExprId, ExprId)> {
     let nodes = subtree(x, root);

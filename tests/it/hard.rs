@@ -50,6 +50,7 @@ fn hard_cases_do_not_blow_up() {
         ("rc_line_10k.cir", 1.0),
         ("rlc_ladder_1k.cir", 1.0),
         ("ecl_schmitt.cir", 5.2),
+        ("bjt_high_injection.cir", 9.0),
     ];
     for (name, bound) in cases {
         let s = sorted(name);

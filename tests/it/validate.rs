@@ -239,6 +239,16 @@ fn a_loop_solved_to_rounding_agrees_with_ngspice() {
     hard_case_validates("ecl_schmitt");
 }
 
+/// A BJT loop that is affine in its tears once the states are held, through
+/// a select (the high-injection factor's guarded square root): solved as
+/// linear, not by a damped Newton that read rounding amplified by a
+/// femtofarad substrate capacitance as no convergence (K0500 at t = 0).
+#[test]
+fn a_loop_affine_under_a_select_agrees_with_ngspice() {
+    require_ngspice();
+    hard_case_validates("bjt_high_injection");
+}
+
 #[test]
 fn the_suite_agrees_with_ngspice() {
     require_ngspice();
