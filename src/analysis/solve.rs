@@ -55,17 +55,7 @@ fn dependence<'n>(
 
 /// Whether `root` is affine in the variables selected by `is_var`.
 pub fn is_linear_in(x: &ExprArena, root: ExprId, is_var: &dyn Fn(VarId) -> bool) -> bool {
-    let nodes = subtree(x, root);
-    let dep = dependence(x, &nodes, is_var);
-    nodes.iter().all(|&n| match x.get(n) {
-        Expr::Mul(a, b) => !(dep[&a] && dep[&b]),
-        Expr::Div(_, b) => !dep[&b],
-        Expr::Pow(a, b) => !(dep[&a] || dep[&b]),
-        Expr::Call(_, a) | Expr::Device(_, a) => !dep[&a],
-        Expr::Cmp(_, a, b) => !(dep[&a] || dep[&b]),
-        Expr::Select(c, a, b) => !(dep[&c] || dep[&a] || dep[&b]),
-        _ => true,
-    })
+    affine_in(x, root, is_var, false)
 }
 
 /// Whether `root` is affine in the selected variables once every other
@@ -74,6 +64,15 @@ pub fn is_linear_in(x: &ExprArena, root: ExprId, is_var: &dyn Fn(VarId) -> bool)
 /// the states fixed, so a junction's diffusion charge under a guarded square
 /// root (`x > 0 ? sqrt(x) : 0` of the states) leaves its derivative affine.
 pub fn is_piecewise_affine_in(x: &ExprArena, root: ExprId, is_var: &dyn Fn(VarId) -> bool) -> bool {
+    affine_in(x, root, is_var, true)
+}
+
+fn affine_in(
+    x: &ExprArena,
+    root: ExprId,
+    is_var: &dyn Fn(VarId) -> bool,
+    branches_fixed: bool,
+) -> bool {
     let nodes = subtree(x, root);
     let dep = dependence(x, &nodes, is_var);
     nodes.iter().all(|&n| match x.get(n) {
@@ -82,7 +81,8 @@ pub fn is_piecewise_affine_in(x: &ExprArena, root: ExprId, is_var: &dyn Fn(VarId
         Expr::Pow(a, b) => !(dep[&a] || dep[&b]),
         Expr::Call(_, a) | Expr::Device(_, a) => !dep[&a],
         Expr::Cmp(_, a, b) => !(dep[&a] || dep[&b]),
-        Expr::Select(c, _, _) => !dep[&c],
+        Expr::Select(c, _, _) if branches_fixed => !dep[&c],
+        Expr::Select(c, a, b) => !(dep[&c] || dep[&a] || dep[&b]),
         _ => true,
     })
 }
