@@ -933,43 +933,47 @@ fn sci(x: f64) -> String {
     }
 }
 
-/// The report as a table, with a verdict.
-pub fn table(r: &Report) -> String {
-    let mut out = String::new();
+/// The table's first line: what kausal was compared with.
+fn reference_line(r: &Report) -> String {
     if let Some(f) = &r.fallback {
-        out.push_str(&format!(
-            "{}: kausal (default settings) against kausal at rtol={} atol={} V, cross-checked by ngspice's default run (each signal within {}): no tight ngspice run finished ({})\n",
+        return format!(
+            "{}: kausal (default settings) against kausal at rtol={} atol={} V, \
+             cross-checked by ngspice's default run (each signal within {}): \
+             no tight ngspice run finished ({})\n",
             r.netlist,
             sci(f.rtol),
             sci(f.atol),
             sci(f.cross_tol),
             f.why
-        ));
-    } else {
-        out.push_str(&format!(
-        "{}: kausal (default settings) against ngspice at reltol={:e}{}{}\n",
-        r.netlist,
-        r.ref_reltol,
-        if r.ref_vntol > AbsTol::TIGHT.vntol {
-            format!(
-                " and ngspice's default abstol={:e} vntol={:e} chgtol={:e} (at tighter ones its steps collapsed)",
-                r.ref_abstol, r.ref_vntol, r.ref_chgtol
-            )
-        } else if r.ref_abstol > AbsTol::TIGHT.abstol {
-            format!(
-                " and abstol={:e} (at 1e-15 its steps collapsed)",
-                r.ref_abstol
-            )
-        } else {
-            String::new()
-        },
-        if r.ref_gear {
-            " with method=gear (the trapezoidal rule gave up)"
-        } else {
-            ""
-        }
-    ));
+        );
     }
+    let abs = if r.ref_vntol > AbsTol::TIGHT.vntol {
+        format!(
+            " and ngspice's default abstol={:e} vntol={:e} chgtol={:e} (at tighter ones its steps collapsed)",
+            r.ref_abstol, r.ref_vntol, r.ref_chgtol
+        )
+    } else if r.ref_abstol > AbsTol::TIGHT.abstol {
+        format!(
+            " and abstol={:e} (at 1e-15 its steps collapsed)",
+            r.ref_abstol
+        )
+    } else {
+        String::new()
+    };
+    let gear = if r.ref_gear {
+        " with method=gear (the trapezoidal rule gave up)"
+    } else {
+        ""
+    };
+    format!(
+        "{}: kausal (default settings) against ngspice at reltol={:e}{abs}{gear}\n",
+        r.netlist, r.ref_reltol
+    )
+}
+
+/// The report as a table, with a verdict.
+pub fn table(r: &Report) -> String {
+    let mut out = reference_line(r);
     let w = r
         .signals
         .iter()
