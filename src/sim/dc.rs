@@ -901,8 +901,17 @@ pub(super) fn pseudo_transient(
             h *= 0.25;
             continue;
         }
+        // A step whose Newton ran off to a far point (its correction small
+        // only beside states grown by 10^12) leaves the states moving at a
+        // rate orders of magnitude above the one it started from: a
+        // spurious solution of the step's equation, not the circuit settling.
+        let next = rate(&f, &x);
+        if !(next.is_finite() && (r == 0.0 || next <= RATE_JUMP * r)) {
+            h *= 0.25;
+            continue;
+        }
         std::mem::swap(&mut y, &mut x);
-        r = rate(&f, &y);
+        r = next;
         h *= match iterations {
             ..=3 => 4.0,
             4..=6 => 2.0,
@@ -936,7 +945,9 @@ const ROUGH: f64 = 1e-4;
 /// The most pseudo-transient steps, and evaluations of `f` in their solves,
 /// before the DC solve moves on: a circuit whose blocks cost much per
 /// evaluation (a bipolar IC's) ends its DC solve in tens of seconds at most.
-const PTC_STEPS: usize = 600;
+const PTC_STEPS: usize = 3000;
+/// The most a continuation step may raise the states' rate of change.
+const RATE_JUMP: f64 = 1e3;
 const PTC_EVALS: usize = 10_000;
 /// The continuation's work, in evaluations of `f` at its start, and at most
 /// this many tape instructions in all (about eight seconds, see
