@@ -356,9 +356,10 @@ pub struct SimOptions {
 }
 
 impl SimOptions {
-    /// The temperature devices are simulated at, °C: TEMP where it equals
-    /// TNOM; else TNOM, where the model parameters hold (kausal does not
-    /// scale them with temperature, and warns, K0299).
+    /// The temperature diodes, BJTs and JFETs are simulated at, °C: TEMP
+    /// where it equals TNOM; else TNOM, where their model parameters hold
+    /// (kausal does not scale them with temperature, and warns, K0299).
+    /// MOSFETs are scaled to TEMP (`elab::mos`).
     pub fn device_temperature(&self) -> f64 {
         let tnom = self.tnom.unwrap_or(27.0);
         match self.temp {

@@ -110,7 +110,7 @@ pub enum ElabError {
         v2: f64,
     },
     #[error(
-        "TEMP ({temp} °C) differs from TNOM ({tnom} °C): kausal does not scale device parameters with temperature and simulates at TNOM"
+        "TEMP ({temp} °C) differs from TNOM ({tnom} °C): kausal scales MOSFETs to TEMP, but simulates diodes, BJTs and JFETs at TNOM"
     )]
     TemperatureUnscaled { span: Span, temp: f64, tnom: f64 },
     #[error("coupling coefficient {k} of `{element}` is outside (0, 1]")]

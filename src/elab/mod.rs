@@ -77,7 +77,16 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     e.collect(&netlist.stmts, &mut top);
     e.params(&netlist.stmts, &mut top);
     e.settings(&netlist.stmts, &top);
+    let mut stack = Vec::new();
+    e.walk(&netlist.stmts, &top, &mut stack);
+    // MOSFETs are scaled to TEMP; diodes, BJTs and JFETs are not.
+    let unscaled = e.circuit.elements.values().any(|el| match &el.kind {
+        ElementKind::Diode { .. } => true,
+        ElementKind::DeviceBranch { device, .. } => *device != ast::ElementLetter::M,
+        _ => false,
+    });
     if let Some(span) = e.temp_span
+        && unscaled
         && e.circuit.options.temperature_unscaled()
     {
         e.errors.push(ElabError::TemperatureUnscaled {
@@ -86,8 +95,6 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
             tnom: e.circuit.options.tnom.unwrap_or(27.0),
         });
     }
-    let mut stack = Vec::new();
-    e.walk(&netlist.stmts, &top, &mut stack);
     e.resolve_pending();
     e.outputs(&netlist.stmts, &top);
     e.dangling();

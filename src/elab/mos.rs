@@ -1,8 +1,8 @@
 //! M: ngspice's MOSFET levels 1 (Shichman–Hodges), 2 (Grove–Frohman,
 //! `mos/level2.rs`) and 3 (the semi-empirical short-channel model), with
-//! Meyer's gate capacitances and the bulk junctions, at the nominal
-//! temperature, elaborated into branches named by the device as a BJT is
-//! (`bjt.rs`):
+//! Meyer's gate capacitances and the bulk junctions, at the circuit's
+//! temperature (`Thermal`: ngspice's `mos1temp.c`), elaborated into branches
+//! named by the device as a BJT is (`bjt.rs`):
 //!
 //! ```text
 //!  D ─rd─ D' ─┬─ ds: id(vgs, vds, vbs) ──┬─ S' ─rs─ S
@@ -38,8 +38,11 @@ const EPS_OX: f64 = 3.9 * 8.854_214_871e-12;
 const EPS_SI: f64 = 11.7 * 8.854_214_871e-12;
 const CHARGE: f64 = 1.602_176_620_8e-19;
 const BOLTZMANN: f64 = 1.380_648_52e-23;
-/// 27 °C in kelvin, ngspice's TNOM.
-const TNOM_K: f64 = 300.15;
+/// 0 °C in kelvin.
+const CELSIUS_K: f64 = 273.15;
+/// ngspice's REFTEMP (27 °C), where its band-gap and junction-potential
+/// temperature formulas are anchored.
+const REFTEMP: f64 = 300.15;
 /// The floor of a Meyer capacitance that can vanish (a gate–drain
 /// capacitance in saturation without overlap), as a fraction of the gate
 /// oxide's: the branch's voltage is a state, which a zero capacitance would
@@ -92,6 +95,8 @@ pub(super) struct MosModel {
     xl: f64,
     xw: f64,
     delvto: f64,
+    /// The temperature the parameters were measured at, °C (TNOM).
+    tnom: Option<f64>,
     // Level 2.
     ucrit: f64,
     uexp: f64,
@@ -142,6 +147,7 @@ impl MosModel {
             xl: 0.0,
             xw: 0.0,
             delvto: 0.0,
+            tnom: None,
             ucrit: 1e4,
             uexp: 0.0,
             neff: 1.0,
@@ -149,8 +155,9 @@ impl MosModel {
     }
 }
 
-/// What ngspice derives from a model card at TNOM (its `mos*temp.c`): in
-/// the device's own polarity, so that `vbi + γ·√(φ − vbs)` is the threshold.
+/// What ngspice derives from a model card (its `mos*temp.c`), at the
+/// circuit's temperature: in the device's own polarity, so that
+/// `vbi + γ·√(φ − vbs)` is the threshold.
 #[derive(Clone, Debug)]
 struct Derived {
     /// Gate oxide capacitance per area (0 without TOX at level 1).
@@ -158,8 +165,16 @@ struct Derived {
     kp: f64,
     gamma: f64,
     phi: f64,
-    /// `type·VTO − γ√φ`.
+    /// `type·VTO − γ√φ` at TNOM, moved with the band gap and φ.
     vbi: f64,
+    /// The thermal voltage at the circuit's temperature.
+    vt: f64,
+    /// The bulk junctions: their potential, the factor on IS and JS, and
+    /// those on the bottom (MJ) and sidewall (MJSW) capacitances.
+    pb: f64,
+    sat: f64,
+    cap_bottom: f64,
+    cap_side: f64,
     /// Levels 2 and 3: surface mobility (cm²/V·s), the depletion-width
     /// coefficient (0 without NSUB); level 3: the narrow-width factor, the
     /// DIBL factor's scale.
@@ -175,27 +190,28 @@ struct Derived {
 const MOS1_PARAMS: &[&str] = &[
     "level", "vto", "vt0", "kp", "gamma", "phi", "lambda", "rd", "rs", "rsh", "cbd", "cbs", "is",
     "js", "pb", "cgso", "cgdo", "cgbo", "cj", "mj", "cjsw", "mjsw", "tox", "nsub", "nss", "tpg",
-    "ld", "uo", "u0", "fc", "nmos", "pmos",
+    "ld", "uo", "u0", "fc", "tnom", "nmos", "pmos",
 ];
 /// Level 2's: level 1's and the Grove–Frohman ones.
 const MOS2_PARAMS: &[&str] = &[
     "level", "vto", "vt0", "kp", "gamma", "phi", "lambda", "rd", "rs", "rsh", "cbd", "cbs", "is",
     "js", "pb", "cgso", "cgdo", "cgbo", "cj", "mj", "cjsw", "mjsw", "tox", "nsub", "nss", "nfs",
-    "tpg", "ld", "uo", "u0", "fc", "xj", "vmax", "delta", "ucrit", "uexp", "neff", "nmos", "pmos",
+    "tpg", "ld", "uo", "u0", "fc", "xj", "vmax", "delta", "ucrit", "uexp", "neff", "tnom", "nmos",
+    "pmos",
 ];
 /// Level 3's: level 1's (but λ) and the short-channel ones.
 const MOS3_PARAMS: &[&str] = &[
     "level", "vto", "vt0", "kp", "gamma", "phi", "rd", "rs", "rsh", "cbd", "cbs", "is", "js", "pb",
     "cgso", "cgdo", "cgbo", "cj", "mj", "cjsw", "mjsw", "tox", "nsub", "nss", "nfs", "tpg", "ld",
     "uo", "u0", "fc", "xj", "vmax", "delta", "theta", "eta", "kappa", "wd", "xl", "xw", "delvto",
-    "delvt0", "nmos", "pmos",
+    "delvt0", "tnom", "nmos", "pmos",
 ];
-/// Parameters that do not change the transient result at the nominal
-/// temperature (temperature, noise, and ngspice's flags).
-const MOS_IGNORED: &[&str] = &["tnom", "kf", "af", "nlev", "gdsnoi", "version"];
+/// Parameters that do not change the transient result (noise, and
+/// ngspice's flags).
+const MOS_IGNORED: &[&str] = &["kf", "af", "nlev", "gdsnoi", "version"];
 /// Level 2's: also SPICE2's UTRA (a transverse-field mobility coefficient),
 /// which ngspice's level 2 does not read either (it warns and ignores it).
-const MOS2_IGNORED: &[&str] = &["tnom", "kf", "af", "nlev", "gdsnoi", "version", "utra"];
+const MOS2_IGNORED: &[&str] = &["kf", "af", "nlev", "gdsnoi", "version", "utra"];
 
 /// The families ngspice's other MOS levels belong to, for the refusal.
 fn level_family(level: f64) -> &'static str {
@@ -315,6 +331,7 @@ impl Elab {
                 "xl" => m.xl = v,
                 "xw" => m.xw = v,
                 "delvto" | "delvt0" => m.delvto = v,
+                "tnom" => m.tnom = Some(v),
                 "ucrit" => m.ucrit = v,
                 "uexp" => m.uexp = v,
                 "neff" => m.neff = v,
@@ -407,10 +424,10 @@ impl Elab {
         let Some(model) = self.mos_model(&model_name, name, scope) else {
             return;
         };
-        let vt = crate::ir::thermal_voltage(self.circuit.options.device_temperature());
         let Some(dv) = self.derive_mos(&model, name, el) else {
             return;
         };
+        let vt = dv.vt;
         let leff = g.l - 2.0 * model.ld + if model.level == 3 { model.xl } else { 0.0 };
         let weff = if model.level == 3 {
             g.w - 2.0 * model.wd + model.xw
@@ -430,9 +447,10 @@ impl Elab {
         self.expand_mos(el, name, nodes, &model, &dv, &g, leff, weff, vt);
     }
 
-    /// The model's derived values (ngspice's `mos1temp.c`, `mos2temp.c`, `mos3temp.c` at
-    /// TNOM): KP from UO and TOX, and φ, γ and VTO from NSUB, each where
-    /// not given.
+    /// The model's derived values (ngspice's `mos1temp.c`, `mos2temp.c`,
+    /// `mos3temp.c`): KP from UO and TOX, and φ, γ and VTO from NSUB, each
+    /// where not given, at TNOM (the model's, else `.options`'); then KP,
+    /// UO, φ, the threshold and the bulk junctions at the circuit's TEMP.
     fn derive_mos(
         &mut self,
         md: &MosModel,
@@ -440,8 +458,10 @@ impl Elab {
         el: &ast::Element<'_>,
     ) -> Option<Derived> {
         let t = if md.pchannel { -1.0 } else { 1.0 };
-        let vtnom = BOLTZMANN * TNOM_K / CHARGE;
-        let egfet1 = 1.16 - 7.02e-4 * TNOM_K * TNOM_K / (TNOM_K + 1108.0);
+        let options = &self.circuit.options;
+        let tnom_k = md.tnom.or(options.tnom).unwrap_or(27.0) + CELSIUS_K;
+        let th = Thermal::new(tnom_k, options.temp.unwrap_or(27.0) + CELSIUS_K);
+        let (vtnom, egfet1) = (th.vtnom, th.egfet1);
         let mut phi = md.phi.unwrap_or(0.6);
         let mut gamma = md.gamma.unwrap_or(0.0);
         let mut vto = md.vto.unwrap_or(0.0);
@@ -479,11 +499,11 @@ impl Elab {
                 // The intrinsic density at TNOM: level 3 scales ngspice's
                 // 1.45e10 cm⁻³ (at 300 K) to it, level 1 does not.
                 let ni = if md.level == 3 {
-                    let r = TNOM_K / 300.0;
+                    let r = tnom_k / 300.0;
                     1.45e16
                         * r
                         * r.sqrt()
-                        * (0.5 * egfet1 * (1.0 / 300.0 - 1.0 / TNOM_K) / (BOLTZMANN / CHARGE)).exp()
+                        * (0.5 * egfet1 * (1.0 / 300.0 - 1.0 / tnom_k) / (BOLTZMANN / CHARGE)).exp()
                 } else {
                     1.45e16
                 };
@@ -533,13 +553,26 @@ impl Elab {
         } else {
             (0.0, 0.0)
         };
+        // At TEMP: mobility as T^-1.5, φ and the junction potential with
+        // the band gap, the threshold with both (`mos1temp.c`).
+        let ratio = th.temp / tnom_k;
+        let mobility = 1.0 / (ratio * ratio.sqrt());
+        let tphi = th.potential(phi);
+        let pb = th.potential(md.pb);
         Some(Derived {
             cox,
-            kp,
+            kp: kp * mobility,
             gamma,
-            phi,
-            vbi: t * (vto + md.delvto) - gamma * phi.sqrt(),
-            u0,
+            phi: tphi,
+            vbi: t * (vto + md.delvto) - gamma * phi.sqrt()
+                + t * 0.5 * (egfet1 - th.egfet)
+                + 0.5 * (tphi - phi),
+            vt: th.vt,
+            pb,
+            sat: th.saturation(),
+            cap_bottom: th.capacitance(md.mj, md.pb),
+            cap_side: th.capacitance(md.mjsw, md.pb),
+            u0: u0 * mobility,
             nsub: md.nsub.is_some(),
             xd,
             narrow,
@@ -630,12 +663,16 @@ impl Elab {
         } else {
             (md.js * m * g.ad, md.js * m * g.as_)
         };
-        let bottom = |cgiven: Option<f64>, area: f64| match (cgiven, md.cj) {
-            (Some(c), _) => c * m,
-            (None, Some(cj)) => cj * area * m,
-            _ => 0.0,
+        let (isd, iss) = (isd * dv.sat, iss * dv.sat);
+        let bottom = |cgiven: Option<f64>, area: f64| {
+            dv.cap_bottom
+                * match (cgiven, md.cj) {
+                    (Some(c), _) => c * m,
+                    (None, Some(cj)) => cj * area * m,
+                    _ => 0.0,
+                }
         };
-        let side = |perimeter: f64| md.cjsw.map_or(0.0, |c| c * perimeter * m);
+        let side = |perimeter: f64| dv.cap_side * md.cjsw.map_or(0.0, |c| c * perimeter * m);
         let j0 = self.circuit.junctions.len() as u32;
         let junction = |suffix: &str, is: f64, cj: f64, mj: f64| DiodeParams {
             name: format!("{name}.{suffix}"),
@@ -644,11 +681,11 @@ impl Elab {
             bv: None,
             gmin: GMIN,
             cjo: cj,
-            vj: md.pb,
+            vj: dv.pb,
             m: mj,
             fc: md.fc,
             tt: 0.0,
-            fwd: DiodeParams::forward_constants(md.pb, mj, md.fc),
+            fwd: DiodeParams::forward_constants(dv.pb, mj, md.fc),
         };
         let caps = [
             (isd, bottom(md.cbd, g.ad), side(g.pd)),
@@ -1309,6 +1346,62 @@ impl Device<'_> {
     }
 }
 
+/// ngspice's temperature model of a MOSFET (`mos1temp.c`): the band gap
+/// at TNOM and at TEMP, and the junction-potential shifts built on it.
+struct Thermal {
+    temp: f64,
+    tnom: f64,
+    vt: f64,
+    vtnom: f64,
+    egfet: f64,
+    egfet1: f64,
+    /// `-2 vt (1.5 ln(T/REFTEMP) + q·arg)` at TEMP and at TNOM.
+    pbfact: f64,
+    pbfact1: f64,
+}
+
+impl Thermal {
+    fn new(tnom: f64, temp: f64) -> Thermal {
+        let gap = |t: f64| 1.16 - 7.02e-4 * t * t / (t + 1108.0);
+        let vt = |t: f64| BOLTZMANN * t / CHARGE;
+        let pbfact = |t: f64| {
+            let arg = -gap(t) / (2.0 * BOLTZMANN * t) + 1.1150877 / (BOLTZMANN * 2.0 * REFTEMP);
+            -2.0 * vt(t) * (1.5 * (t / REFTEMP).ln() + CHARGE * arg)
+        };
+        Thermal {
+            temp,
+            tnom,
+            vt: vt(temp),
+            vtnom: vt(tnom),
+            egfet: gap(temp),
+            egfet1: gap(tnom),
+            pbfact: pbfact(temp),
+            pbfact1: pbfact(tnom),
+        }
+    }
+
+    /// A potential given at TNOM (φ, PB) at TEMP.
+    fn potential(&self, p: f64) -> f64 {
+        let at_ref = (p - self.pbfact1) / (self.tnom / REFTEMP);
+        self.temp / REFTEMP * at_ref + self.pbfact
+    }
+
+    /// The factor on a junction's saturation current.
+    fn saturation(&self) -> f64 {
+        (-self.egfet / self.vt + self.egfet1 / self.vtnom).exp()
+    }
+
+    /// The factor on a zero-bias junction capacitance of grading `m`
+    /// whose potential at TNOM is `pb`.
+    fn capacitance(&self, m: f64, pb: f64) -> f64 {
+        let pbo = (pb - self.pbfact1) / (self.tnom / REFTEMP);
+        let old = (pb - pbo) / pbo;
+        let new = (self.potential(pb) - pbo) / pbo;
+        (1.0 + m * (4e-4 * (self.temp - REFTEMP) - new))
+            / (1.0 + m * (4e-4 * (self.tnom - REFTEMP) - old))
+    }
+}
+
 /// `√(φ − v)` for `v ≤ 0`, and its continuation above, `√φ/(1 + v/2φ)`,
 /// as ngspice's levels 2 and 3 write it (level 1's is
 /// [`sqrt_phi_minus`]).
@@ -1348,4 +1441,38 @@ fn sqrt_phi_minus(x: &mut Ex, phi: f64, vb: u32) -> u32 {
     let fwd = x.positive(t);
     let c = x.push(BNode::Cmp(Cmp::Le, vb, zero));
     x.push(BNode::Select(c, rev, fwd))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn at_the_nominal_temperature_nothing_moves() {
+        for tnom in [300.15, 250.0, 400.0] {
+            let th = Thermal::new(tnom, tnom);
+            for p in [0.6, 0.8, 1.1] {
+                assert!(
+                    (th.potential(p) - p).abs() < 1e-14,
+                    "potential {p} at {tnom} K"
+                );
+                assert!((th.capacitance(0.5, p) - 1.0).abs() < 1e-14);
+            }
+            assert!((th.saturation() - 1.0).abs() < 1e-14);
+        }
+    }
+
+    #[test]
+    fn a_hot_junction_leaks_more_at_a_lower_potential() {
+        // 27 °C → 125 °C: ngspice's band gap shrinks from 1.1151 to 1.0861
+        // eV, and the saturation current grows about 10^4-fold.
+        let th = Thermal::new(300.15, 398.15);
+        assert!(
+            (1.0e4..1.0e5).contains(&th.saturation()),
+            "{}",
+            th.saturation()
+        );
+        assert!(th.potential(0.8) < 0.8 && th.potential(0.8) > 0.5);
+        assert!(th.capacitance(0.5, 0.8) > 1.0);
+    }
 }

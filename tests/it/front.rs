@@ -400,19 +400,23 @@ fn unknown_print_items_are_warnings() {
 }
 
 /// TEMP = TNOM sets the diodes' thermal voltage silently; TEMP ≠ TNOM (or
-/// one of them away from ngspice's 27 °C) is a warning at the option, since
-/// kausal does not scale model parameters with temperature.
+/// one of them away from ngspice's 27 °C) is a warning at the option where
+/// the circuit has a diode, BJT or JFET, whose parameters kausal does not
+/// scale with temperature; MOSFETs it scales, silently.
 #[test]
 fn temperatures_are_honoured_when_equal_and_flagged_when_not() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("t.cir");
-    let codes = |opts: &str| -> Vec<String> {
-        let text = format!("t\n{opts}\nV1 a 0 1\nD1 a 0 DX\n.model DX D\n.tran 1u 10u\n.end\n");
+    let codes_of = |opts: &str, device: &str| -> Vec<String> {
+        let text = format!("t\n{opts}\nV1 a 0 1\n{device}\n.tran 1u 10u\n.end\n");
         let el = kausal::pipeline::elaborate_text("t.cir", &path, text, &FsLoader)
             .unwrap_or_else(|_| panic!("{opts} elaborates"));
         el.warnings.iter().map(|d| d.code.to_string()).collect()
     };
+    let codes = |opts: &str| codes_of(opts, "D1 a 0 DX\n.model DX D");
     let has = |opts: &str, code: &str| codes(opts).iter().any(|c| c == code);
+    let mos = codes_of(".options temp=60", "M1 a a 0 0 NX\n.model NX NMOS");
+    assert!(!mos.iter().any(|c| c == "K0299"), "{mos:?}");
     assert!(!has(".options temp=60 tnom=60", "K0299"));
     assert!(has(".options temp=60", "K0299"));
     assert!(has(".options tnom=25 temp=50", "K0299"));

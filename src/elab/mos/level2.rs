@@ -402,7 +402,7 @@ impl Device<'_> {
         // LAMBDA·vds, or from the depletion width: `xd/L·√(a + √(1 + a²))`
         // with a = (vds − vdsat)/4, or with VMAX `xd'/L·(√(xl² + (vds −
         // vdsat)⁺) − xl)`, xd' = xd/√NEFF, xl = VMAX·xd'/(2·µeff).
-        let sqrt_pb = md.pb.sqrt();
+        let sqrt_pb = dv.pb.sqrt();
         let xwb = if dv.nsub {
             dv.xd * sqrt_pb
         } else {
