@@ -602,23 +602,33 @@ impl Builder<'_> {
     /// the diode is nearly linear, where in voltage it is exponential. With
     /// RS > 0, `u = uj + RS*i`; else `uj` is the branch voltage.
     fn diode(&mut self, id: ElemId, ev: ElemVars, m: &crate::elab::DiodeModel, area: f64) {
+        use crate::elab::thermal::{CELSIUS_K, Thermal};
         use crate::ir::{DeviceFn, DiodePart, Expr};
         let name = self.c.elements[id].name.clone();
-        let vte = m.n * thermal_voltage(self.c.options.device_temperature());
+        // At TEMP, from the model's TNOM (ngspice's diotemp.c, TLEV 0):
+        // the saturation current, the junction potential and capacitance.
+        let options = &self.c.options;
+        let th = Thermal::new(
+            m.tnom.or(options.tnom).unwrap_or(27.0) + CELSIUS_K,
+            options.temp.unwrap_or(27.0) + CELSIUS_K,
+        );
+        let vte = m.n * th.vt;
+        let is = th.diode_saturation(m.is, m.n, m.eg, m.xti) * area;
+        let vj = th.potential(m.vj);
         let params = crate::ir::DiodeParams {
             name: name.clone(),
-            is: m.is * area,
+            is,
             vte,
-            bv: m.bv.map(|bv| {
-                crate::ir::DiodeParams::match_breakdown(bv, m.ibv * area, m.is * area, vte)
-            }),
+            bv: m
+                .bv
+                .map(|bv| crate::ir::DiodeParams::match_breakdown(bv, m.ibv * area, is, vte)),
             gmin: 1e-12,
-            cjo: m.cjo * area,
-            vj: m.vj,
+            cjo: m.cjo * area * th.capacitance(m.m, m.vj),
+            vj,
             m: m.m,
             fc: m.fc,
             tt: m.tt,
-            fwd: crate::ir::DiodeParams::forward_constants(m.vj, m.m, m.fc),
+            fwd: crate::ir::DiodeParams::forward_constants(vj, m.m, m.fc),
         };
         let charge = params.has_charge();
         let k = self.sys.diodes.len() as u32;

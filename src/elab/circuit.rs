@@ -45,6 +45,11 @@ pub struct DiodeModel {
     /// Reverse breakdown voltage (positive); `None` means no breakdown.
     pub bv: Option<f64>,
     pub ibv: f64,
+    /// The saturation current's temperature law: activation energy (eV)
+    /// and exponent; the temperature the parameters hold at (°C).
+    pub eg: f64,
+    pub xti: f64,
+    pub tnom: Option<f64>,
 }
 
 impl Default for DiodeModel {
@@ -61,6 +66,9 @@ impl Default for DiodeModel {
             tt: 0.0,
             bv: None,
             ibv: 1e-3,
+            eg: 1.11,
+            xti: 3.0,
+            tnom: None,
         }
     }
 }
@@ -356,10 +364,10 @@ pub struct SimOptions {
 }
 
 impl SimOptions {
-    /// The temperature diodes, BJTs and JFETs are simulated at, °C: TEMP
-    /// where it equals TNOM; else TNOM, where their model parameters hold
-    /// (kausal does not scale them with temperature, and warns, K0299).
-    /// MOSFETs are scaled to TEMP (`elab::mos`).
+    /// The temperature BJTs and JFETs are simulated at, °C: TEMP where it
+    /// equals TNOM; else TNOM, where their model parameters hold (kausal
+    /// does not scale them with temperature, and warns, K0299). Diodes and
+    /// MOSFETs are scaled to TEMP (`elab::thermal`).
     pub fn device_temperature(&self) -> f64 {
         let tnom = self.tnom.unwrap_or(27.0);
         match self.temp {

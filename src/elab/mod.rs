@@ -13,6 +13,7 @@ mod jfet;
 mod model;
 mod mos;
 mod switch;
+pub(crate) mod thermal;
 pub mod topology;
 
 use std::collections::{HashMap, HashSet};
@@ -79,9 +80,8 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     e.settings(&netlist.stmts, &top);
     let mut stack = Vec::new();
     e.walk(&netlist.stmts, &top, &mut stack);
-    // MOSFETs are scaled to TEMP; diodes, BJTs and JFETs are not.
+    // Diodes and MOSFETs are scaled to TEMP; BJTs and JFETs are not.
     let unscaled = e.circuit.elements.values().any(|el| match &el.kind {
-        ElementKind::Diode { .. } => true,
         ElementKind::DeviceBranch { device, .. } => *device != ast::ElementLetter::M,
         _ => false,
     });

@@ -17,16 +17,18 @@ pub const JUNCTION_CAPACITANCE_FLOOR: f64 = 1e-12;
 /// Level-1 diode parameters kausal models, with their aliases.
 const DIODE_PARAMS: &[&str] = &[
     "is", "js", "n", "rs", "cjo", "cj0", "cj", "vj", "pb", "m", "mj", "fc", "tt", "bv", "ibv",
+    "eg", "xti", "tnom",
 ];
 /// ngspice diode parameters that do not change kausal's transient result at
-/// the nominal temperature.
+/// the nominal temperature (the temperature coefficients TM1, TRS, TT1, TBV1…
+/// do away from it; kausal warns of each).
 const DIODE_IGNORED: &[&str] = &[
-    "eg", "xti", "kf", "af", "tnom", "level", "ikf", "ik", "ikr", "isr", "nr", "nbv", "ibvl",
-    "nbvl", "tbv1", "tbv2", "trs", "trs1", "trs2", "tt1", "tt2", "tm1", "tm2", "cta", "ctp", "tpb",
-    "tphp", "jsw", "cjsw", "cjp", "php", "mjsw", "fcs", "area", "pj", "vp", "lm", "lp", "wm", "wp",
-    "xom", "xoi", "xm", "xp", "d", "bvj", "iave", "vrev", "version", "bv_max", "fv_max", "id_max",
-    "pd_max", "te_max", "rth0", "cth0", "kms", "tref", "ctc", "tvj", "isw", "ns", "rsw", "ikp",
-    "gap1", "gap2", "tlev", "tlevc", "jtun", "jtunsw", "ntun", "xtitun", "keg",
+    "kf", "af", "level", "ikf", "ik", "ikr", "isr", "nr", "nbv", "ibvl", "nbvl", "tbv1", "tbv2",
+    "trs", "trs1", "trs2", "tt1", "tt2", "tm1", "tm2", "cta", "ctp", "tpb", "tphp", "jsw", "cjsw",
+    "cjp", "php", "mjsw", "fcs", "area", "pj", "vp", "lm", "lp", "wm", "wp", "xom", "xoi", "xm",
+    "xp", "d", "bvj", "iave", "vrev", "version", "bv_max", "fv_max", "id_max", "pd_max", "te_max",
+    "rth0", "cth0", "kms", "tref", "ctc", "tvj", "isw", "ns", "rsw", "ikp", "gap1", "gap2", "tlev",
+    "tlevc", "jtun", "jtunsw", "ntun", "xtitun", "keg",
 ];
 
 impl Elab {
@@ -131,6 +133,9 @@ impl Elab {
                 "tt" => m.tt = v,
                 "bv" => m.bv = Some(v.abs()),
                 "ibv" => m.ibv = v,
+                "eg" => m.eg = v,
+                "xti" => m.xti = v,
+                "tnom" => m.tnom = Some(v),
                 _ => {}
             }
         }

@@ -25,6 +25,7 @@
 mod level2;
 
 use super::bjt::{Ex, NextIds, oriented};
+use super::thermal::{CELSIUS_K, Thermal};
 use super::{Arith, BNode, Elab, ElabError, ElemId, Element, ElementKind, NodeId, Scope};
 use crate::front::ast::{self, ElementLetter};
 use crate::ir::{Cmp, DiodeParams, DiodePart, Func};
@@ -38,11 +39,6 @@ const EPS_OX: f64 = 3.9 * 8.854_214_871e-12;
 const EPS_SI: f64 = 11.7 * 8.854_214_871e-12;
 const CHARGE: f64 = 1.602_176_620_8e-19;
 const BOLTZMANN: f64 = 1.380_648_52e-23;
-/// 0 °C in kelvin.
-const CELSIUS_K: f64 = 273.15;
-/// ngspice's REFTEMP (27 °C), where its band-gap and junction-potential
-/// temperature formulas are anchored.
-const REFTEMP: f64 = 300.15;
 /// The floor of a Meyer capacitance that can vanish (a gate–drain
 /// capacitance in saturation without overlap), as a fraction of the gate
 /// oxide's: the branch's voltage is a state, which a zero capacitance would
@@ -1346,62 +1342,6 @@ impl Device<'_> {
     }
 }
 
-/// ngspice's temperature model of a MOSFET (`mos1temp.c`): the band gap
-/// at TNOM and at TEMP, and the junction-potential shifts built on it.
-struct Thermal {
-    temp: f64,
-    tnom: f64,
-    vt: f64,
-    vtnom: f64,
-    egfet: f64,
-    egfet1: f64,
-    /// `-2 vt (1.5 ln(T/REFTEMP) + q·arg)` at TEMP and at TNOM.
-    pbfact: f64,
-    pbfact1: f64,
-}
-
-impl Thermal {
-    fn new(tnom: f64, temp: f64) -> Thermal {
-        let gap = |t: f64| 1.16 - 7.02e-4 * t * t / (t + 1108.0);
-        let vt = |t: f64| BOLTZMANN * t / CHARGE;
-        let pbfact = |t: f64| {
-            let arg = -gap(t) / (2.0 * BOLTZMANN * t) + 1.1150877 / (BOLTZMANN * 2.0 * REFTEMP);
-            -2.0 * vt(t) * (1.5 * (t / REFTEMP).ln() + CHARGE * arg)
-        };
-        Thermal {
-            temp,
-            tnom,
-            vt: vt(temp),
-            vtnom: vt(tnom),
-            egfet: gap(temp),
-            egfet1: gap(tnom),
-            pbfact: pbfact(temp),
-            pbfact1: pbfact(tnom),
-        }
-    }
-
-    /// A potential given at TNOM (φ, PB) at TEMP.
-    fn potential(&self, p: f64) -> f64 {
-        let at_ref = (p - self.pbfact1) / (self.tnom / REFTEMP);
-        self.temp / REFTEMP * at_ref + self.pbfact
-    }
-
-    /// The factor on a junction's saturation current.
-    fn saturation(&self) -> f64 {
-        (-self.egfet / self.vt + self.egfet1 / self.vtnom).exp()
-    }
-
-    /// The factor on a zero-bias junction capacitance of grading `m`
-    /// whose potential at TNOM is `pb`.
-    fn capacitance(&self, m: f64, pb: f64) -> f64 {
-        let pbo = (pb - self.pbfact1) / (self.tnom / REFTEMP);
-        let old = (pb - pbo) / pbo;
-        let new = (self.potential(pb) - pbo) / pbo;
-        (1.0 + m * (4e-4 * (self.temp - REFTEMP) - new))
-            / (1.0 + m * (4e-4 * (self.tnom - REFTEMP) - old))
-    }
-}
-
 /// `√(φ − v)` for `v ≤ 0`, and its continuation above, `√φ/(1 + v/2φ)`,
 /// as ngspice's levels 2 and 3 write it (level 1's is
 /// [`sqrt_phi_minus`]).
@@ -1441,38 +1381,4 @@ fn sqrt_phi_minus(x: &mut Ex, phi: f64, vb: u32) -> u32 {
     let fwd = x.positive(t);
     let c = x.push(BNode::Cmp(Cmp::Le, vb, zero));
     x.push(BNode::Select(c, rev, fwd))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn at_the_nominal_temperature_nothing_moves() {
-        for tnom in [300.15, 250.0, 400.0] {
-            let th = Thermal::new(tnom, tnom);
-            for p in [0.6, 0.8, 1.1] {
-                assert!(
-                    (th.potential(p) - p).abs() < 1e-14,
-                    "potential {p} at {tnom} K"
-                );
-                assert!((th.capacitance(0.5, p) - 1.0).abs() < 1e-14);
-            }
-            assert!((th.saturation() - 1.0).abs() < 1e-14);
-        }
-    }
-
-    #[test]
-    fn a_hot_junction_leaks_more_at_a_lower_potential() {
-        // 27 °C → 125 °C: ngspice's band gap shrinks from 1.1151 to 1.0861
-        // eV, and the saturation current grows about 10^4-fold.
-        let th = Thermal::new(300.15, 398.15);
-        assert!(
-            (1.0e4..1.0e5).contains(&th.saturation()),
-            "{}",
-            th.saturation()
-        );
-        assert!(th.potential(0.8) < 0.8 && th.potential(0.8) > 0.5);
-        assert!(th.capacitance(0.5, 0.8) > 1.0);
-    }
 }

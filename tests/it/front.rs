@@ -399,10 +399,10 @@ fn unknown_print_items_are_warnings() {
     assert!(printed.contains(".print tran v(1) v(2) i(v1)"), "{printed}");
 }
 
-/// TEMP = TNOM sets the diodes' thermal voltage silently; TEMP ≠ TNOM (or
-/// one of them away from ngspice's 27 °C) is a warning at the option where
-/// the circuit has a diode, BJT or JFET, whose parameters kausal does not
-/// scale with temperature; MOSFETs it scales, silently.
+/// TEMP = TNOM sets the thermal voltage silently; TEMP ≠ TNOM (or one of
+/// them away from ngspice's 27 °C) is a warning at the option where the
+/// circuit has a BJT or JFET, whose parameters kausal does not scale with
+/// temperature; diodes and MOSFETs it scales, silently.
 #[test]
 fn temperatures_are_honoured_when_equal_and_flagged_when_not() {
     let dir = tempfile::tempdir().unwrap();
@@ -413,10 +413,12 @@ fn temperatures_are_honoured_when_equal_and_flagged_when_not() {
             .unwrap_or_else(|_| panic!("{opts} elaborates"));
         el.warnings.iter().map(|d| d.code.to_string()).collect()
     };
-    let codes = |opts: &str| codes_of(opts, "D1 a 0 DX\n.model DX D");
+    let codes = |opts: &str| codes_of(opts, "Q1 a a 0 QX\n.model QX NPN");
     let has = |opts: &str, code: &str| codes(opts).iter().any(|c| c == code);
-    let mos = codes_of(".options temp=60", "M1 a a 0 0 NX\n.model NX NMOS");
-    assert!(!mos.iter().any(|c| c == "K0299"), "{mos:?}");
+    for scaled in ["M1 a a 0 0 NX\n.model NX NMOS", "D1 a 0 DX\n.model DX D"] {
+        let found = codes_of(".options temp=60", scaled);
+        assert!(!found.iter().any(|c| c == "K0299"), "{scaled}: {found:?}");
+    }
     assert!(!has(".options temp=60 tnom=60", "K0299"));
     assert!(has(".options temp=60", "K0299"));
     assert!(has(".options tnom=25 temp=50", "K0299"));
