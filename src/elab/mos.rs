@@ -25,7 +25,7 @@
 mod level2;
 
 use super::bjt::{Ex, NextIds, oriented};
-use super::thermal::{CELSIUS_K, Thermal};
+use super::thermal::{BOLTZMANN, CELSIUS_K, CHARGE, Thermal};
 use super::{Arith, BNode, Elab, ElabError, ElemId, Element, ElementKind, NodeId, Scope};
 use crate::front::ast::{self, ElementLetter};
 use crate::ir::{Cmp, DiodeParams, DiodePart, Func};
@@ -37,8 +37,6 @@ const DEFAULT_LW: f64 = 1e-4;
 /// The permittivities ngspice's MOS models use: SiO2's and silicon's.
 const EPS_OX: f64 = 3.9 * 8.854_214_871e-12;
 const EPS_SI: f64 = 11.7 * 8.854_214_871e-12;
-const CHARGE: f64 = 1.602_176_620_8e-19;
-const BOLTZMANN: f64 = 1.380_648_52e-23;
 /// The floor of a Meyer capacitance that can vanish (a gate–drain
 /// capacitance in saturation without overlap), as a fraction of the gate
 /// oxide's: the branch's voltage is a state, which a zero capacitance would

@@ -7,8 +7,9 @@ pub(crate) const CELSIUS_K: f64 = 273.15;
 /// ngspice's REFTEMP (27 °C), where its band-gap and junction-potential
 /// temperature formulas are anchored.
 const REFTEMP: f64 = 300.15;
-const CHARGE: f64 = 1.602_176_620_8e-19;
-const BOLTZMANN: f64 = 1.380_648_52e-23;
+/// The elementary charge and Boltzmann's constant as ngspice has them.
+pub(crate) const CHARGE: f64 = 1.602_176_620_8e-19;
+pub(crate) const BOLTZMANN: f64 = 1.380_648_52e-23;
 
 /// ngspice's temperature model of junctions (`mos1temp.c`, `diotemp.c`):
 /// the band gap at TNOM and at TEMP (kelvin), and the junction-potential

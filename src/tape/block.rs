@@ -364,6 +364,19 @@ impl Tape {
                     if full0 <= 1e-9 {
                         return Ok(());
                     }
+                    // Affine in its tear, after the full step: a residual
+                    // 10^6 times smaller, or at the stall floor, is solved.
+                    // What is left is rounding, which the correction reads
+                    // as large beside a tear of about zero with a slope of
+                    // femtofarads (an ECL loop's capacitor derivative).
+                    let start = (slope0 * step0).abs();
+                    if b.linear
+                        && b.junctions.is_empty()
+                        && lambda == 1.0
+                        && (fx.abs() <= 1e-6 * start || fx.abs() <= STALL_FLOOR)
+                    {
+                        return Ok(());
+                    }
                     let lambda = lambda * 0.5;
                     if lambda < newton::MIN_DAMPING {
                         // No step along the exact slope lowers a residual
@@ -532,9 +545,10 @@ impl Tape {
                     // Stalled at rounding level: converged as far as f64 allows.
                     return Ok(());
                 }
-                if residual0 <= RESIDUAL_FLOOR && full <= 1e-6 {
-                    // The residuals are rounding (see `newton_scalar`): the
-                    // point the step started from is the solution.
+                if residual0 <= STALL_FLOOR && full <= 1e-6 {
+                    // No damped step lowers residuals that are rounding (see
+                    // `newton_scalar` and [`STALL_FLOOR`]): the point the
+                    // step started from is the solution.
                     set(r, &w.x0, &w.step, 0.0);
                     return self.settle(b, r, t);
                 }
@@ -568,8 +582,8 @@ const WIDE_TANGENT_LIMIT: usize = 1 << 20;
 /// with a correction below 1e-6 relative, a block is solved.
 const RESIDUAL_FLOOR: f64 = 1e-17;
 
-/// The same for a one-tear block where no damped step along the exact slope
-/// lowers the residual (the damping stalled): rounding on sums of
+/// The same for a block where no damped step along the exact slope lowers
+/// the residual (the damping stalled; one tear or many): rounding on sums of
 /// milliampere currents leaves 2e-16 A on an ECL Schmitt trigger's emitter
 /// node. Only after a stall: as the floor of every test above it ended
 /// solves that would still converge, early enough that an op-amp
