@@ -364,10 +364,10 @@ pub struct SimOptions {
 }
 
 impl SimOptions {
-    /// The temperature BJTs and JFETs are simulated at, °C: TEMP where it
-    /// equals TNOM; else TNOM, where their model parameters hold (kausal
-    /// does not scale them with temperature, and warns, K0299). Diodes and
-    /// MOSFETs are scaled to TEMP (`elab::thermal`).
+    /// The temperature BJTs are simulated at, °C: TEMP where it equals
+    /// TNOM; else TNOM, where their model parameters hold (kausal does not
+    /// scale them with temperature, and warns, K0299). Diodes, MOSFETs and
+    /// JFETs are scaled to TEMP (`elab::thermal`).
     pub fn device_temperature(&self) -> f64 {
         let tnom = self.tnom.unwrap_or(27.0);
         match self.temp {

@@ -1,7 +1,7 @@
 //! J: ngspice's JFET level 1 (Shichman–Hodges with the University of
 //! Sydney's doping-profile parameter B, as ngspice's jfetload.c computes it)
-//! at the nominal temperature, elaborated into branches as a BJT is
-//! (`bjt.rs`):
+//! at the circuit's temperature (`jfettemp.c`), elaborated into branches as
+//! a BJT is (`bjt.rs`):
 //!
 //! ```text
 //!  D ─rd─ D' ─┬─ gd: igd(vgd) + d(qgd)/dt ─┬─ G
@@ -15,6 +15,7 @@
 //! device's branches point the other way.
 
 use super::bjt::{Ex, NextIds, oriented};
+use super::thermal::{CELSIUS_K, Thermal};
 use super::{Arith, BNode, Elab, ElabError, ElemId, Element, ElementKind, NodeId, Scope};
 use crate::front::ast::{self, ElementLetter};
 use crate::ir::{Cmp, DiodeParams, DiodePart};
@@ -38,18 +39,27 @@ pub(super) struct JfetModel {
     n: f64,
     fc: f64,
     b: f64,
+    /// The temperature law (`jfettemp.c`): TNOM (°C), the threshold's
+    /// (TCV, or VTOTC when given) and β's (BEX, or BETATCE when given)
+    /// coefficients, the gate junction's EG and XTI.
+    tnom: Option<f64>,
+    tcv: f64,
+    vtotc: Option<f64>,
+    bex: f64,
+    betatce: Option<f64>,
+    eg: f64,
+    xti: Option<f64>,
+    /// `(1 − B)/(PB − VTO)` at TNOM (ngspice keeps it per model).
+    bfac: f64,
 }
 
 /// JFET level-1 parameters kausal models.
 const JFET_PARAMS: &[&str] = &[
     "vto", "vt0", "beta", "lambda", "rd", "rs", "cgs", "cgd", "pb", "is", "n", "fc", "b", "level",
-    "njf", "pjf",
+    "njf", "pjf", "tnom", "tcv", "vtotc", "bex", "betatce", "xti", "eg",
 ];
-/// Parameters that do not change the transient result at the nominal
-/// temperature (temperature coefficients, noise).
-const JFET_IGNORED: &[&str] = &[
-    "tnom", "tcv", "vtotc", "bex", "betatce", "xti", "eg", "kf", "af", "nlev", "gdsnoi", "m",
-];
+/// Parameters that do not change the transient result (noise).
+const JFET_IGNORED: &[&str] = &["kf", "af", "nlev", "gdsnoi", "m"];
 
 impl Elab {
     fn jfet_model(
@@ -75,6 +85,14 @@ impl Elab {
             n: 1.0,
             fc: 0.5,
             b: 1.0,
+            tnom: None,
+            tcv: 0.0,
+            vtotc: None,
+            bex: 0.0,
+            betatce: None,
+            eg: 1.11,
+            xti: None,
+            bfac: 0.0,
         };
         let mut ok = true;
         for p in &def.params {
@@ -99,6 +117,13 @@ impl Elab {
                 "n" => m.n = v,
                 "fc" => m.fc = v.min(0.95),
                 "b" => m.b = v,
+                "tnom" => m.tnom = Some(v),
+                "tcv" => m.tcv = v,
+                "vtotc" => m.vtotc = Some(v),
+                "bex" => m.bex = v,
+                "betatce" => m.betatce = Some(v),
+                "eg" => m.eg = v,
+                "xti" => m.xti = Some(v),
                 "level" if v != 1.0 => {
                     self.errors.push(ElabError::UnsupportedModel {
                         span: p.value.span(),
@@ -111,7 +136,41 @@ impl Elab {
                 _ => {}
             }
         }
+        m.bfac = (1.0 - m.b) / (m.pb - m.vto);
         ok.then_some(m)
+    }
+
+    /// `md` at the circuit's temperature, as ngspice's `jfettemp.c` scales
+    /// it from TNOM: the gate junction's saturation current (EG, XTI),
+    /// potential and capacitances, the threshold and β; and the thermal
+    /// voltage there.
+    fn jfet_at_temperature(&self, md: &JfetModel) -> (JfetModel, f64) {
+        let options = &self.circuit.options;
+        let th = Thermal::new(
+            md.tnom.or(options.tnom).unwrap_or(27.0) + CELSIUS_K,
+            options.temp.unwrap_or(27.0) + CELSIUS_K,
+        );
+        let dt = th.temp - th.tnom;
+        let ratio = th.temp / th.tnom;
+        let cap = th.capacitance(0.5, md.pb);
+        let t = JfetModel {
+            is: md.is
+                * ((ratio - 1.0) * md.eg / (md.n * th.vt)).exp()
+                * md.xti.map_or(1.0, |x| ratio.powf(x)),
+            cgs: md.cgs * cap,
+            cgd: md.cgd * cap,
+            pb: th.potential(md.pb),
+            vto: match md.vtotc {
+                Some(c) => md.vto + c * dt,
+                None => md.vto - md.tcv * dt,
+            },
+            beta: match md.betatce {
+                Some(c) => md.beta * 1.01f64.powf(c * dt),
+                None => md.beta * ratio.powf(md.bex),
+            },
+            ..md.clone()
+        };
+        (t, th.vt)
     }
 
     /// J: `model [area]` after the terminals, the model read, and the
@@ -143,7 +202,7 @@ impl Elab {
         let Some(model) = self.jfet_model(&model_name, name, scope) else {
             return;
         };
-        let vt = crate::ir::thermal_voltage(self.circuit.options.device_temperature());
+        let (model, vt) = self.jfet_at_temperature(&model);
         self.expand_jfet(el, name, nodes, &model, area * m, vt);
     }
 
@@ -253,7 +312,7 @@ impl Elab {
 /// `v² (B + Bfac·v)` in saturation, `Bfac = (1 − B)/(PB − VTO)`.
 fn drain_current(x: &mut Ex, md: &JfetModel, scale: f64, vgs: u32, vgd: u32) {
     let beta = md.beta * scale;
-    let bfac = (1.0 - md.b) / (md.pb - md.vto);
+    let bfac = md.bfac;
     let vds = x.arith(Arith::Sub, vgs, vgd);
     let zero = x.num(0.0);
     let vto = x.num(md.vto);

@@ -80,9 +80,9 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     e.settings(&netlist.stmts, &top);
     let mut stack = Vec::new();
     e.walk(&netlist.stmts, &top, &mut stack);
-    // Diodes and MOSFETs are scaled to TEMP; BJTs and JFETs are not.
+    // Diodes, MOSFETs and JFETs are scaled to TEMP; BJTs are not.
     let unscaled = e.circuit.elements.values().any(|el| match &el.kind {
-        ElementKind::DeviceBranch { device, .. } => *device != ast::ElementLetter::M,
+        ElementKind::DeviceBranch { device, .. } => *device == ast::ElementLetter::Q,
         _ => false,
     });
     if let Some(span) = e.temp_span

@@ -401,8 +401,8 @@ fn unknown_print_items_are_warnings() {
 
 /// TEMP = TNOM sets the thermal voltage silently; TEMP ≠ TNOM (or one of
 /// them away from ngspice's 27 °C) is a warning at the option where the
-/// circuit has a BJT or JFET, whose parameters kausal does not scale with
-/// temperature; diodes and MOSFETs it scales, silently.
+/// circuit has a BJT, whose parameters kausal does not scale with
+/// temperature; diodes, MOSFETs and JFETs it scales, silently.
 #[test]
 fn temperatures_are_honoured_when_equal_and_flagged_when_not() {
     let dir = tempfile::tempdir().unwrap();
@@ -415,7 +415,11 @@ fn temperatures_are_honoured_when_equal_and_flagged_when_not() {
     };
     let codes = |opts: &str| codes_of(opts, "Q1 a a 0 QX\n.model QX NPN");
     let has = |opts: &str, code: &str| codes(opts).iter().any(|c| c == code);
-    for scaled in ["M1 a a 0 0 NX\n.model NX NMOS", "D1 a 0 DX\n.model DX D"] {
+    for scaled in [
+        "M1 a a 0 0 NX\n.model NX NMOS",
+        "D1 a 0 DX\n.model DX D",
+        "J1 a a 0 JX\n.model JX NJF",
+    ] {
         let found = codes_of(".options temp=60", scaled);
         assert!(!found.iter().any(|c| c == "K0299"), "{scaled}: {found:?}");
     }
