@@ -421,7 +421,6 @@ impl Elab {
         let Some(dv) = self.derive_mos(&model, name, el) else {
             return;
         };
-        let vt = dv.vt;
         let leff = g.l - 2.0 * model.ld + if model.level == 3 { model.xl } else { 0.0 };
         let weff = if model.level == 3 {
             g.w - 2.0 * model.wd + model.xw
@@ -438,7 +437,7 @@ impl Elab {
             });
             return;
         }
-        self.expand_mos(el, name, nodes, &model, &dv, &g, leff, weff, vt);
+        self.expand_mos(el, name, nodes, &model, &dv, &g, leff, weff);
     }
 
     /// The model's derived values (ngspice's `mos1temp.c`, `mos2temp.c`,
@@ -549,8 +548,7 @@ impl Elab {
         };
         // At TEMP: mobility as T^-1.5, φ and the junction potential with
         // the band gap, the threshold with both (`mos1temp.c`).
-        let ratio = th.temp / tnom_k;
-        let mobility = 1.0 / (ratio * ratio.sqrt());
+        let mobility = th.mobility();
         let tphi = th.potential(phi);
         let pb = th.potential(md.pb);
         Some(Derived {
@@ -587,7 +585,6 @@ impl Elab {
         g: &Geometry,
         leff: f64,
         weff: f64,
-        vt: f64,
     ) {
         let span = el.span;
         let (d, gate, s, b) = (nodes[0], nodes[1], nodes[2], nodes[3]);
@@ -611,7 +608,7 @@ impl Elab {
             weff,
             cox,
             m,
-            vt,
+            vt: dv.vt,
             sign: if p { -1.0 } else { 1.0 },
         };
         // The intermediates, each a variable of its own in the listing.
@@ -671,7 +668,7 @@ impl Elab {
         let junction = |suffix: &str, is: f64, cj: f64, mj: f64| DiodeParams {
             name: format!("{name}.{suffix}"),
             is,
-            vte: vt,
+            vte: dv.vt,
             bv: None,
             gmin: GMIN,
             cjo: cj,

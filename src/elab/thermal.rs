@@ -57,6 +57,12 @@ impl Thermal {
         self.temp / REFTEMP * at_ref + self.pbfact
     }
 
+    /// The factor on a MOSFET's mobility (KP, UO): `(T/TNOM)^-1.5`.
+    pub(crate) fn mobility(&self) -> f64 {
+        let ratio = self.temp / self.tnom;
+        1.0 / (ratio * ratio.sqrt())
+    }
+
     /// The factor on a junction's saturation current.
     pub(crate) fn saturation(&self) -> f64 {
         (-self.egfet / self.vt + self.egfet1 / self.vtnom).exp()
