@@ -328,7 +328,8 @@ impl Tape {
     /// body, which gives the residual and its slope together. The step is
     /// damped by the same natural monotonicity test as [`Self::newton_iterate`]
     /// (checked with the residual the next iteration computes anyway) and
-    /// junction tears are limited as ngspice limits them.
+    /// junction tears are limited as ngspice limits them. A block affine in
+    /// its tear takes the full step and one refinement, undamped.
     pub(super) fn newton_scalar(
         &self,
         b: &TapeBlock,
@@ -364,19 +365,6 @@ impl Tape {
                     if full0 <= 1e-9 {
                         return Ok(());
                     }
-                    // Affine in its tear, after the full step: a residual
-                    // 10^6 times smaller, or at the stall floor, is solved.
-                    // What is left is rounding, which the correction reads
-                    // as large beside a tear of about zero with a slope of
-                    // femtofarads (an ECL loop's capacitor derivative).
-                    let start = (slope0 * step0).abs();
-                    if b.linear
-                        && b.junctions.is_empty()
-                        && lambda == 1.0
-                        && (fx.abs() <= 1e-6 * start || fx.abs() <= STALL_FLOOR)
-                    {
-                        return Ok(());
-                    }
                     let lambda = lambda * 0.5;
                     if lambda < newton::MIN_DAMPING {
                         // No step along the exact slope lowers a residual
@@ -399,6 +387,21 @@ impl Tape {
             let full = step.abs() / (1.0 + xv.abs());
             if !full.is_finite() {
                 return Err(b.singular(t));
+            }
+            if b.linear && b.junctions.is_empty() {
+                // Affine in its tear: the full step solves it, and one more
+                // with the same slope refines it where that helps, as in
+                // `newton_iterate`. A damping test would compare rounding:
+                // the residual of a loop of junction charges is the
+                // difference of terms 10^10 times larger.
+                r[x] = xv - step;
+                self.run(&b.body, r, t)?;
+                let refine = r[res] / slope;
+                if refine.is_finite() && refine.abs() < step.abs() {
+                    r[x] -= refine;
+                    self.run(&b.body, r, t)?;
+                }
+                return Ok(());
             }
             // The residual is rounding and the correction small, if not
             // below 1e-13 relative: a derivative tear at DC, whose 1e-9 V/s
