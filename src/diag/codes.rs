@@ -106,7 +106,6 @@ codes! {
     PWL_PARAM_ON_CURRENT = "K0296", "`…` is a current source: ngspice takes PWL `…=` on voltage sources only.";
     TRANSIT_TIME_WITHOUT_CAPACITANCE = "K0297", "Model `…` has … but no …: kausal gives the junction a constant … capacitance.";
     TINY_TMAX = "K0298", "`.tran`'s TMAX asks for more steps than kausal takes: the step cap is raised.";
-    TEMPERATURE_UNSCALED = "K0299", "TEMP differs from TNOM: device parameters are not scaled with temperature.";
     STRUCTURALLY_SINGULAR = "K0300", "The equations are structurally singular.";
     ALGEBRAIC_LOOPS = "K0301", "Algebraic loops that could not be solved.";
     UNBALANCED = "K0302", "More equations than unknowns, or fewer.";

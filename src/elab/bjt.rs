@@ -1,7 +1,8 @@
 //! Q: ngspice's bipolar transistor, the Gummel–Poon model of its level 1,
-//! at the nominal temperature (TEMP = TNOM; kausal does not scale the
-//! parameters, K0299), elaborated into two-terminal branches between the
-//! terminals and internal nodes, each named by the device:
+//! at the circuit's temperature (scaled from the model's TNOM as
+//! `bjttemp.c` scales it: TLEV 0, 1 and 3, TLEVC 0 and 1), elaborated into
+//! two-terminal branches between the terminals and internal nodes, each
+//! named by the device:
 //!
 //! ```text
 //!  C ─rc─ C' ─┬─ bc: ibc/BR + ibcn + d(qbc)/dt ─┬─ B' ─rb─ B
@@ -21,6 +22,7 @@
 //! transit-time charge, the base resistance's modulation) is written out as
 //! expressions, which the listing shows and code generation emits.
 
+use super::thermal::{CELSIUS_K, Thermal};
 use super::{Arith, BExpr, BNode, Elab, ElabError, ElemId, Element, ElementKind, NodeId, Scope};
 use crate::front::ast::{self, ElementLetter, Value};
 use crate::ir::{Cmp, DiodeParams, DiodePart, Func};
@@ -89,6 +91,9 @@ pub(super) struct BjtModel {
     subs: Option<f64>,
     /// Excess phase at 1/(2π TF), degrees.
     ptf: f64,
+    /// The temperature parameters given on the card (`BJT_TEMPERATURE`),
+    /// read by [`Elab::bjt_at_temperature`].
+    temperature: Vec<(&'static str, f64)>,
 }
 
 impl BjtModel {
@@ -135,7 +140,16 @@ impl BjtModel {
             fc: 0.5,
             subs: None,
             ptf: 0.0,
+            temperature: Vec::new(),
         }
+    }
+
+    /// A temperature parameter as given, else its default.
+    fn given(&self, key: &str, default: f64) -> f64 {
+        self.temperature
+            .iter()
+            .find(|(k, _)| *k == key)
+            .map_or(default, |&(_, v)| v)
     }
 
     fn lateral(&self) -> bool {
@@ -153,19 +167,26 @@ const BJT_PARAMS: &[&str] = &[
     "mje", "me", "tf", "xtf", "vtf", "itf", "ptf", "cjc", "vjc", "pc", "mjc", "mc", "xcjc", "tr",
     "cjs", "csub", "ccs", "vjs", "ps", "mjs", "ms", "fc", "subs", "ptf", "level", "npn", "pnp",
 ];
-/// ngspice BJT parameters that do not change kausal's transient result at
-/// the nominal temperature (temperature coefficients, noise, safe operating
-/// area) or that only matter with parameters kausal refuses.
+/// The temperature parameters of `bjttemp.c` (TLEV 0, 1 and 3; TLEVC 0
+/// and 1): TNOM, β's exponent XTB, the saturation current's EG and XTI, the
+/// capacitances' and potentials' linear coefficients, and the linear and
+/// quadratic coefficients of the rest.
+const BJT_TEMPERATURE: &[&str] = &[
+    "tnom", "xtb", "eg", "xti", "tlev", "tlevc", "cte", "ctc", "cts", "tvje", "tvjc", "tvjs",
+    "tbf1", "tbf2", "tbr1", "tbr2", "tikf1", "tikf2", "tikr1", "tikr2", "tirb1", "tirb2", "tnc1",
+    "tnc2", "tne1", "tne2", "tnf1", "tnf2", "tnr1", "tnr2", "trb1", "trb2", "trc1", "trc2", "tre1",
+    "tre2", "trm1", "trm2", "tvaf1", "tvaf2", "tvar1", "tvar2", "titf1", "titf2", "ttf1", "ttf2",
+    "ttr1", "ttr2", "tmje1", "tmje2", "tmjc1", "tmjc2", "tmjs1", "tmjs2", "tis1", "tis2", "tise1",
+    "tise2", "tisc1", "tisc2",
+];
+/// ngspice BJT parameters that do not change kausal's transient result
+/// (noise, safe operating area, the substrate current's emission and its
+/// temperature coefficients) or that only matter with parameters kausal
+/// refuses.
 const BJT_IGNORED: &[&str] = &[
-    "tnom", "xtb", "eg", "xti", "kf", "af", "tlev", "tlevc", "tbf1", "tbf2", "tbr1", "tbr2",
-    "tikf1", "tikf2", "tikr1", "tikr2", "tirb1", "tirb2", "tnc1", "tnc2", "tne1", "tne2", "tnf1",
-    "tnf2", "tnr1", "tnr2", "trb1", "trb2", "trc1", "trc2", "tre1", "tre2", "trm1", "trm2",
-    "tvaf1", "tvaf2", "tvar1", "tvar2", "ctc", "cte", "cts", "tvjc", "tvje", "tvjs", "titf1",
-    "titf2", "ttf1", "ttf2", "ttr1", "ttr2", "tmje1", "tmje2", "tmjc1", "tmjc2", "tmjs1", "tmjs2",
-    "tns1", "tns2", "tis1", "tis2", "tise1", "tise2", "tisc1", "tisc2", "tiss1", "tiss2", "ns",
-    "vbe_max", "vbc_max", "vce_max", "pd_max", "ic_max", "ib_max", "te_max", "rth0", "bv", "bvcbo",
-    "bvceo", "bvebo", "vceo", "icrating", "mfg", "type", "iave", "vpk", "quasimod", "vg", "cn",
-    "d",
+    "kf", "af", "tns1", "tns2", "tiss1", "tiss2", "ns", "vbe_max", "vbc_max", "vce_max", "pd_max",
+    "ic_max", "ib_max", "te_max", "rth0", "bv", "bvcbo", "bvceo", "bvebo", "vceo", "icrating",
+    "mfg", "type", "iave", "vpk", "quasimod", "vg", "cn", "d",
 ];
 /// Parameters whose effect kausal does not model: refused when not zero.
 const BJT_REFUSED: &[(&str, &str)] = &[
@@ -205,6 +226,22 @@ impl Elab {
                         help: "kausal models ngspice's level-1 BJT without a substrate current or quasi-saturation; remove the parameter (or set it to 0) to simulate without it",
                     });
                     ok = false;
+                }
+                continue;
+            }
+            if let Some(&k) = BJT_TEMPERATURE.iter().find(|k| **k == key) {
+                match self.value(&p.value, scope) {
+                    Some(v) if matches!(k, "tlev" | "tlevc") && !tlev_supported(k, v) => {
+                        self.errors.push(ElabError::UnsupportedModel {
+                            span: p.value.span(),
+                            model: def.name.text.to_string(),
+                            what: format!("a BJT with {} = {v}", k.to_ascii_uppercase()),
+                            help: "kausal scales BJTs with temperature as ngspice's TLEV 0, 1 and 3 and TLEVC 0 and 1 do",
+                        });
+                        ok = false;
+                    }
+                    Some(v) => m.temperature.push((k, v)),
+                    None => ok = false,
                 }
                 continue;
             }
@@ -386,8 +423,117 @@ impl Elab {
         let Some(model) = self.bjt_model(&model_name, name, scope) else {
             return;
         };
-        let vt = crate::ir::thermal_voltage(self.circuit.options.device_temperature());
+        let (model, vt) = self.bjt_at_temperature(&model);
         self.expand_bjt(el, name, nodes, substrate, &model, area, m, vt);
+    }
+
+    /// `md` at the circuit's temperature, as ngspice's `bjttemp.c` scales it
+    /// from the model's TNOM, and the thermal voltage there; `md` itself at
+    /// TNOM.
+    fn bjt_at_temperature(&self, md: &BjtModel) -> (BjtModel, f64) {
+        let options = &self.circuit.options;
+        let tnom = md.given("tnom", options.tnom.unwrap_or(27.0));
+        let temp = options.temp.unwrap_or(27.0);
+        if temp == tnom {
+            return (md.clone(), crate::ir::thermal_voltage(temp));
+        }
+        let th = Thermal::new(tnom + CELSIUS_K, temp + CELSIUS_K);
+        let dt = th.temp - th.tnom;
+        // `1 + t1·dt + t2·dt²` of the coefficients `t1`, `t2` named `t…1`, `t…2`.
+        let poly = |stem: &str| {
+            1.0 + md.given(&format!("t{stem}1"), 0.0) * dt
+                + md.given(&format!("t{stem}2"), 0.0) * dt * dt
+        };
+        let (tlev, tlevc) = (md.given("tlev", 0.0), md.given("tlevc", 0.0));
+        let ratio = th.temp / th.tnom;
+        let factlog =
+            (ratio - 1.0) * md.given("eg", 1.11) / th.vt + md.given("xti", 3.0) * ratio.ln();
+        let xtb = md.given("xtb", 0.0);
+        let bfactor = match tlev {
+            0.0 => ratio.powf(xtb),
+            1.0 => 1.0 + xtb * dt,
+            _ => 1.0,
+        };
+        // TLEV 3 raises the saturation currents to a power instead.
+        let saturation = |is: f64, n: f64, stem: &str| match tlev {
+            3.0 => is.powf(poly(stem)),
+            _ => is * (factlog / n).exp(),
+        };
+        let beta = |b: f64, stem: &str| {
+            let given = ["1", "2"].iter().any(|k| {
+                md.temperature
+                    .iter()
+                    .any(|(g, _)| *g == format!("t{stem}{k}"))
+            });
+            b * if given { poly(stem) } else { bfactor }
+        };
+        let (mje, mjc, mjs) = (
+            (md.mje * poly("mje")).min(0.999),
+            (md.mjc * poly("mjc")).min(0.999),
+            (md.mjs * poly("mjs")).min(0.999),
+        );
+        // A depletion capacitance and its potential: from the band gap
+        // (TLEVC 0) or linear coefficients (TLEVC 1).
+        let junction = |cj: f64, pb: f64, m: f64, ct: &str, tv: &str| match tlevc {
+            1.0 => (
+                cj * (1.0 + md.given(ct, 0.0) * dt),
+                pb - md.given(tv, 0.0) * dt,
+            ),
+            _ => (cj * th.capacitance(m, pb), th.potential(pb)),
+        };
+        let (cje, vje) = junction(md.cje, md.vje, mje, "cte", "tvje");
+        let (cjc, vjc) = junction(md.cjc, md.vjc, mjc, "ctc", "tvjc");
+        let (cjs, vjs) = junction(md.cjs, md.vjs, mjs, "cts", "tvjs");
+        let tf = md.tf * poly("tf");
+        let t = BjtModel {
+            is: saturation(md.is, 1.0, "is"),
+            ibe: md.ibe.map(|i| saturation(i, md.nf, "is")),
+            ibc: md.ibc.map(|i| saturation(i, md.nr, "is")),
+            ise: match tlev {
+                3.0 => md.ise.powf(poly("ise")),
+                _ => md.ise * (factlog / md.ne).exp() / bfactor,
+            },
+            isc: match tlev {
+                3.0 => md.isc.powf(poly("isc")),
+                _ => md.isc * (factlog / md.nc).exp() / bfactor,
+            },
+            bf: beta(md.bf, "bf"),
+            br: beta(md.br, "br"),
+            nf: md.nf * poly("nf"),
+            nr: md.nr * poly("nr"),
+            ne: md.ne * poly("ne"),
+            nc: md.nc * poly("nc"),
+            vaf: md.vaf * poly("vaf"),
+            var: md.var * poly("var"),
+            ikf: md.ikf * poly("ikf"),
+            ikr: md.ikr * poly("ikr"),
+            rb: md.rb * poly("rb"),
+            rbm: Some(md.rbm.unwrap_or(md.rb) * poly("rm")),
+            irb: md.irb * poly("irb"),
+            rc: md.rc * poly("rc"),
+            re: md.re * poly("re"),
+            itf: md.itf * poly("itf"),
+            tf,
+            tr: md.tr * poly("tr"),
+            // The excess phase's delay is PTF times the model's TF, not
+            // TF at temperature.
+            ptf: if tf > 0.0 {
+                md.ptf * md.tf / tf
+            } else {
+                md.ptf
+            },
+            mje,
+            mjc,
+            mjs,
+            cje,
+            vje,
+            cjc,
+            vjc,
+            cjs,
+            vjs,
+            ..md.clone()
+        };
+        (t, th.vt)
     }
 
     /// The branches of one transistor (see the module documentation).
@@ -1033,5 +1179,14 @@ impl Gp<'_> {
         let bot = x.arith(Arith::Mul, bot, tz);
         let q = x.arith(Arith::Div, top, bot);
         x.arith(Arith::Add, rbm_n, q)
+    }
+}
+
+/// Whether ngspice's `bjttemp.c` has the temperature law `TLEV = v` (or
+/// `TLEVC = v`).
+fn tlev_supported(key: &str, v: f64) -> bool {
+    match key {
+        "tlev" => [0.0, 1.0, 3.0].contains(&v),
+        _ => [0.0, 1.0].contains(&v),
     }
 }

@@ -363,25 +363,6 @@ pub struct SimOptions {
     pub scale: Option<f64>,
 }
 
-impl SimOptions {
-    /// The temperature BJTs are simulated at, °C: TEMP where it equals
-    /// TNOM; else TNOM, where their model parameters hold (kausal does not
-    /// scale them with temperature, and warns, K0299). Diodes, MOSFETs and
-    /// JFETs are scaled to TEMP (`elab::thermal`).
-    pub fn device_temperature(&self) -> f64 {
-        let tnom = self.tnom.unwrap_or(27.0);
-        match self.temp {
-            Some(t) if t == tnom => t,
-            _ => tnom,
-        }
-    }
-
-    /// Whether TEMP and TNOM differ (with ngspice's defaults).
-    pub fn temperature_unscaled(&self) -> bool {
-        self.temp.unwrap_or(27.0) != self.tnom.unwrap_or(27.0)
-    }
-}
-
 /// An initial condition from `.ic v(node)=value`.
 #[derive(Clone, Debug)]
 pub struct NodeIc {

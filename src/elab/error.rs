@@ -109,10 +109,6 @@ pub enum ElabError {
         v1: f64,
         v2: f64,
     },
-    #[error(
-        "TEMP ({temp} °C) differs from TNOM ({tnom} °C): kausal scales diodes, MOSFETs and JFETs to TEMP, but simulates BJTs at TNOM"
-    )]
-    TemperatureUnscaled { span: Span, temp: f64, tnom: f64 },
     #[error("coupling coefficient {k} of `{element}` is outside (0, 1]")]
     CouplingRange { span: Span, element: String, k: f64 },
     #[error("{kind} of `{element}` {problem}")]
@@ -249,7 +245,6 @@ impl ElabError {
             | ManyOutputPoints { span, .. }
             | TooManyOutputPoints { span, .. }
             | TinyTmax { span, .. }
-            | TemperatureUnscaled { span, .. }
             | PwlParamOnCurrent { span, .. }
             | TransitTimeWithoutCapacitance { span, .. } => *span,
         }
@@ -265,7 +260,6 @@ impl ElabError {
             | DanglingNode { .. }
             | ManyOutputPoints { .. }
             | TinyTmax { .. }
-            | TemperatureUnscaled { .. }
             | PwlParamOnCurrent { .. }
             | TransitTimeWithoutCapacitance { .. }
             | ShortedElement { .. } => Severity::Warning,
@@ -294,7 +288,6 @@ impl ToDiagnostic for ElabError {
             SingleNode { .. } => (codes::SINGLE_NODE, "both terminals here", "an element must connect two different nodes".into()),
             UnknownControl { .. } => (codes::UNKNOWN_CONTROL, "not a V source", "F and H elements sense the current of a voltage source (add a 0 V source to measure it)".into()),
             BadCoupling { .. } => (codes::BAD_COUPLING, "not an inductor", "K couples two inductors: `K1 L1 L2 0.99`".into()),
-            TemperatureUnscaled { .. } => (codes::TEMPERATURE_UNSCALED, "here", "with TEMP = TNOM a BJT's thermal voltage is that of TEMP and its parameters hold as given".into()),
             CouplingSigns { .. } => (codes::COUPLING_SIGNS, "this inductor", "an inductive system with a negative winding is not positive definite (ngspice says so too, then fails); give coupled inductors the same sign".into()),
             CouplingRange { .. } => (codes::COUPLING_RANGE, "out of range", "use 0 < k <= 1".into()),
             BadSourceArgs { .. } => (codes::BAD_SOURCE_ARGS, "here", "see the ngspice manual for the source function's arguments".into()),

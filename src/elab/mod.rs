@@ -66,7 +66,6 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         n_flattened: 0,
         top_line: Span::default(),
         too_many: false,
-        temp_span: None,
         b_controls: Vec::new(),
     };
     e.circuit.nodes.push(Node {
@@ -80,21 +79,6 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     e.settings(&netlist.stmts, &top);
     let mut stack = Vec::new();
     e.walk(&netlist.stmts, &top, &mut stack);
-    // Diodes, MOSFETs and JFETs are scaled to TEMP; BJTs are not.
-    let unscaled = e.circuit.elements.values().any(|el| match &el.kind {
-        ElementKind::DeviceBranch { device, .. } => *device == ast::ElementLetter::Q,
-        _ => false,
-    });
-    if let Some(span) = e.temp_span
-        && unscaled
-        && e.circuit.options.temperature_unscaled()
-    {
-        e.errors.push(ElabError::TemperatureUnscaled {
-            span,
-            temp: e.circuit.options.temp.unwrap_or(27.0),
-            tnom: e.circuit.options.tnom.unwrap_or(27.0),
-        });
-    }
     e.resolve_pending();
     e.outputs(&netlist.stmts, &top);
     e.dangling();
@@ -204,8 +188,6 @@ struct Elab {
     top_line: Span,
     /// Set once the limit is reached: nothing more is flattened.
     too_many: bool,
-    /// Where TEMP or TNOM was last set.
-    temp_span: Option<Span>,
     /// The controlling sources of the B source being elaborated (keys),
     /// left by [`Elab::behavioural`] for [`Elab::element`].
     b_controls: Vec<String>,
@@ -412,9 +394,6 @@ impl Elab {
             "scale" => Some(&mut opt.scale),
             _ => None,
         };
-        if matches!(key.as_str(), "temp" | "tnom") {
-            self.temp_span = Some(o.name.span);
-        }
         match (slot, &o.value) {
             (Some(slot), _) => *slot = num,
             (None, ast::OptValue::Word(w)) if key == "method" => {
