@@ -250,6 +250,27 @@ fn device_vector(name: &str) -> Option<String> {
     Some(format!("@{x}[{param}]"))
 }
 
+/// ngspice's name for the current of an element two or more subcircuits
+/// deep: it repeats the element's letter at every level
+/// (`i(v.x1.v.x4.v1)`), where kausal writes the path once
+/// (`i(v.x1.x4.v1)`, ngspice's own form one level deep).
+fn nested_current(name: &str) -> Option<String> {
+    let x = name.strip_prefix("i(")?.strip_suffix(')')?;
+    let (letter, path) = x.split_once('.')?;
+    let mut parts: Vec<&str> = path.split('.').collect();
+    let element = parts.pop()?;
+    if parts.len() < 2 {
+        return None;
+    }
+    let mut out = String::from("i(");
+    for instance in parts {
+        out.push_str(&format!("{letter}.{instance}."));
+    }
+    out.push_str(element);
+    out.push(')');
+    Some(out)
+}
+
 /// The reference's values of the vector kausal calls `name`: its own
 /// column, ngspice's device vector for a branchless element's current, or
 /// the difference of two node voltages for `v(a,b)`.
@@ -261,6 +282,9 @@ fn reference_column(raw: &RawData, name: &str) -> Option<Vec<f64>> {
             .map(|k| raw.data[k].clone())
     };
     if let Some(c) = col(name) {
+        return Some(c);
+    }
+    if let Some(c) = nested_current(name).and_then(|n| col(&n)) {
         return Some(c);
     }
     if let Some(d) = device_vector(name) {
@@ -1084,5 +1108,22 @@ mod tests {
         assert!((shift + 2e-3).abs() < 1e-9, "{shift}");
         let flat = vec![1.0; time.len()];
         assert_eq!(edge_shift(&time, &flat, 0.5, 0.5), None);
+    }
+
+    /// A source two subcircuits deep has ngspice's letter at every level;
+    /// at the top level and one level deep the names are the same.
+    #[test]
+    fn nested_source_currents_are_named_as_ngspice_names_them() {
+        assert_eq!(
+            nested_current("i(v.x1.x4.v1)").as_deref(),
+            Some("i(v.x1.v.x4.v1)")
+        );
+        assert_eq!(
+            nested_current("i(e.xa.xb.xc.e2)").as_deref(),
+            Some("i(e.xa.e.xb.e.xc.e2)")
+        );
+        assert_eq!(nested_current("i(v.x1.v1)"), None);
+        assert_eq!(nested_current("i(v1)"), None);
+        assert_eq!(nested_current("v(x1.x4.n)"), None);
     }
 }
