@@ -132,7 +132,9 @@ impl AbsTol {
 
 /// The netlist text for ngspice: `.include` and `.lib` paths made absolute
 /// (it runs in a temporary directory), tolerances appended for a reference
-/// run. A `.tran` line in `extra` replaces the netlist's own.
+/// run. A `.tran` line in `extra` replaces the netlist's own. A `quit` or
+/// `exit` in a `.control` block is left out: ngspice would stop there,
+/// before it writes the raw file the comparison reads.
 fn prepare_netlist(path: &Path, text: &str, extra: Option<&str>) -> String {
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let mut out = String::with_capacity(text.len() + 200);
@@ -143,9 +145,17 @@ fn prepare_netlist(path: &Path, text: &str, extra: Option<&str>) -> String {
             .is_some_and(|h| h.eq_ignore_ascii_case(".tran"))
     };
     let replace_tran = extra.is_some_and(|x| x.lines().any(is_tran));
+    let mut in_control = false;
     for (k, line) in text.lines().enumerate() {
         let trimmed = line.trim_start();
         let lower = trimmed.to_ascii_lowercase();
+        let word = lower.split_whitespace().next();
+        match word {
+            Some(".control") => in_control = true,
+            Some(".endc") => in_control = false,
+            Some("quit" | "exit") if in_control => continue,
+            _ => {}
+        }
         if k > 0 && replace_tran && is_tran(line) {
             continue;
         }
@@ -1108,6 +1118,18 @@ mod tests {
         assert!((shift + 2e-3).abs() < 1e-9, "{shift}");
         let flat = vec![1.0; time.len()];
         assert_eq!(edge_shift(&time, &flat, 0.5, 0.5), None);
+    }
+
+    /// A control script's `quit` would end ngspice before it writes the raw
+    /// file: it is left out, and the rest of the script kept.
+    #[test]
+    fn a_control_blocks_quit_is_left_out() {
+        let text = "t\nV1 a 0 1\n.control\nrun\n  QUIT\n.endc\n.end\n";
+        let out = prepare_netlist(Path::new("t.cir"), text, None);
+        assert_eq!(out, "t\nV1 a 0 1\n.control\nrun\n.endc\n.end\n");
+        // Outside a control block the word is a node or an element's name.
+        let text = "t\nquit a 0 1\n.end\n";
+        assert!(prepare_netlist(Path::new("t.cir"), text, None).contains("quit a 0 1"));
     }
 
     /// A source two subcircuits deep has ngspice's letter at every level;
