@@ -7,6 +7,8 @@
 //! Before it starts and at every restart, f is evaluated once where it
 //! starts: an evaluation error there is the run's error (diffsol would size a
 //! NaN first step from it, and a NaN step never fails a step-size test).
+//! Within a run, source slopes at its end are the ones before it: the step
+//! that lands on a corner integrates the segment it comes from.
 
 use super::*;
 
@@ -593,6 +595,7 @@ where
     let mut rescues: Option<(f64, usize)> = None;
     loop {
         let stop = stops[k];
+        problem.eqn.tape.set_slope_end(stop);
         // A stop within diffsol's roundoff of the current time (a PULSE whose
         // corners lie 1e-20 s apart) is reached already.
         let reached = match solver.set_stop_time(stop) {
@@ -772,11 +775,14 @@ where
             add_solver_stats(stats, &solver);
             break;
         }
-        // Restart after a corner: fresh history, recomputed slope and step.
+        // Restart after a corner: fresh history, recomputed slope and step
+        // (the right-sided one: the next run's end set first).
         stats.restarts += 1;
+        problem.eqn.tape.set_slope_end(stops[k + 1]);
         solver = restart(problem, solver, &make, reason, stats, order)?;
         k += 1;
     }
+    problem.eqn.tape.set_slope_end(f64::INFINITY);
     Ok(Driven::Done(rec))
 }
 

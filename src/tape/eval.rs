@@ -20,6 +20,14 @@ impl Tape {
                     v
                 }
             } else {
+                // At a corner the waveforms give the right-sided slope, the
+                // one the integrator steps on with from there; the step that
+                // ends there needs the one before it (a capacitor across a
+                // PULSE source: its current jumps at the corner, and seen
+                // from the left it would fail the step's error test at any
+                // step size but one too short to reach the corner).
+                let end = self.slope_end.get();
+                let t = if t >= end { end - 1e-12 * end.abs() } else { t };
                 self.sources[s as usize].eval(t, order)
             };
             value * self.source_scale.get()
@@ -116,6 +124,12 @@ impl Tape {
         if let Some(r) = self.floor_reg {
             regs[r] = s;
         }
+    }
+
+    /// Where the integrator's current run stops: source derivatives at and
+    /// past `t` are the left-sided ones at `t` (`f64::INFINITY`: none).
+    pub fn set_slope_end(&self, t: f64) {
+        self.slope_end.set(t);
     }
 
     pub fn scale_sources(&self, regs: &mut [f64], s: f64) {

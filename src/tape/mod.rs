@@ -192,6 +192,11 @@ pub struct Tape {
     /// the DC solve ramps the sources up): waveforms as they are evaluated,
     /// DC values in their registers (see [`Tape::scale_sources`]).
     pub source_scale: std::cell::Cell<f64>,
+    /// Where the integrator's run stops (a source corner, or the end): at
+    /// and past it a source's derivatives are the left-sided ones, so that
+    /// the step that lands on a corner sees the slope before it (see
+    /// [`Tape::set_slope_end`]).
+    slope_end: std::cell::Cell<f64>,
     /// A conductance added across every junction that has GMIN (0 but
     /// while the DC solve steps it down, see [`Tape::set_gmin_step`]).
     pub gmin_step: std::cell::Cell<f64>,

@@ -1198,3 +1198,37 @@ fn coupling_matrices_are_told_apart_by_their_shape() {
             .unwrap_or_else(|e| panic!("k12 = {k12}, k13 = {k13}: {e}"));
     }
 }
+
+/// A capacitive divider on a PULSE source: the state's slope is the
+/// source's, which steps at each corner. The step that lands on a corner
+/// sees the slope before it (left-sided, once the run's end is set there),
+/// the run that starts there the slope after it; without that, every step
+/// onto a corner failed its error test until it was too short to reach it
+/// (measured: 315 rejected steps on this circuit, 75 with it).
+#[test]
+fn a_step_onto_a_source_corner_sees_the_slope_before_it() {
+    let s = sort_text(
+        "corner\nV1 in 0 PULSE(0 1 1u 1u 1u 3u 10u)\nC1 in a 1n\nC2 a 0 1n\nR1 a 0 10k\n.tran 0.1u 20u\n.end\n",
+    );
+    let t = kausal::tape::compile(s.system(), &s.schedule, &[]);
+    assert_eq!(t.states.len(), 1);
+    let mut regs = t.registers();
+    let (y, mut dy) = (vec![0.0], vec![0.0]);
+    // The end of the rise (2 µs): 1 V/µs before it, flat after it; the
+    // divider passes half of the jump to the state's slope.
+    let corner = 2e-6;
+    let mut slope = |end: f64, at: f64| {
+        t.set_slope_end(end);
+        t.rhs(&mut regs, at, &y, &mut dy).unwrap();
+        dy[0]
+    };
+    let right = slope(f64::INFINITY, corner);
+    let left = slope(corner, corner);
+    assert!(
+        ((left - right).abs() - 0.5e6).abs() < 1e-6 * 0.5e6,
+        "{left} {right}"
+    );
+    // Before the run's end nothing changes.
+    assert_eq!(slope(corner, 1.5e-6), slope(f64::INFINITY, 1.5e-6));
+    t.set_slope_end(f64::INFINITY);
+}
