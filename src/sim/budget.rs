@@ -62,6 +62,7 @@ impl Budget {
                 h,
                 tstop: self.t_end,
                 projected,
+                newton: None,
             });
         }
         Ok(())
@@ -93,6 +94,27 @@ mod tests {
             }
             other => panic!("expected TooManySteps, got {other:?}"),
         }
+    }
+
+    /// The message says when the integrator's Newton, not its error test,
+    /// held the steps short, and only then.
+    #[test]
+    fn a_stall_says_whether_the_corrector_held_the_steps() {
+        let stalled = |newton| {
+            SimError::TooManySteps {
+                steps: 3001,
+                max: 3000,
+                t: 5e-8,
+                h: 3e-12,
+                tstop: 0.1,
+                projected: None,
+                newton,
+            }
+            .to_string()
+        };
+        assert!(stalled(Some((1731, 0))).contains("Newton failed 1731 times"));
+        assert!(!stalled(Some((3, 40))).contains("Newton failed"));
+        assert!(!stalled(None).contains("Newton failed"));
     }
 
     #[test]

@@ -655,7 +655,9 @@ where
                     let (t_ev, y_ev) = (c.t, c.y);
                     emit_grid(&solver, &mut rec, t_ev, false)?;
                     switches.commit(&problem.eqn, t_ev, &c.controls)?;
-                    budget.step(t_ev, t_ev - t_before)?;
+                    budget
+                        .step(t_ev, t_ev - t_before)
+                        .map_err(|e| held_by_newton(e, solver.get_statistics()))?;
                     stats.restarts += 1;
                     solver = restart_at(problem, solver, &make, t_ev, &y_ev, stats, order)?;
                     match solver.set_stop_time(set) {
@@ -689,7 +691,9 @@ where
                             let y = solver.state().y.slice().to_vec();
                             insert_step(&mut rec, t, &y)?;
                         }
-                        budget.step(t, h)?;
+                        budget
+                            .step(t, h)
+                            .map_err(|e| held_by_newton(e, solver.get_statistics()))?;
                         window.add(h, solver.order());
                         if window.steps == STALL_WINDOW {
                             let pace = (t - window.t) / STALL_WINDOW as f64;
@@ -715,7 +719,9 @@ where
                     }
                     Ok(OdeSolverStopReason::TstopReached) if soft.is_some() => {
                         let t = solver.state().t;
-                        budget.step(t, solver.state().h.abs())?;
+                        budget
+                            .step(t, solver.state().h.abs())
+                            .map_err(|e| held_by_newton(e, solver.get_statistics()))?;
                         emit_grid(&solver, &mut rec, t, false)?;
                         if opts.all_steps && t >= tstart {
                             let y = solver.state().y.slice().to_vec();
@@ -725,7 +731,9 @@ where
                     Ok(OdeSolverStopReason::TstopReached) => {
                         // A step onto a breakpoint counts too: a PULSE of
                         // femtosecond period is nothing but breakpoints.
-                        budget.step(stop, solver.state().h.abs())?;
+                        budget
+                            .step(stop, solver.state().h.abs())
+                            .map_err(|e| held_by_newton(e, solver.get_statistics()))?;
                         break stop;
                     }
                     Ok(OdeSolverStopReason::RootFound(t, _)) => break t,
@@ -784,6 +792,35 @@ where
     }
     problem.eqn.tape.set_slope_end(f64::INFINITY);
     Ok(Driven::Done(rec))
+}
+
+/// A run out of steps, told whether the integrator's Newton held its steps
+/// back: the failures of its corrector and of its error test since the
+/// last restart.
+fn held_by_newton(e: SimError, s: &diffsol::ode_solver::OdeSolverStatistics) -> SimError {
+    match e {
+        SimError::TooManySteps {
+            steps,
+            max,
+            t,
+            h,
+            tstop,
+            projected,
+            ..
+        } => SimError::TooManySteps {
+            steps,
+            max,
+            t,
+            h,
+            tstop,
+            projected,
+            newton: Some((
+                s.number_of_nonlinear_solver_fails,
+                s.number_of_error_test_failures,
+            )),
+        },
+        e => e,
+    }
 }
 
 /// The error of a step that came back with a NaN time or size from

@@ -181,6 +181,7 @@ where
             h,
             tstop: t_end,
             projected: Some(steps_total),
+            newton: None,
         });
     }
     let mut corner = 0;

@@ -212,8 +212,9 @@ pub enum SimError {
     )]
     TooManyStates { n: usize, max: usize },
     #[error(
-        "the run stopped making progress: {steps} steps reached t = {t:.4e} s of {tstop:.4e} s, with steps of {h:.2e} s{}",
-        too_many_text(*max, *projected)
+        "the run stopped making progress: {steps} steps reached t = {t:.4e} s of {tstop:.4e} s, with steps of {h:.2e} s{}{}",
+        too_many_text(*max, *projected),
+        held_text(*newton)
     )]
     TooManySteps {
         steps: usize,
@@ -224,6 +225,9 @@ pub enum SimError {
         /// The steps the whole run would take at its recent pace, when
         /// that is what stopped it.
         projected: Option<f64>,
+        /// The integrator's Newton failures and error-test failures since
+        /// its last restart (diffsol's methods).
+        newton: Option<(usize, usize)>,
     },
     #[error("no DC operating point: {reason}")]
     DcFailed { reason: DcFailure },
@@ -282,6 +286,17 @@ fn too_many_text(max: usize, projected: Option<f64>) -> String {
             "; at that pace the run would take {p:.1e} steps, more than its budget of {max}"
         ),
         None => format!(", the whole of its budget of {max} steps"),
+    }
+}
+
+/// Where the corrector's failures outnumber the error test's, it is the
+/// integrator's Newton that holds the steps short, not the error control.
+fn held_text(newton: Option<(usize, usize)>) -> String {
+    match newton {
+        Some((fails, rejected)) if fails > rejected && fails >= 10 => format!(
+            "; the integrator's Newton failed {fails} times at longer steps (its error test {rejected} times): the steps are held short by a nonlinearity the corrector cannot follow, not by the error control"
+        ),
+        _ => String::new(),
     }
 }
 
