@@ -446,18 +446,18 @@ impl Elab {
         };
         let (tlev, tlevc) = (md.given("tlev", 0.0), md.given("tlevc", 0.0));
         let ratio = th.temp / th.tnom;
-        let factlog =
-            (ratio - 1.0) * md.given("eg", 1.11) / th.vt + md.given("xti", 3.0) * ratio.ln();
+        let (eg, xti) = (md.given("eg", 1.11), md.given("xti", 3.0));
         let xtb = md.given("xtb", 0.0);
         let bfactor = match tlev {
             0.0 => ratio.powf(xtb),
             1.0 => 1.0 + xtb * dt,
             _ => 1.0,
         };
-        // TLEV 3 raises the saturation currents to a power instead.
+        // A diode's law over the emission coefficient `n` (TLEV 0, 1); TLEV 3
+        // raises the saturation currents to a power instead.
         let saturation = |is: f64, n: f64, stem: &str| match tlev {
             3.0 => is.powf(poly(stem)),
-            _ => is * (factlog / n).exp(),
+            _ => th.diode_saturation(is, n, eg, xti),
         };
         let beta = |b: f64, stem: &str| {
             let given = ["1", "2"].iter().any(|k| {
@@ -489,14 +489,9 @@ impl Elab {
             is: saturation(md.is, 1.0, "is"),
             ibe: md.ibe.map(|i| saturation(i, md.nf, "is")),
             ibc: md.ibc.map(|i| saturation(i, md.nr, "is")),
-            ise: match tlev {
-                3.0 => md.ise.powf(poly("ise")),
-                _ => md.ise * (factlog / md.ne).exp() / bfactor,
-            },
-            isc: match tlev {
-                3.0 => md.isc.powf(poly("isc")),
-                _ => md.isc * (factlog / md.nc).exp() / bfactor,
-            },
+            // (bfactor is 1 under TLEV 3.)
+            ise: saturation(md.ise, md.ne, "ise") / bfactor,
+            isc: saturation(md.isc, md.nc, "isc") / bfactor,
             bf: beta(md.bf, "bf"),
             br: beta(md.br, "br"),
             nf: md.nf * poly("nf"),

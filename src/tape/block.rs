@@ -388,7 +388,7 @@ impl Tape {
             if !full.is_finite() {
                 return Err(b.singular(t));
             }
-            if b.linear && b.junctions.is_empty() {
+            if b.affine() {
                 // Affine in its tear: the full step solves it, and one more
                 // with the same slope refines it where that helps, as in
                 // `newton_iterate`. A damping test would compare rounding:
@@ -490,7 +490,7 @@ impl Tape {
                 set(r, &w.x0, &w.step, 1.0);
                 return self.settle(b, r, t);
             }
-            if b.linear && b.junctions.is_empty() {
+            if b.affine() {
                 // Affine in its tears: the full correction solves the block
                 // up to its Jacobian's conditioning, and one more with the
                 // same factors refines it where that helps. A damping test
@@ -557,7 +557,7 @@ impl Tape {
                 }
                 return Err(no_convergence(r));
             };
-            if b.linear && lambda == 1.0 && b.junctions.is_empty() {
+            if b.affine() && lambda == 1.0 {
                 return Ok(());
             }
             if lambda == 1.0 && newton::converged_quadratically(full, simplified) {

@@ -82,6 +82,12 @@ pub struct ChargeInverse {
 }
 
 impl TapeBlock {
+    /// Affine in its tears with no junction among them: the full Newton
+    /// step solves it, up to rounding.
+    pub(crate) fn affine(&self) -> bool {
+        self.linear && self.junctions.is_empty()
+    }
+
     /// A block of `body` solving `residuals` for `tears`, before the
     /// compiler's analyses fill in its junctions, touched registers and
     /// solution method.
