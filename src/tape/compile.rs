@@ -27,6 +27,9 @@ pub(super) struct Compiler<'a> {
     modes: Vec<HeldCmp>,
     /// Whether `code` (not the output program) is being compiled.
     in_code: bool,
+    /// Scratch of [`Compiler::hoist`], by register: moves with the tears.
+    /// All false between calls.
+    variant: Vec<bool>,
 }
 
 impl Compiler<'_> {
@@ -343,8 +346,54 @@ impl Compiler<'_> {
         }
     }
 
+    /// Move the instructions of a block's `body` that do not depend on its
+    /// tears to `out`, ahead of the block, keeping their order: they are
+    /// evaluated once per run of the program, not in every Newton iteration
+    /// and every Jacobian column (a MOSFET's junction currents and charges
+    /// and its Meyer capacitances depend on the states alone, where the loop
+    /// of its gate capacitances is torn). A nested block stays, with
+    /// everything that reads what it writes.
+    fn hoist(&mut self, tears: &[Reg], body: Vec<Instr>, out: &mut Vec<Instr>) -> Vec<Instr> {
+        if self.variant.len() < self.n_regs as usize {
+            self.variant.resize(self.n_regs as usize, false);
+        }
+        let set = |variant: &mut Vec<bool>, x: Reg, marked: &mut Vec<Reg>| {
+            if x != NONE && !variant[x.idx()] {
+                variant[x.idx()] = true;
+                marked.push(x);
+            }
+        };
+        let mut marked = Vec::new();
+        for &x in tears {
+            set(&mut self.variant, x, &mut marked);
+        }
+        let mut kept = Vec::with_capacity(body.len());
+        for ins in body {
+            let moves = match ins {
+                Instr::Block { k } => {
+                    for &x in &self.blocks[k as usize].touched {
+                        set(&mut self.variant, x, &mut marked);
+                    }
+                    true
+                }
+                _ => ins.operands().into_iter().any(|x| self.variant[x.idx()]),
+            };
+            if moves {
+                set(&mut self.variant, ins.dest(), &mut marked);
+                kept.push(ins);
+            } else {
+                out.push(ins);
+            }
+        }
+        for x in marked {
+            self.variant[x.idx()] = false;
+        }
+        kept
+    }
+
     /// Add a block of `body` solving `residuals` for `tears`, with its
-    /// junction tears and touched registers, and its solve to `out`.
+    /// junction tears and touched registers, and its solve to `out`, its
+    /// instructions that do not depend on the tears ahead of it.
     fn push_block(
         &mut self,
         index: usize,
@@ -354,6 +403,7 @@ impl Compiler<'_> {
         elements: Vec<String>,
         out: &mut Vec<Instr>,
     ) {
+        let body = self.hoist(&tears, body, out);
         let k = self.blocks.len();
         self.blocks.push(TapeBlock::new(
             index,
@@ -597,6 +647,7 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
         mode_of: HashMap::new(),
         modes: Vec::new(),
         in_code: true,
+        variant: Vec::new(),
     };
     let state_regs: Vec<Reg> = states.iter().map(|&s| c.var_reg_new(s)).collect();
     // Which steps the derivatives need: walk the schedule backwards.
