@@ -47,6 +47,8 @@ struct Colouring<M: Matrix> {
     /// Per colour: the columns seeded, the rows read from `J v`, and where
     /// those entries sit in the matrix's data.
     colours: Vec<[<M::V as Vector>::Index; 3]>,
+    /// Each column's colour.
+    colour: Vec<u32>,
     seed: RefCell<M::V>,
     column: RefCell<M::V>,
 }
@@ -82,8 +84,25 @@ impl<M: Matrix<T = f64>> Colouring<M> {
             .collect();
         Colouring {
             colours,
+            colour,
             seed: RefCell::new(M::V::zeros(n, ctx.clone())),
             column: RefCell::new(M::V::zeros(sp.nrows(), ctx)),
+        }
+    }
+
+    /// Fill `y` from the compressed Jacobian `jac` (row-major, a column per
+    /// colour; see [`Tape::jacobian_compressed`]).
+    fn scatter(&self, jac: &[f64], y: &mut M)
+    where
+        M::V: HostVec,
+    {
+        let m = self.colours.len();
+        let mut column = self.column.borrow_mut();
+        for (c, [_, rows, dst]) in self.colours.iter().enumerate() {
+            for (i, v) in column.slice_mut().iter_mut().enumerate() {
+                *v = jac[i * m + c];
+            }
+            y.set_data_with_indices(dst, rows, &column);
         }
     }
 
@@ -103,6 +122,10 @@ impl<M: Matrix<T = f64>> Colouring<M> {
         }
     }
 }
+
+/// The most tangent registers (registers × colours) of a Jacobian computed
+/// in one multi-direction pass, 32 MiB.
+const COMPRESSED_TANGENTS: usize = 1 << 22;
 
 /// Counters of the evaluations the solver asked for.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -240,6 +263,24 @@ where
         let (mut regs, mut mregs) = (regs.borrow_mut(), self.mregs.borrow_mut());
         self.tape
             .jacobian_columns(&mut regs, &mut mregs, t, y, cols, jac, dy)
+    }
+
+    /// The Jacobian at `(t, y)` compressed by the colouring `colour` (see
+    /// [`Tape::jacobian_compressed`]), and `f` there into `dy`, on the
+    /// solver's registers.
+    fn jacobian_compressed(
+        &self,
+        t: f64,
+        y: &[f64],
+        colour: &[u32],
+        m: usize,
+        jac: &mut [f64],
+        dy: &mut [f64],
+    ) -> Result<(), EvalError> {
+        self.tangents.borrow_mut().valid = false;
+        let (mut regs, mut mregs) = (self.regs.borrow_mut(), self.mregs.borrow_mut());
+        self.tape
+            .jacobian_compressed(&mut regs, &mut mregs, t, y, colour, m, jac, dy)
     }
 
     /// Set switch `k`'s conductance (its state) in both register sets.
@@ -406,6 +447,42 @@ where
     fn jacobian_inplace(&self, x: &M::V, t: f64, y: &mut M) {
         self.eqn.bump(|c| c.jacobians += 1);
         match self.eqn.coloring.as_ref() {
+            // The colours in multi-direction tangent passes (each
+            // instruction decoded once for all the colours of a pass), as
+            // many a pass as their tangents fit in; a `J v` a colour where
+            // not even two do.
+            Some(col) if 2 * self.eqn.tape.n_regs <= COMPRESSED_TANGENTS => {
+                let (n, m) = (self.eqn.tape.states.len(), col.colours.len());
+                let chunk = (COMPRESSED_TANGENTS / self.eqn.tape.n_regs).clamp(1, m);
+                let mut jac = vec![0.0; n * m];
+                let (mut part, mut f) = (Vec::new(), vec![0.0; n]);
+                let mut colour = vec![u32::MAX; n];
+                for c0 in (0..m).step_by(chunk) {
+                    let k = chunk.min(m - c0);
+                    for (to, &c) in colour.iter_mut().zip(&col.colour) {
+                        let c = c as usize;
+                        *to = if (c0..c0 + k).contains(&c) {
+                            (c - c0) as u32
+                        } else {
+                            u32::MAX
+                        };
+                    }
+                    part.clear();
+                    part.resize(n * k, 0.0);
+                    let r =
+                        self.eqn
+                            .jacobian_compressed(t, x.slice(), &colour, k, &mut part, &mut f);
+                    if let Err(e) = r {
+                        self.eqn.fail(e);
+                        jac.iter_mut().for_each(|v| *v = f64::NAN);
+                        break;
+                    }
+                    for i in 0..n {
+                        jac[i * m + c0..i * m + c0 + k].copy_from_slice(&part[i * k..(i + 1) * k]);
+                    }
+                }
+                col.scatter(&jac, y);
+            }
             Some(col) => col.jacobian(self, x, t, y),
             None => {
                 // Dense: every column in one multi-direction tangent pass.

@@ -746,6 +746,7 @@ mod tests {
             init,
             code: Vec::new(),
             blocks,
+            tangent_inputs: Vec::new(),
             out_code: Vec::new(),
             out_inputs: Vec::new(),
             out_regs: Vec::new(),

@@ -488,6 +488,34 @@ impl Compiler<'_> {
     }
 }
 
+/// The registers `code` (with the bodies of the blocks it solves, and
+/// theirs) reads but never writes; a block's tears count as written.
+fn tangent_inputs(code: &[Instr], blocks: &[TapeBlock], n_regs: usize) -> Vec<Reg> {
+    let mut written = vec![false; n_regs];
+    let mut read = vec![false; n_regs];
+    let mut stack: Vec<&[Instr]> = vec![code];
+    while let Some(prog) = stack.pop() {
+        for ins in prog {
+            if let Instr::Block { k } = *ins {
+                let b = &blocks[k as usize];
+                for &x in &b.tears {
+                    written[x.idx()] = true;
+                }
+                stack.push(&b.body);
+                continue;
+            }
+            for x in ins.operands() {
+                read[x.idx()] = true;
+            }
+            written[ins.dest().idx()] = true;
+        }
+    }
+    (0..n_regs)
+        .filter(|&x| read[x] && !written[x])
+        .map(|x| Reg(x as u32))
+        .collect()
+}
+
 /// The variables each step computes and the ones it reads, flat (a
 /// ladder of 10^5 sections has half a million steps: two vectors each would
 /// be a million allocations).
@@ -747,8 +775,10 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
         .filter(|((_, p), r)| p.source && **r != NONE)
         .map(|((_, p), &r)| (r, p.value))
         .collect();
+    let tangent_inputs = tangent_inputs(&code, &c.blocks, c.n_regs as usize);
     Tape {
         n_regs: c.n_regs as usize,
+        tangent_inputs,
         state_regs,
         states,
         deriv_regs,

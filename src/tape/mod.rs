@@ -171,6 +171,10 @@ pub struct Tape {
     pub init: Vec<f64>,
     pub code: Vec<Instr>,
     pub blocks: Vec<TapeBlock>,
+    /// The registers `code` reads and nothing in it writes (states,
+    /// parameters, constants): a tangent pass clears only these, as every
+    /// other register's tangent is written before it is read.
+    pub tangent_inputs: Vec<Reg>,
     /// Computes the outputs from the states, on its own registers.
     pub out_code: Vec<Instr>,
     /// The states `out_code` reads: (index in `y`, register).

@@ -448,14 +448,45 @@ impl Tape {
         jac: &mut [f64],
         dy: &mut [f64],
     ) -> Result<(), EvalError> {
-        let m = cols.len();
-        dregs.clear();
-        dregs.resize(self.n_regs * m, 0.0);
+        let mut colour = vec![u32::MAX; self.states.len()];
+        for (j, &c) in cols.iter().enumerate() {
+            colour[c] = j as u32;
+        }
+        self.jacobian_compressed(regs, dregs, t, y, &colour, cols.len(), jac, dy)
+    }
+
+    /// The compressed `∂f/∂y` of a column colouring in one pass: direction
+    /// `c` seeds every state `k` with `colour[k] == c` (`u32::MAX`: none),
+    /// so `jac[i * m + c]` sums those columns' entries of row `i`, which is
+    /// the one entry there when columns of a colour share no row. `f` into
+    /// `dy`; `dregs` is scratch.
+    #[allow(clippy::too_many_arguments)]
+    pub fn jacobian_compressed(
+        &self,
+        regs: &mut [f64],
+        dregs: &mut Vec<f64>,
+        t: f64,
+        y: &[f64],
+        colour: &[u32],
+        m: usize,
+        jac: &mut [f64],
+        dy: &mut [f64],
+    ) -> Result<(), EvalError> {
+        // Every register but the inputs has its tangent written before it
+        // is read: clearing the whole buffer (registers × directions) cost
+        // more than the pass on a circuit of 10^5 registers.
+        if dregs.len() < self.n_regs * m {
+            dregs.resize(self.n_regs * m, 0.0);
+        }
+        for &x in &self.tangent_inputs {
+            zero(&mut dregs[x.idx() * m..(x.idx() + 1) * m]);
+        }
         for (k, &s) in self.state_regs.iter().enumerate() {
             regs[s] = y[k];
-        }
-        for (j, &c) in cols.iter().enumerate() {
-            dregs[self.state_regs[c].idx() * m + j] = 1.0;
+            zero(&mut dregs[s.idx() * m..(s.idx() + 1) * m]);
+            if let Some(&c) = colour.get(k).filter(|&&c| (c as usize) < m) {
+                dregs[s.idx() * m + c as usize] = 1.0;
+            }
         }
         self.run_tangents(&self.code, regs, dregs, m, t)?;
         for (i, &d) in self.deriv_regs.iter().enumerate() {

@@ -1264,3 +1264,56 @@ fn a_loops_state_only_terms_are_computed_ahead_of_it() {
     let run = sim::simulate(&s, &sim::Options::default()).unwrap();
     assert!(run.time.last().is_some_and(|&t| (t - 20e-9).abs() < 1e-15));
 }
+
+/// The sparse Jacobian is computed compressed, every colour of the column
+/// colouring a direction of one tangent pass: each entry of the pattern
+/// equals the column-by-column Jacobian's, also when the scratch holds the
+/// tangents of a wider pass (only the inputs' tangents are cleared).
+#[test]
+fn a_compressed_jacobian_equals_its_columns() {
+    let s = sort_file("hard/dc_inverter_chain_50.cir");
+    let t = kausal::tape::compile(s.system(), &s.schedule, &[]);
+    let n = t.states.len();
+    let pattern = t.jacobian_pattern();
+    let mut rows = vec![Vec::new(); n];
+    for &(i, j) in &pattern {
+        rows[i].push(j as u32);
+    }
+    let (colour, m) = kausal::numeric::colour::colour_columns(n, &rows);
+    let m = m as usize;
+    assert!(m < n, "{m} colours for {n} columns");
+    // Every gate capacitance and junction charge at 0 V.
+    let y = vec![0.0; n];
+    let (mut regs, mut dregs) = (t.registers(), Vec::new());
+    let all: Vec<usize> = (0..n).collect();
+    let (mut full, mut f) = (vec![0.0; n * n], vec![0.0; n]);
+    t.jacobian_columns(&mut regs, &mut dregs, 0.0, &y, &all, &mut full, &mut f)
+        .unwrap();
+    let mut packed = vec![0.0; n * m];
+    let mut g = vec![0.0; n];
+    t.jacobian_compressed(
+        &mut regs,
+        &mut dregs,
+        0.0,
+        &y,
+        &colour,
+        m,
+        &mut packed,
+        &mut g,
+    )
+    .unwrap();
+    // f itself, from the blocks' warm starts: the same up to rounding.
+    for (a, b) in f.iter().zip(&g) {
+        assert!((a - b).abs() <= 1e-12 * a.abs().max(1e-300), "{a} {b}");
+    }
+    for &(i, j) in &pattern {
+        let (a, b) = (full[i * n + j], packed[i * m + colour[j] as usize]);
+        assert!(
+            (a - b).abs() <= 1e-9 * a.abs().max(1e-300),
+            "∂f{i}/∂y{j}: {a} by columns, {b} compressed"
+        );
+    }
+    // Entries outside the pattern are zero.
+    let nonzero = full.iter().filter(|v| **v != 0.0).count();
+    assert!(nonzero <= pattern.len(), "{nonzero} > {}", pattern.len());
+}
