@@ -797,30 +797,14 @@ where
 /// A run out of steps, told whether the integrator's Newton held its steps
 /// back: the failures of its corrector and of its error test since the
 /// last restart.
-fn held_by_newton(e: SimError, s: &diffsol::ode_solver::OdeSolverStatistics) -> SimError {
-    match e {
-        SimError::TooManySteps {
-            steps,
-            max,
-            t,
-            h,
-            tstop,
-            projected,
-            ..
-        } => SimError::TooManySteps {
-            steps,
-            max,
-            t,
-            h,
-            tstop,
-            projected,
-            newton: Some((
-                s.number_of_nonlinear_solver_fails,
-                s.number_of_error_test_failures,
-            )),
-        },
-        e => e,
+fn held_by_newton(mut e: SimError, s: &diffsol::ode_solver::OdeSolverStatistics) -> SimError {
+    if let SimError::TooManySteps { newton, .. } = &mut e {
+        *newton = Some((
+            s.number_of_nonlinear_solver_fails,
+            s.number_of_error_test_failures,
+        ));
     }
+    e
 }
 
 /// The error of a step that came back with a NaN time or size from

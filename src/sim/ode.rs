@@ -90,17 +90,18 @@ impl<M: Matrix<T = f64>> Colouring<M> {
         }
     }
 
-    /// Fill `y` from the compressed Jacobian `jac` (row-major, a column per
-    /// colour; see [`Tape::jacobian_compressed`]).
-    fn scatter(&self, jac: &[f64], y: &mut M)
+    /// Fill `y`'s entries of the colours `colours` from their compressed
+    /// Jacobian `jac` (row-major, a column per colour; see
+    /// [`Tape::jacobian_compressed`]).
+    fn scatter(&self, jac: &[f64], colours: std::ops::Range<usize>, y: &mut M)
     where
         M::V: HostVec,
     {
-        let m = self.colours.len();
+        let m = colours.len();
         let mut column = self.column.borrow_mut();
-        for (c, [_, rows, dst]) in self.colours.iter().enumerate() {
+        for (j, [_, rows, dst]) in self.colours[colours].iter().enumerate() {
             for (i, v) in column.slice_mut().iter_mut().enumerate() {
-                *v = jac[i * m + c];
+                *v = jac[i * m + j];
             }
             y.set_data_with_indices(dst, rows, &column);
         }
@@ -273,14 +274,14 @@ where
         t: f64,
         y: &[f64],
         colour: &[u32],
-        m: usize,
+        colours: std::ops::Range<usize>,
         jac: &mut [f64],
         dy: &mut [f64],
     ) -> Result<(), EvalError> {
         self.tangents.borrow_mut().valid = false;
         let (mut regs, mut mregs) = (self.regs.borrow_mut(), self.mregs.borrow_mut());
         self.tape
-            .jacobian_compressed(&mut regs, &mut mregs, t, y, colour, m, jac, dy)
+            .jacobian_compressed(&mut regs, &mut mregs, t, y, colour, colours, jac, dy)
     }
 
     /// Set switch `k`'s conductance (its state) in both register sets.
@@ -454,34 +455,25 @@ where
             Some(col) if 2 * self.eqn.tape.n_regs <= COMPRESSED_TANGENTS => {
                 let (n, m) = (self.eqn.tape.states.len(), col.colours.len());
                 let chunk = (COMPRESSED_TANGENTS / self.eqn.tape.n_regs).clamp(1, m);
-                let mut jac = vec![0.0; n * m];
-                let (mut part, mut f) = (Vec::new(), vec![0.0; n]);
-                let mut colour = vec![u32::MAX; n];
+                let (mut jac, mut f) = (Vec::new(), vec![0.0; n]);
                 for c0 in (0..m).step_by(chunk) {
-                    let k = chunk.min(m - c0);
-                    for (to, &c) in colour.iter_mut().zip(&col.colour) {
-                        let c = c as usize;
-                        *to = if (c0..c0 + k).contains(&c) {
-                            (c - c0) as u32
-                        } else {
-                            u32::MAX
-                        };
-                    }
-                    part.clear();
-                    part.resize(n * k, 0.0);
-                    let r =
-                        self.eqn
-                            .jacobian_compressed(t, x.slice(), &colour, k, &mut part, &mut f);
+                    let colours = c0..(c0 + chunk).min(m);
+                    jac.clear();
+                    jac.resize(n * colours.len(), 0.0);
+                    let r = self.eqn.jacobian_compressed(
+                        t,
+                        x.slice(),
+                        &col.colour,
+                        colours.clone(),
+                        &mut jac,
+                        &mut f,
+                    );
                     if let Err(e) = r {
                         self.eqn.fail(e);
                         jac.iter_mut().for_each(|v| *v = f64::NAN);
-                        break;
                     }
-                    for i in 0..n {
-                        jac[i * m + c0..i * m + c0 + k].copy_from_slice(&part[i * k..(i + 1) * k]);
-                    }
+                    col.scatter(&jac, colours, y);
                 }
-                col.scatter(&jac, y);
             }
             Some(col) => col.jacobian(self, x, t, y),
             None => {

@@ -452,14 +452,15 @@ impl Tape {
         for (j, &c) in cols.iter().enumerate() {
             colour[c] = j as u32;
         }
-        self.jacobian_compressed(regs, dregs, t, y, &colour, cols.len(), jac, dy)
+        self.jacobian_compressed(regs, dregs, t, y, &colour, 0..cols.len(), jac, dy)
     }
 
-    /// The compressed `∂f/∂y` of a column colouring in one pass: direction
-    /// `c` seeds every state `k` with `colour[k] == c` (`u32::MAX`: none),
-    /// so `jac[i * m + c]` sums those columns' entries of row `i`, which is
-    /// the one entry there when columns of a colour share no row. `f` into
-    /// `dy`; `dregs` is scratch.
+    /// The compressed `∂f/∂y` of the colours `colours` of a column colouring
+    /// in one pass: direction `j` seeds every state `k` with `colour[k] ==
+    /// colours.start + j` (`u32::MAX`: none), so `jac[i * m + j]` (`m` the
+    /// colours' count) sums those columns' entries of row `i`, which is the
+    /// one entry there when columns of a colour share no row. `f` into `dy`;
+    /// `dregs` is scratch.
     #[allow(clippy::too_many_arguments)]
     pub fn jacobian_compressed(
         &self,
@@ -468,10 +469,11 @@ impl Tape {
         t: f64,
         y: &[f64],
         colour: &[u32],
-        m: usize,
+        colours: std::ops::Range<usize>,
         jac: &mut [f64],
         dy: &mut [f64],
     ) -> Result<(), EvalError> {
+        let m = colours.len();
         // Every register but the inputs has its tangent written before it
         // is read: clearing the whole buffer (registers × directions) cost
         // more than the pass on a circuit of 10^5 registers.
@@ -481,11 +483,13 @@ impl Tape {
         for &x in &self.tangent_inputs {
             zero(&mut dregs[x.idx() * m..(x.idx() + 1) * m]);
         }
+        // The states the code reads are inputs, cleared above.
         for (k, &s) in self.state_regs.iter().enumerate() {
             regs[s] = y[k];
-            zero(&mut dregs[s.idx() * m..(s.idx() + 1) * m]);
-            if let Some(&c) = colour.get(k).filter(|&&c| (c as usize) < m) {
-                dregs[s.idx() * m + c as usize] = 1.0;
+            if let Some(&c) = colour.get(k)
+                && colours.contains(&(c as usize))
+            {
+                dregs[s.idx() * m + c as usize - colours.start] = 1.0;
             }
         }
         self.run_tangents(&self.code, regs, dregs, m, t)?;

@@ -1297,7 +1297,7 @@ fn a_compressed_jacobian_equals_its_columns() {
         0.0,
         &y,
         &colour,
-        m,
+        0..m,
         &mut packed,
         &mut g,
     )
