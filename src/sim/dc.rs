@@ -6,7 +6,12 @@
 //! states take limited steps (ngspice's junction limiting, through `Q⁻¹`),
 //! other steps are damped by the natural monotonicity test; if it fails, the
 //! sources are ramped up from zero (`Tape::scale_sources`: a DC source's
-//! value has a register of its own).
+//! value has a register of its own). Where all that fails, or Newton only
+//! stalls near a point, the operating point is solved on the DC image
+//! instead (see [`ic`]): there the node voltages are the unknowns of its
+//! algebraic loops, where here they are reached through capacitor voltages
+//! and junction charges, a formulation ill-conditioned where every
+//! transistor is off (Xyce's `gm1`: first Newton steps of 10^2–10^5 V).
 
 use super::*;
 
@@ -54,6 +59,8 @@ where
     if !uic && !c.ics.is_empty() {
         match ic::held_operating_point(sorted, &tape.states, outputs, opts, &c.ics, ".ic") {
             Ok(held) => {
+                let sys = sorted.system();
+                ode.seed_tears(|v| held.named.get(&sys.vars[v].name).copied());
                 return Ok(Start {
                     y: held.y,
                     warnings: held.warnings,
@@ -148,6 +155,9 @@ where
         })
     };
     let r = match diode_start {
+        _ if image_only() => Err(SimError::DcFailed {
+            reason: DcFailure::NotTried,
+        }),
         Some(start) => solve(start).or_else(|_| {
             // The blocks start from their first guesses again, not
             // where the failed solve left them.
@@ -161,14 +171,39 @@ where
     // junction at its critical voltage, the others at 0 V), and the solve
     // is tried again from there.
     let r = match r {
+        Err(e) if image_only() => Err(e),
         Err(e) => match transistors_on(sorted, &tape.states) {
             Some(start) => solve(start).map_err(|_| e),
             None => Err(e),
         },
         ok => ok,
     };
+    if let Ok(Found { y, rough: false }) = r {
+        return Ok(Start {
+            y,
+            warnings,
+            row: None,
+        });
+    }
+    // Where Newton on the states found no operating point, or only stalled
+    // near one, the DC image is solved instead: capacitors open, inductors
+    // shorted, its node voltages the unknowns of its algebraic loops rather
+    // than reached through capacitor voltages and junction charges (see
+    // [`ic`]). The circuit's loops start from the image's solution.
+    if !held_start
+        && let Ok(h) = ic::held_operating_point(sorted, &tape.states, outputs, opts, &[], ".op")
+    {
+        let sys = sorted.system();
+        ode.reset_tears();
+        ode.seed_tears(|v| h.named.get(&sys.vars[v].name).copied());
+        return Ok(Start {
+            y: h.y,
+            warnings,
+            row: None,
+        });
+    }
     Ok(Start {
-        y: r.map_err(|e| name_dc_failure(c, e))?,
+        y: r.map_err(|e| name_dc_failure(c, e))?.y,
         warnings,
         row: None,
     })
@@ -521,7 +556,7 @@ pub(super) fn dc_point<M: Matrix<T = f64>>(
     ptc: Continuation,
     fets: &[Fet],
     work: DcWork,
-) -> Result<Vec<f64>, SimError>
+) -> Result<Found, SimError>
 where
     M::V: HostVec,
 {
@@ -689,7 +724,7 @@ where
         })
     };
     let Err(error) = first else {
-        return first;
+        return first.map(Found::exact);
     };
     // Pseudo-transient continuation: the circuit itself, its sources held at
     // their values at t0, integrated towards its equilibrium. Not where a
@@ -719,7 +754,7 @@ where
         );
         tape.limit_work(work.deadline);
         if let Ok(found) = found {
-            return Ok(found);
+            return Ok(Found::exact(found));
         }
     }
     // The blocks start the next solves from their first guesses, not from
@@ -757,7 +792,7 @@ where
         })();
         ode.set_gmin_step(0.0);
         if let Ok(found) = stepped {
-            return Ok(found);
+            return Ok(Found::exact(found));
         }
     }
     // Source stepping: from all sources off (where y = 0 solves a circuit
@@ -787,12 +822,12 @@ where
     })();
     ode.scale_sources(1.0);
     if result.is_ok() {
-        return result;
+        return result.map(Found::exact);
     }
     // A point where Newton stalled with its correction within ngspice's
     // convergence tolerances, where nothing converged further.
     if let Some((_, y)) = rough {
-        return Ok(y);
+        return Ok(Found { y, rough: true });
     }
     if tape.over_budget() {
         return Err(out_of_work());
@@ -800,6 +835,20 @@ where
     // Report the direct attempt's failure, which names what went wrong at
     // the full sources.
     Err(error)
+}
+
+/// An operating point of [`dc_point`].
+pub(super) struct Found {
+    pub(super) y: Vec<f64>,
+    /// Where Newton stalled within [`ROUGH`] and nothing converged
+    /// further: accepted, but the DC image may find a solution.
+    pub(super) rough: bool,
+}
+
+impl Found {
+    fn exact(y: Vec<f64>) -> Found {
+        Found { y, rough: false }
+    }
 }
 
 /// Pseudo-transient continuation (Kelley and Keyes, "Convergence analysis of
@@ -969,6 +1018,18 @@ pub(super) fn direct_dc() -> bool {
 #[cfg(test)]
 pub(super) fn direct_dc() -> bool {
     !tests::SOURCES_ONLY.with(|c| c.get())
+}
+
+/// Whether the operating point skips Newton on the states and goes
+/// straight to the DC image (tests compare the two).
+#[cfg(not(test))]
+fn image_only() -> bool {
+    false
+}
+
+#[cfg(test)]
+fn image_only() -> bool {
+    tests::IMAGE_ONLY.with(|c| c.get())
 }
 
 /// The factored DC Jacobian at a point.

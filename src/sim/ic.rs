@@ -31,6 +31,9 @@ pub(super) struct Held {
     /// The outputs there: the `.ic` nodes at their values, as ngspice
     /// reports its operating point at t = 0.
     pub row: Vec<f64>,
+    /// Every variable the image's tape holds, by name, at the operating
+    /// point: the first guesses of the circuit's own algebraic loops.
+    pub named: std::collections::HashMap<String, f64>,
 }
 
 /// Why the `.ic` nodes could not be held.
@@ -254,10 +257,10 @@ pub(super) fn held_operating_point(
     let ptc = Continuation::of(&dc.elaborated.circuit);
     let fets = super::dc::fets(&dc, &tape);
     let work = opts.dc_work.unwrap_or(super::dc::DC_MAX_WORK);
-    let (y, values) = if dc_states.len() > DENSE_STATES {
-        solve::<FaerSparseMat<f64>>(tape, &atol, true, ptc, &fets, work)
+    let ImagePoint { y, values, named } = if dc_states.len() > DENSE_STATES {
+        solve::<FaerSparseMat<f64>>(sys, tape, &atol, true, ptc, &fets, work)
     } else {
-        solve::<NalgebraMat<f64>>(tape, &atol, false, ptc, &fets, work)
+        solve::<NalgebraMat<f64>>(sys, tape, &atol, false, ptc, &fets, work)
     }
     .map_err(Unheld::Sim)?;
     let y = from
@@ -271,19 +274,30 @@ pub(super) fn held_operating_point(
         warnings,
         y,
         row: values[first_output..].to_vec(),
+        named,
     })
 }
 
-/// The image's operating point: its states (junction charges) and the
-/// values of the tape's outputs there.
+/// The image's operating point.
+struct ImagePoint {
+    /// Its states (junction charges).
+    y: Vec<f64>,
+    /// The tape's outputs there.
+    values: Vec<f64>,
+    /// Every variable its tape holds there, by name.
+    named: std::collections::HashMap<String, f64>,
+}
+
+/// The image's operating point (see [`ImagePoint`]).
 fn solve<M: Matrix<T = f64>>(
+    sys: &crate::ir::EquationSystem,
     tape: Rc<tape::Tape>,
     atol: &[f64],
     sparse: bool,
     ptc: Continuation,
     fets: &[super::dc::Fet],
     work: u64,
-) -> Result<(Vec<f64>, Vec<f64>), SimError>
+) -> Result<ImagePoint, SimError>
 where
     M::V: HostVec,
 {
@@ -298,11 +312,16 @@ where
             ptc,
             fets,
             super::dc::DcWork::from_now(&ode.tape, work),
-        )?;
+        )?
+        .y;
         let mut out = vec![0.0; tape.out_regs.len()];
         ode.outputs(0.0, &y, &mut out)
             .map_err(|error| SimError::Eval { error })?;
-        Ok((y, out))
+        Ok(ImagePoint {
+            named: ode.named_values(sys),
+            y,
+            values: out,
+        })
     })
 }
 

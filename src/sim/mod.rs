@@ -599,6 +599,58 @@ mod tests {
 
     thread_local! {
         pub(super) static SOURCES_ONLY: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+        pub(super) static IMAGE_ONLY: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    }
+
+    /// The DC image (capacitors open, inductors shorted, its node voltages
+    /// the unknowns of its loops) finds the operating point that Newton on
+    /// the states finds, on a bipolar differential pair with junction
+    /// charges and a CMOS stage whose gate capacitances and junctions form a
+    /// loop; and the transient runs from it as from the states' point
+    /// (fails when the image is not tried).
+    #[test]
+    fn the_dc_image_finds_the_states_operating_point() {
+        let circuits = [
+            "pair\nVCC vcc 0 12\nVEE vee 0 -12\nVIN in 0 SIN(0 10m 1k)\nRB1 in b1 1k\n\
+             RB2 0 b2 1k\nQ1 c1 b1 e QN\nQ2 c2 b2 e QN\nRE e vee 11k\nRC1 vcc c1 10k\n\
+             RC2 vcc c2 10k\nL1 c2 o 1m\nCL o 0 10n\nRL o 0 100k\n\
+             .model QN NPN(IS=1e-15 BF=120 VAF=80 RB=100 RE=1 RC=10 CJE=1p CJC=0.5p TF=0.3n)\n\
+             .tran 10u 2m\n.end\n",
+            "cmos\nVDD vdd 0 5\nVIN in 0 PULSE(0 5 10n 1n 1n 20n 50n)\n\
+             MP1 a in vdd vdd PM W=20u L=2u AD=100p AS=100p\nMN1 a in 0 0 NM W=8u L=2u AD=50p AS=50p\n\
+             MP2 out a vdd vdd PM W=20u L=2u AD=100p AS=100p\nMN2 out a 0 0 NM W=8u L=2u AD=50p AS=50p\n\
+             RF out a 100k\nCL out 0 50f\n\
+             .model NM NMOS(LEVEL=3 VTO=0.8 KP=60u GAMMA=0.5 PHI=0.7 CJ=3e-4 CGSO=2e-10 CGDO=2e-10 TOX=30n)\n\
+             .model PM PMOS(LEVEL=3 VTO=-0.9 KP=25u GAMMA=0.5 PHI=0.7 CJ=3e-4 CGSO=2e-10 CGDO=2e-10 TOX=30n)\n\
+             .tran 1n 100n\n.end\n",
+        ];
+        for text in circuits {
+            let sorted =
+                crate::pipeline::sort_text("dc.cir", text.to_string(), &Default::default())
+                    .ok()
+                    .expect("sorts");
+            let states = simulate(&sorted, &Options::default()).expect("from the states' point");
+            IMAGE_ONLY.with(|c| c.set(true));
+            let image = simulate(&sorted, &Options::default());
+            IMAGE_ONLY.with(|c| c.set(false));
+            let image = image.expect("from the image's point");
+            for (name, (a, b)) in states.names.iter().zip(states.data.iter().zip(&image.data)) {
+                let scale = a.iter().fold(1e-3f64, |m, x| m.max(x.abs()));
+                assert!(
+                    (a[0] - b[0]).abs() <= 1e-7 * scale,
+                    "{name} at t = 0: {} from the states, {} from the image",
+                    a[0],
+                    b[0]
+                );
+                let last = a.len().min(b.len()) - 1;
+                assert!(
+                    (a[last] - b[last]).abs() <= 1e-3 * scale,
+                    "{name} at the end: {} from the states, {} from the image",
+                    a[last],
+                    b[last]
+                );
+            }
+        }
     }
 
     /// Outputs that read few states come from the interpolant's values at a

@@ -13,7 +13,9 @@ use diffsol::{
 
 use diffsol_la::matrix::sparsity::MatrixSparsity;
 
+use crate::ir::VarId;
 use crate::tape::{EvalError, TangentCache, Tape};
+use std::collections::HashMap;
 
 /// Vectors whose storage is one host slice.
 pub trait HostVec: Vector<T = f64> {
@@ -315,6 +317,32 @@ where
     pub fn reset_tears(&self) {
         self.tape.reset_tears(&mut self.regs.borrow_mut());
         self.tangents.borrow_mut().valid = false;
+    }
+
+    /// Every block's tears, in both register sets, at the values `value`
+    /// gives their variables (those it gives none keep theirs).
+    pub fn seed_tears(&self, value: impl Fn(VarId) -> Option<f64>) {
+        for regs in [&self.regs, &self.side_regs] {
+            let mut regs = regs.borrow_mut();
+            for t in self.tape.blocks.iter().flat_map(|b| &b.tears) {
+                if let Some(v) = self.tape.reg_var[t.idx()].and_then(&value) {
+                    regs[t.idx()] = v;
+                }
+            }
+        }
+        self.tangents.borrow_mut().valid = false;
+    }
+
+    /// The value of every register that holds a variable, by its name,
+    /// as the last evaluation left it.
+    pub fn named_values(&self, sys: &crate::ir::EquationSystem) -> HashMap<String, f64> {
+        let regs = self.regs.borrow();
+        self.tape
+            .reg_var
+            .iter()
+            .zip(regs.iter())
+            .filter_map(|(v, &x)| v.map(|v| (sys.vars[v].name.clone(), x)))
+            .collect()
     }
 
     /// The DC solve's GMIN step across the junctions (see
