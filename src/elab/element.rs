@@ -240,15 +240,42 @@ impl Elab {
         let v = self.value(value, scope)?;
         let mut ic = None;
         let mut m = inherited;
+        // Temperature: ngspice's `restemp.c`, `captemp.c`, `indtemp.c`.
+        let (mut tc1, mut tc2, mut tce, mut temp, mut dtemp, mut scale) =
+            (0.0, 0.0, None, None, 0.0, 1.0);
         for p in params {
             if p.name.is("ic") && letter != ElementLetter::R {
                 ic = Some(self.value(&p.value, scope)?);
             } else if p.name.is("m") {
                 m *= self.multiplier(p, name, scope)?;
+            } else if p.name.is("tc1") || (p.name.is("tc") && letter == ElementLetter::R) {
+                tc1 = self.value(&p.value, scope)?;
+            } else if p.name.is("tc2") {
+                tc2 = self.value(&p.value, scope)?;
+            } else if p.name.is("tce") && letter == ElementLetter::R {
+                tce = Some(self.value(&p.value, scope)?);
+            } else if p.name.is("temp") {
+                temp = Some(self.value(&p.value, scope)?);
+            } else if p.name.is("dtemp") {
+                dtemp = self.value(&p.value, scope)?;
+            } else if p.name.is("scale") {
+                scale = self.value(&p.value, scope)?;
             } else {
                 self.ignored_param(p, name);
             }
         }
+        // The value holds at TNOM; at the element's temperature (its own
+        // `temp`, else the circuit's plus `dtemp`) it is scaled by
+        // `1 + tc1·Δ + tc2·Δ²`, or a resistor's by `1.01^(tce·Δ)` (a
+        // resistor's `tc` is its `tc1`).
+        let options = &self.circuit.options;
+        let delta =
+            temp.unwrap_or(options.temp.unwrap_or(27.0) + dtemp) - options.tnom.unwrap_or(27.0);
+        let factor = match tce {
+            Some(tce) => 1.01f64.powf(tce * delta),
+            None => 1.0 + (tc1 + tc2 * delta) * delta,
+        } * scale;
+        let v = v * factor;
         Some(match letter {
             ElementLetter::R => ElementKind::Resistor {
                 r: self.nonzero(v, value.span(), name, "resistance")? / m,
