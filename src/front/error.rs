@@ -174,7 +174,13 @@ impl ParseError {
             UnsupportedElement { .. } => (codes::UNSUPPORTED_ELEMENT, "not supported", "kausal supports R, C, L, K, V, I, E, F, G, H, D, B, Q, J, M, S, W and X elements".into()),
             MissingNode { expected, .. } => (codes::MISSING_NODE, "missing node", format!("write {expected} node names after the element name")),
             MissingValue { .. } => (codes::MISSING_VALUE, "value missing", "add the value after the nodes, e.g. `R1 a b 1k`".into()),
-            BadNumber { .. } => (codes::BAD_NUMBER, "bad number", "numbers look like `10`, `1.5e-3`, `4.7k`, `10uF` or `3meg`".into()),
+            BadNumber { text, .. } => (codes::BAD_NUMBER, "bad number", match crate::front::expr::parse_rkm(text) {
+                // RKM notation, which ngspice reads only in its LTspice
+                // compatibility mode (otherwise it ignores what follows
+                // the scale letter).
+                Some(v) => format!("`{text}` is RKM notation for {v}; ngspice reads it so only in its LTspice compatibility mode, and otherwise ignores what follows the scale letter: write `{v}`"),
+                None => "numbers look like `10`, `1.5e-3`, `4.7k`, `10uF` or `3meg`".into(),
+            }),
             TooDeep { .. } => (codes::TOO_DEEP, "too deep", "flatten the nesting: subcircuits can instantiate each other without being defined inside each other".into()),
             FuncArgsWithoutComma { .. } => (codes::FUNC_ARGS_WITHOUT_COMMA, "no comma", "kausal reads them; ngspice needs `f(x, y)`".into()),
             ComplexExpression { .. } => (codes::COMPLEX_EXPRESSION, "here", "split it with `.param`s or `.func`s".into()),

@@ -124,6 +124,85 @@ pub fn parse_number(s: &str) -> Option<f64> {
     }
 }
 
+/// A resistor's value in ngspice's RKM notation (`4k7` is 4.7k, `4R7` 4.7,
+/// `1meg5` 1.5 meg): the digits after the scale letter are the fraction, as
+/// ngspice's `INPevaluateRKM_R` reads them (the letters T, G, K, U, R, N, P,
+/// M or MEG, L; `R` only followed by digits to the end; what follows the
+/// digits is ignored, as a unit is). ngspice-39 reads RKM values of
+/// resistors only, and only from a digit (`R47` is a model name to it, and
+/// C's and L's RKM values need its LTspice compatibility mode). `None` where
+/// the token is not of that form.
+pub fn parse_rkm(s: &str) -> Option<f64> {
+    let b = s.as_bytes();
+    let mut at = 0;
+    let sign = match b.first() {
+        Some(b'-') => {
+            at = 1;
+            -1.0
+        }
+        Some(b'+') => {
+            at = 1;
+            1.0
+        }
+        _ => 1.0,
+    };
+    if !b.get(at).is_some_and(|c| c.is_ascii_digit() || *c == b'.') {
+        return None;
+    }
+    let digits = |at: &mut usize| {
+        let start = *at;
+        while b.get(*at).is_some_and(u8::is_ascii_digit) {
+            *at += 1;
+        }
+        &s[start..*at]
+    };
+    let mut mantissa: f64 = digits(&mut at).parse().unwrap_or(0.0);
+    let mut exponent = 0i32;
+    if b.get(at) == Some(&b'.') {
+        at += 1;
+        let frac = digits(&mut at);
+        for d in frac.bytes() {
+            mantissa = 10.0 * mantissa + f64::from(d - b'0');
+        }
+        exponent -= frac.len() as i32;
+    }
+    if b.get(at)
+        .is_some_and(|c| matches!(c, b'e' | b'E' | b'd' | b'D'))
+    {
+        at += 1;
+        let negative = b.get(at) == Some(&b'-');
+        if matches!(b.get(at), Some(b'-' | b'+')) {
+            at += 1;
+        }
+        let e: i32 = digits(&mut at).parse().unwrap_or(0);
+        exponent += if negative { -e } else { e };
+    }
+    let rest = s[at..].to_ascii_lowercase();
+    let (scale, letters) = match rest.as_bytes().first()? {
+        _ if rest.starts_with("meg") => (6, 3),
+        _ if rest.starts_with("mil") => return None,
+        b't' => (12, 1),
+        b'g' => (9, 1),
+        b'k' => (3, 1),
+        b'u' => (-6, 1),
+        b'r' if rest.len() > 1 && rest[1..].bytes().all(|c| c.is_ascii_digit()) => (0, 1),
+        b'n' => (-9, 1),
+        b'p' => (-12, 1),
+        b'm' | b'l' => (-3, 1),
+        _ => return None,
+    };
+    at += letters;
+    let frac = digits(&mut at);
+    if frac.is_empty() {
+        return None;
+    }
+    let fraction: f64 = frac.parse().ok()?;
+    let value = sign
+        * (mantissa + fraction * 10f64.powi(-(frac.len() as i32)))
+        * 10f64.powi(exponent + scale);
+    value.is_finite().then_some(value)
+}
+
 fn ws<'a, O>(
     p: impl Parser<&'a str, Output = O, Error = nom::error::Error<&'a str>>,
 ) -> impl Parser<&'a str, Output = O, Error = nom::error::Error<&'a str>> {
@@ -585,6 +664,33 @@ impl std::fmt::Display for PExpr {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// RKM values as ngspice-39 reads a resistor's (its RKM-R-1 example),
+    /// and what is not one.
+    #[test]
+    fn rkm_values_read_as_ngspice_reads_them() {
+        let close = |a: Option<f64>, b: f64| a.is_some_and(|a| (a - b).abs() <= 1e-12 * b.abs());
+        for (text, value) in [
+            ("4K7", 4.7e3),
+            ("4R7", 4.7),
+            ("47K3", 47.3e3),
+            ("4Meg7", 4.7e6),
+            ("4L7", 4.7e-3),
+            ("4M7", 4.7e-3),
+            ("-2k2", -2.2e3),
+            ("4u76", 4.76e-6),
+            ("1k5Ohm", 1.5e3),
+        ] {
+            assert!(
+                close(parse_rkm(text), value),
+                "{text}: {:?}",
+                parse_rkm(text)
+            );
+        }
+        for text in ["470R", "R47", "4k", "10uF", "4F7", "1mil5", "k7", "4x7"] {
+            assert_eq!(parse_rkm(text), None, "{text}");
+        }
+    }
 
     /// The most deeply recursive expressions within the bounds parse,
     /// evaluate, print and drop on a test thread's 2 MiB stack; one more
