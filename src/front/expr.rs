@@ -128,10 +128,9 @@ pub fn parse_number(s: &str) -> Option<f64> {
 /// `1meg5` 1.5 meg): the digits after the scale letter are the fraction, as
 /// ngspice's `INPevaluateRKM_R` reads them (the letters T, G, K, U, R, N, P,
 /// M or MEG, L; `R` only followed by digits to the end; what follows the
-/// digits is ignored, as a unit is). ngspice-39 reads RKM values of
-/// resistors only, and only from a digit (`R47` is a model name to it, and
-/// C's and L's RKM values need its LTspice compatibility mode). `None` where
-/// the token is not of that form.
+/// digits is ignored, as a unit is), which it does only in its LTspice
+/// compatibility mode; kausal reads it only to say so in the error. `None`
+/// where the token is not of that form.
 pub fn parse_rkm(s: &str) -> Option<f64> {
     let b = s.as_bytes();
     let mut at = 0;
@@ -665,8 +664,8 @@ impl std::fmt::Display for PExpr {
 mod tests {
     use super::*;
 
-    /// RKM values as ngspice-39 reads a resistor's (its RKM-R-1 example),
-    /// and what is not one.
+    /// RKM values as ngspice reads a resistor's in its LTspice mode (its
+    /// RKM-R-1 example), and what is not one.
     #[test]
     fn rkm_values_read_as_ngspice_reads_them() {
         let close = |a: Option<f64>, b: f64| a.is_some_and(|a| (a - b).abs() <= 1e-12 * b.abs());
