@@ -214,6 +214,23 @@ impl<'a> Parser<'a> {
             value = Some(self.value_tok(c, name.text, "value")?);
         }
         let mut params = self.assigns(c);
+        // A resistor's `tc=tc1 tc2`, which ngspice reads as `tc1=tc1 tc2=tc2`.
+        while letter == ElementLetter::R
+            && params.last().is_some_and(|a| a.name.is("tc"))
+            && let Some(&t) = c.peek()
+            && t.kind == TokKind::Word
+            && !c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq)
+        {
+            let tc2 = self.value_tok(c, name.text, "tc2")?;
+            params.push(Assign {
+                name: Name {
+                    text: "tc2",
+                    span: t.span,
+                },
+                value: tc2,
+            });
+            params.extend(self.assigns(c));
+        }
         self.rest_unexpected(c);
         if value.is_none()
             && let Some(i) = params.iter().position(|a| a.name.is(key))
