@@ -189,9 +189,11 @@ where
     // near one, the DC image is solved instead: capacitors open, inductors
     // shorted, its node voltages the unknowns of its algebraic loops rather
     // than reached through capacitor voltages and junction charges (see
-    // [`ic`]). The circuit's loops start from the image's solution.
+    // [`ic`]). The circuit's loops start from the image's solution. Where
+    // Newton stalls near a point in both, the states' point is kept.
     if !held_start
         && let Ok(h) = ic::held_operating_point(sorted, &tape.states, outputs, opts, &[], ".op")
+        && !(h.rough && r.is_ok())
     {
         let sys = sorted.system();
         ode.reset_tears();

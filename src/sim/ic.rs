@@ -34,6 +34,9 @@ pub(super) struct Held {
     /// Every variable the image's tape holds, by name, at the operating
     /// point: the first guesses of the circuit's own algebraic loops.
     pub named: std::collections::HashMap<String, f64>,
+    /// Whether its Newton only stalled near the point (see
+    /// [`super::dc::Found`]).
+    pub rough: bool,
 }
 
 /// Why the `.ic` nodes could not be held.
@@ -257,7 +260,12 @@ pub(super) fn held_operating_point(
     let ptc = Continuation::of(&dc.elaborated.circuit);
     let fets = super::dc::fets(&dc, &tape);
     let work = opts.dc_work.unwrap_or(super::dc::DC_MAX_WORK);
-    let ImagePoint { y, values, named } = if dc_states.len() > DENSE_STATES {
+    let ImagePoint {
+        y,
+        values,
+        named,
+        rough,
+    } = if dc_states.len() > DENSE_STATES {
         solve::<FaerSparseMat<f64>>(sys, tape, &atol, true, ptc, &fets, work)
     } else {
         solve::<NalgebraMat<f64>>(sys, tape, &atol, false, ptc, &fets, work)
@@ -275,6 +283,7 @@ pub(super) fn held_operating_point(
         y,
         row: values[first_output..].to_vec(),
         named,
+        rough,
     })
 }
 
@@ -286,6 +295,8 @@ struct ImagePoint {
     values: Vec<f64>,
     /// Every variable its tape holds there, by name.
     named: std::collections::HashMap<String, f64>,
+    /// Whether its Newton only stalled near it.
+    rough: bool,
 }
 
 /// The image's operating point (see [`ImagePoint`]).
@@ -312,8 +323,8 @@ where
             ptc,
             fets,
             super::dc::DcWork::from_now(&ode.tape, work),
-        )?
-        .y;
+        )?;
+        let (y, rough) = (y.y, y.rough);
         let mut out = vec![0.0; tape.out_regs.len()];
         ode.outputs(0.0, &y, &mut out)
             .map_err(|error| SimError::Eval { error })?;
@@ -321,6 +332,7 @@ where
             named: ode.named_values(sys),
             y,
             values: out,
+            rough,
         })
     })
 }
