@@ -190,9 +190,20 @@ where
     // shorted, its node voltages the unknowns of its algebraic loops rather
     // than reached through capacitor voltages and junction charges (see
     // [`ic`]). The circuit's loops start from the image's solution. Where
-    // Newton stalls near a point in both, the states' point is kept.
+    // Newton stalls near a point in both, the states' point is kept. The
+    // image has what is left of the DC work limit, and at least a quarter of
+    // it: a failing operating point ends within 1.25 times the limit.
+    let image_opts = Options {
+        dc_work: Some(
+            work.deadline
+                .saturating_sub(tape.work())
+                .max(work.limit / 4),
+        ),
+        ..opts.clone()
+    };
     if !held_start
-        && let Ok(h) = ic::held_operating_point(sorted, &tape.states, outputs, opts, &[], ".op")
+        && let Ok(h) =
+            ic::held_operating_point(sorted, &tape.states, outputs, &image_opts, &[], ".op")
         && !(h.rough && r.is_ok())
     {
         let sys = sorted.system();
