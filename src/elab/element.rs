@@ -138,9 +138,19 @@ impl Elab {
     ) -> Option<ElementKind> {
         let inherited = self.inherited_multiplier(el, name, scope)?;
         match &el.body {
-            ElementBody::Passive { value, params } => {
-                self.passive(value, params, name, letter, inherited, scope)
-            }
+            ElementBody::Passive {
+                value,
+                model,
+                params,
+            } => self.passive(
+                value,
+                model.as_ref(),
+                params,
+                name,
+                letter,
+                inherited,
+                scope,
+            ),
             ElementBody::Coupling { k, .. } => self.coupling(k, name, scope),
             ElementBody::Source { dc, tran, .. } => {
                 self.source(dc.as_ref(), tran.as_ref(), name, letter, scope)
@@ -228,30 +238,53 @@ impl Elab {
 
     /// R, C, L: the value scaled by `m` (that many elements in parallel,
     /// times the enclosing instances' `inherited`), and C's and L's `ic=`.
+    #[allow(clippy::too_many_arguments)]
     fn passive(
         &mut self,
         value: &Value<'_>,
+        model: Option<&ast::Name<'_>>,
         params: &[ast::Assign<'_>],
         name: &str,
         letter: ElementLetter,
         inherited: f64,
         scope: &Scope<'_, '_>,
     ) -> Option<ElementKind> {
-        let v = self.value(value, scope)?;
+        // A resistor's model: named after the value, or in its place (a
+        // name that is a model's, as ngspice takes a value that is no
+        // number for a model name).
+        let (model, value) = match (model, value) {
+            (Some(m), v) => (Some(m), Some(v)),
+            (None, Value::Ident(n))
+                if letter == ElementLetter::R && scope.model(&n.key()).is_some() =>
+            {
+                (Some(n), None)
+            }
+            (None, v) => (None, Some(v)),
+        };
+        let model = match model {
+            Some(m) => Some(self.resistor_model(m, name, scope)?),
+            None => None,
+        };
+        let mut v = match value {
+            Some(value) => Some(self.value(value, scope)?),
+            None => None,
+        };
         let mut ic = None;
         let mut m = inherited;
         // Temperature: ngspice's `restemp.c`, `captemp.c`, `indtemp.c`.
         let (mut tc1, mut tc2, mut tce, mut temp, mut dtemp, mut scale) =
-            (0.0, 0.0, None, None, 0.0, 1.0);
+            (None, None, None, None, 0.0, 1.0);
+        let (mut length, mut width) = (None, None);
         for p in params {
+            let r_model = letter == ElementLetter::R && model.is_some();
             if p.name.is("ic") && letter != ElementLetter::R {
                 ic = Some(self.value(&p.value, scope)?);
             } else if p.name.is("m") {
                 m *= self.multiplier(p, name, scope)?;
             } else if p.name.is("tc1") || (p.name.is("tc") && letter == ElementLetter::R) {
-                tc1 = self.value(&p.value, scope)?;
+                tc1 = Some(self.value(&p.value, scope)?);
             } else if p.name.is("tc2") {
-                tc2 = self.value(&p.value, scope)?;
+                tc2 = Some(self.value(&p.value, scope)?);
             } else if p.name.is("tce") && letter == ElementLetter::R {
                 tce = Some(self.value(&p.value, scope)?);
             } else if p.name.is("temp") {
@@ -260,32 +293,59 @@ impl Elab {
                 dtemp = self.value(&p.value, scope)?;
             } else if p.name.is("scale") {
                 scale = self.value(&p.value, scope)?;
+            } else if r_model && v.is_none() && (p.name.is("r") || p.name.is("resistance")) {
+                v = Some(self.value(&p.value, scope)?);
+            } else if r_model && p.name.is("l") {
+                length = Some(self.value(&p.value, scope)?);
+            } else if r_model && p.name.is("w") {
+                width = Some(self.value(&p.value, scope)?);
             } else {
                 self.ignored_param(p, name);
             }
         }
-        // The value holds at TNOM; at the element's temperature (its own
-        // `temp`, else the circuit's plus `dtemp`) it is scaled by
-        // `1 + tc1·Δ + tc2·Δ²`, or a resistor's by `1.01^(tce·Δ)` (a
-        // resistor's `tc` is its `tc1`).
+        let model = model.unwrap_or_default();
+        // A resistor without a value: its geometry on the model's sheet
+        // resistance, else the model's value, else 1 mΩ (ngspice's
+        // `RESupdate_conduct`).
+        let v = match v {
+            Some(v) => v,
+            None => {
+                let (l, w) = (length.unwrap_or(model.defl), width.unwrap_or(model.defw));
+                if l * w * model.rsh > 0.0 {
+                    (l - 2.0 * model.short) / (w - 2.0 * model.narrow) * model.rsh
+                } else {
+                    model.r.unwrap_or(1e-3)
+                }
+            }
+        };
+        // The value holds at TNOM (the model's, else the circuit's); at the
+        // element's temperature (its own `temp`, else the circuit's plus
+        // `dtemp`) it is scaled by `1 + tc1·Δ + tc2·Δ²`, or a resistor's by
+        // `1.01^(tce·Δ)` (a resistor's `tc` is its `tc1`; the instance's
+        // coefficients before the model's).
         let options = &self.circuit.options;
-        let delta =
-            temp.unwrap_or(options.temp.unwrap_or(27.0) + dtemp) - options.tnom.unwrap_or(27.0);
-        let factor = match tce {
+        let delta = temp.unwrap_or(options.temp.unwrap_or(27.0) + dtemp)
+            - model.tnom.or(options.tnom).unwrap_or(27.0);
+        let (tc1, tc2) = (
+            tc1.or(model.tc1).unwrap_or(0.0),
+            tc2.or(model.tc2).unwrap_or(0.0),
+        );
+        let factor = match tce.or(model.tce) {
             Some(tce) => 1.01f64.powf(tce * delta),
             None => 1.0 + (tc1 + tc2 * delta) * delta,
         } * scale;
         let v = v * factor;
+        let span = value.map_or(Span::default(), |v| v.span());
         Some(match letter {
             ElementLetter::R => ElementKind::Resistor {
-                r: self.nonzero(v, value.span(), name, "resistance")? / m,
+                r: self.nonzero(v, span, name, "resistance")? / m,
             },
             ElementLetter::C => ElementKind::Capacitor {
-                c: self.nonzero(v, value.span(), name, "capacitance")? * m,
+                c: self.nonzero(v, span, name, "capacitance")? * m,
                 ic,
             },
             _ => ElementKind::Inductor {
-                l: self.nonzero(v, value.span(), name, "inductance")? / m,
+                l: self.nonzero(v, span, name, "inductance")? / m,
                 ic,
             },
         })

@@ -31,7 +31,83 @@ const DIODE_IGNORED: &[&str] = &[
     "tlevc", "jtun", "jtunsw", "ntun", "xtitun", "keg",
 ];
 
+/// A resistor model (ngspice's `res` device: `.model NAME R(...)`), as
+/// `RESupdate_conduct` reads it; `None` where not given.
+#[derive(Clone, Debug)]
+pub(super) struct ResistorModel {
+    pub rsh: f64,
+    pub narrow: f64,
+    pub short: f64,
+    pub defw: f64,
+    pub defl: f64,
+    pub r: Option<f64>,
+    pub tc1: Option<f64>,
+    pub tc2: Option<f64>,
+    pub tce: Option<f64>,
+    pub tnom: Option<f64>,
+}
+
+impl Default for ResistorModel {
+    fn default() -> Self {
+        ResistorModel {
+            rsh: 0.0,
+            narrow: 0.0,
+            short: 0.0,
+            defw: 10e-6,
+            defl: 10e-6,
+            r: None,
+            tc1: None,
+            tc2: None,
+            tce: None,
+            tnom: None,
+        }
+    }
+}
+
+/// Resistor model parameters kausal reads, with their aliases.
+const RESISTOR_PARAMS: &[&str] = &[
+    "rsh", "narrow", "dw", "short", "dlr", "defw", "w", "l", "r", "res", "tc1", "tc1r", "tc2",
+    "tc2r", "tce", "tnom",
+];
+/// Resistor model parameters that do not change a transient: noise, and
+/// the breakdown limit ngspice only warns of.
+const RESISTOR_IGNORED: &[&str] = &["kf", "af", "lf", "wf", "ef", "bv_max"];
+
 impl Elab {
+    /// The resistor model `model` names (type R or RES).
+    pub(super) fn resistor_model(
+        &mut self,
+        model: &ast::Name<'_>,
+        element: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<ResistorModel> {
+        let (def, _) = self.typed_model(model, element, scope, &["r", "res"], "R")?;
+        let first_use = self
+            .resistor_models_seen
+            .insert((def.span.file.0, def.span.start));
+        let mut m = ResistorModel::default();
+        for p in &def.params {
+            let key = p.name.key();
+            if self.unread_model_param(p, &key, RESISTOR_PARAMS, RESISTOR_IGNORED, def, first_use) {
+                continue;
+            }
+            let v = self.value(&p.value, scope)?;
+            match key.as_str() {
+                "rsh" => m.rsh = v,
+                "narrow" | "dw" => m.narrow = v,
+                "short" | "dlr" => m.short = v,
+                "defw" | "w" => m.defw = v,
+                "l" => m.defl = v,
+                "r" | "res" => m.r = Some(v),
+                "tc1" | "tc1r" => m.tc1 = Some(v),
+                "tc2" | "tc2r" => m.tc2 = Some(v),
+                "tce" => m.tce = Some(v),
+                _ => m.tnom = Some(v),
+            }
+        }
+        Some(m)
+    }
+
     /// Whether model parameter `p` (its key `key`) is not one of `known`:
     /// then, on the model's first use, a warning that it is ignored (one of
     /// `ignored`, which does not change the transient result) or unknown.

@@ -88,9 +88,12 @@ pub struct TranFn<'a> {
 /// What follows an element's nodes, by element letter.
 #[derive(Clone, Debug)]
 pub enum ElementBody<'a> {
-    /// R, C, L: a value plus `name=value` extras (`ic=`, `m=`, ...).
+    /// R, C, L: a value plus `name=value` extras (`ic=`, `m=`, ...); a
+    /// resistor's model after its value (`R1 a b 1k RMOD`; one in place of
+    /// the value is the value's identifier until elaboration).
     Passive {
         value: Value<'a>,
+        model: Option<Name<'a>>,
         params: Vec<Assign<'a>>,
     },
     /// K: coupling of two inductors.

@@ -167,8 +167,15 @@ fn element(e: &Element<'_>, out: &mut String) {
         let _ = write!(out, " {}", n.text);
     }
     match &e.body {
-        ElementBody::Passive { value: v, params } => {
+        ElementBody::Passive {
+            value: v,
+            model,
+            params,
+        } => {
             let _ = write!(out, " {}", value(v));
+            if let Some(m) = model {
+                let _ = write!(out, " {}", m.text);
+            }
             assigns(params, out);
         }
         ElementBody::Coupling { l1, l2, k } => {

@@ -213,6 +213,19 @@ impl<'a> Parser<'a> {
         {
             value = Some(self.value_tok(c, name.text, "value")?);
         }
+        // A resistor's model after its value.
+        let mut model = None;
+        if letter == ElementLetter::R
+            && value.is_some()
+            && let Some(&t) = c.peek()
+            && t.kind == TokKind::Word
+            && t.text
+                .starts_with(|ch: char| ch.is_ascii_alphabetic() || ch == '_')
+            && !c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq)
+        {
+            c.next();
+            model = Some(name_of(&t));
+        }
         let mut params = self.assigns(c);
         // A resistor's `tc=tc1 tc2`, which ngspice reads as `tc1=tc1 tc2=tc2`.
         while letter == ElementLetter::R
@@ -245,7 +258,11 @@ impl<'a> Parser<'a> {
             });
             return None;
         };
-        Some(ElementBody::Passive { value, params })
+        Some(ElementBody::Passive {
+            value,
+            model,
+            params,
+        })
     }
 
     /// K: two inductor names and the coupling, positional or as `k=`.
