@@ -2,6 +2,7 @@
 //! multipliers applied, sources' transient functions made waveforms; one
 //! function per element kind. Diode models are read in `model.rs`.
 
+use super::model::ResistorModel;
 use super::{Elab, ElabError, ElemId, Element, ElementKind, NodeId, Pending, PendingRef, Scope};
 use crate::diag::Span;
 use crate::front::ast::{self, ElementBody, ElementLetter, TranFnKind, Value};
@@ -249,22 +250,23 @@ impl Elab {
         inherited: f64,
         scope: &Scope<'_, '_>,
     ) -> Option<ElementKind> {
-        // A resistor's model: named after the value, or in its place (a
-        // name that is a model's, as ngspice takes a value that is no
-        // number for a model name).
+        // A resistor's or capacitor's model: named after the value, or in
+        // its place (a name that is a model's, as ngspice takes a value that
+        // is no number for a model name).
+        let has_models = matches!(letter, ElementLetter::R | ElementLetter::C);
         let (model, value) = match (model, value) {
             (Some(m), v) => (Some(m), Some(v)),
-            (None, Value::Ident(n))
-                if letter == ElementLetter::R && scope.model(&n.key()).is_some() =>
-            {
+            (None, Value::Ident(n)) if has_models && scope.model(&n.key()).is_some() => {
                 (Some(n), None)
             }
             (None, v) => (None, Some(v)),
         };
-        let model = match model {
-            Some(m) => Some(self.resistor_model(m, name, scope)?),
-            None => None,
+        let (rmodel, cmodel) = match (model, letter) {
+            (Some(m), ElementLetter::R) => (Some(self.resistor_model(m, name, scope)?), None),
+            (Some(m), _) => (None, Some(self.capacitor_model(m, name, scope)?)),
+            (None, _) => (None, None),
         };
+        let model = rmodel;
         let mut v = match value {
             Some(value) => Some(self.value(value, scope)?),
             None => None,
@@ -277,6 +279,7 @@ impl Elab {
         let (mut length, mut width) = (None, None);
         for p in params {
             let r_model = letter == ElementLetter::R && model.is_some();
+            let c_model = cmodel.is_some();
             if p.name.is("ic") && letter != ElementLetter::R {
                 ic = Some(self.value(&p.value, scope)?);
             } else if p.name.is("m") {
@@ -295,21 +298,44 @@ impl Elab {
                 scale = self.value(&p.value, scope)?;
             } else if r_model && v.is_none() && (p.name.is("r") || p.name.is("resistance")) {
                 v = Some(self.value(&p.value, scope)?);
-            } else if r_model && p.name.is("l") {
+            } else if c_model
+                && v.is_none()
+                && (p.name.is("c") || p.name.is("cap") || p.name.is("capacitance"))
+            {
+                v = Some(self.value(&p.value, scope)?);
+            } else if (r_model || c_model) && p.name.is("l") {
                 length = Some(self.value(&p.value, scope)?);
-            } else if r_model && p.name.is("w") {
+            } else if (r_model || c_model) && p.name.is("w") {
                 width = Some(self.value(&p.value, scope)?);
             } else {
                 self.ignored_param(p, name);
             }
         }
         let model = model.unwrap_or_default();
-        // A resistor without a value: its geometry on the model's sheet
-        // resistance, else the model's value, else 1 mΩ (ngspice's
-        // `RESupdate_conduct`).
-        let v = match v {
-            Some(v) => v,
-            None => {
+        // A capacitor without a value: the model's, else its plates' area
+        // and perimeter on the model's CJ and CJSW (ngspice's `captemp.c`;
+        // the length defaults to 0, as there); its TC1, TC2 and TNOM as a
+        // resistor model's.
+        let model = match &cmodel {
+            Some(cm) => ResistorModel {
+                tc1: cm.tc1,
+                tc2: cm.tc2,
+                tnom: cm.tnom,
+                ..model
+            },
+            None => model,
+        };
+        let v = match (v, &cmodel) {
+            (Some(v), _) => v,
+            (None, Some(cm)) => cm.cap.unwrap_or_else(|| {
+                let w = width.unwrap_or(cm.defw) - cm.narrow;
+                let l = length.unwrap_or(0.0) - cm.short;
+                cm.cj * w * l + cm.cjsw * 2.0 * (l + w)
+            }),
+            // A resistor without a value: its geometry on the model's sheet
+            // resistance, else the model's value, else 1 mΩ (ngspice's
+            // `RESupdate_conduct`).
+            (None, None) => {
                 let (l, w) = (length.unwrap_or(model.defl), width.unwrap_or(model.defw));
                 if l * w * model.rsh > 0.0 {
                     (l - 2.0 * model.short) / (w - 2.0 * model.narrow) * model.rsh

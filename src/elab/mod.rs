@@ -58,7 +58,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         model_cache: HashMap::new(),
         bjt_cache: HashMap::new(),
         jfet_seen: HashSet::new(),
-        resistor_models_seen: HashSet::new(),
+        passive_models_seen: HashSet::new(),
         mos_cache: HashMap::new(),
         switch_seen: HashSet::new(),
         tstep: 1.0,
@@ -173,8 +173,8 @@ struct Elab {
     bjt_cache: HashMap<(u32, u32, String), Option<bjt::BjtModel>>,
     /// JFET model definitions already read (their warnings are given once).
     jfet_seen: HashSet<(u32, u32)>,
-    /// Resistor model definitions already read, as `jfet_seen`.
-    resistor_models_seen: HashSet<(u32, u32)>,
+    /// Resistor and capacitor model definitions already read, as `jfet_seen`.
+    passive_models_seen: HashSet<(u32, u32)>,
     /// MOS models read, as `bjt_cache`.
     mos_cache: HashMap<(u32, u32, String), Option<mos::MosModel>>,
     /// Switch model definitions already read (their warnings are given once).

@@ -73,7 +73,90 @@ const RESISTOR_PARAMS: &[&str] = &[
 /// the breakdown limit ngspice only warns of.
 const RESISTOR_IGNORED: &[&str] = &["kf", "af", "lf", "wf", "ef", "bv_max"];
 
+/// A capacitor model (ngspice's `cap` device: `.model NAME C(...)`), as
+/// `capsetup.c` and `captemp.c` read it.
+#[derive(Clone, Debug)]
+pub(super) struct CapacitorModel {
+    pub cap: Option<f64>,
+    pub cj: f64,
+    pub cjsw: f64,
+    pub defw: f64,
+    pub narrow: f64,
+    pub short: f64,
+    pub tc1: Option<f64>,
+    pub tc2: Option<f64>,
+    pub tnom: Option<f64>,
+}
+
+/// Capacitor model parameters kausal reads, with their aliases.
+const CAPACITOR_PARAMS: &[&str] = &[
+    "cap", "cj", "cox", "cjsw", "capsw", "defw", "w", "narrow", "short", "del", "tc1", "tc2",
+    "tnom", "di", "thick",
+];
+/// Capacitor model parameters that do not change a transient.
+const CAPACITOR_IGNORED: &[&str] = &["bv_max", "defl", "l"];
+
 impl Elab {
+    /// The capacitor model `model` names (type C).
+    pub(super) fn capacitor_model(
+        &mut self,
+        model: &ast::Name<'_>,
+        element: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<CapacitorModel> {
+        let (def, _) = self.typed_model(model, element, scope, &["c"], "C")?;
+        let first_use = self
+            .passive_models_seen
+            .insert((def.span.file.0, def.span.start));
+        let mut m = CapacitorModel {
+            cap: None,
+            cj: 0.0,
+            cjsw: 0.0,
+            defw: 10e-6,
+            narrow: 0.0,
+            short: 0.0,
+            tc1: None,
+            tc2: None,
+            tnom: None,
+        };
+        let (mut cj, mut del, mut di, mut thick) = (None, None, None, 0.0);
+        let (mut narrow, mut short) = (None, None);
+        for p in &def.params {
+            let key = p.name.key();
+            if self.unread_model_param(p, &key, CAPACITOR_PARAMS, CAPACITOR_IGNORED, def, first_use)
+            {
+                continue;
+            }
+            let v = self.value(&p.value, scope)?;
+            match key.as_str() {
+                "cap" => m.cap = Some(v),
+                "cj" | "cox" => cj = Some(v),
+                "cjsw" | "capsw" => m.cjsw = v,
+                "defw" | "w" => m.defw = v,
+                "narrow" => narrow = Some(v),
+                "short" => short = Some(v),
+                "del" => del = Some(v),
+                "tc1" => m.tc1 = Some(v),
+                "tc2" => m.tc2 = Some(v),
+                "di" => di = Some(v),
+                "thick" => thick = v,
+                _ => m.tnom = Some(v),
+            }
+        }
+        // CJ from the insulator where not given: its relative permittivity
+        // (DI, else SiO2's 3.9) over its thickness; DEL narrows and shortens
+        // by twice itself where NARROW and SHORT are not given.
+        const EPS_ZERO: f64 = 8.854_187_817e-12;
+        m.cj = cj.unwrap_or(if thick > 0.0 {
+            di.unwrap_or(3.9) * EPS_ZERO / thick
+        } else {
+            0.0
+        });
+        m.narrow = narrow.or(del.map(|d| 2.0 * d)).unwrap_or(0.0);
+        m.short = short.or(del.map(|d| 2.0 * d)).unwrap_or(0.0);
+        Some(m)
+    }
+
     /// The resistor model `model` names (type R or RES).
     pub(super) fn resistor_model(
         &mut self,
@@ -83,7 +166,7 @@ impl Elab {
     ) -> Option<ResistorModel> {
         let (def, _) = self.typed_model(model, element, scope, &["r", "res"], "R")?;
         let first_use = self
-            .resistor_models_seen
+            .passive_models_seen
             .insert((def.span.file.0, def.span.start));
         let mut m = ResistorModel::default();
         for p in &def.params {

@@ -89,8 +89,9 @@ pub struct TranFn<'a> {
 #[derive(Clone, Debug)]
 pub enum ElementBody<'a> {
     /// R, C, L: a value plus `name=value` extras (`ic=`, `m=`, ...); a
-    /// resistor's model after its value (`R1 a b 1k RMOD`; one in place of
-    /// the value is the value's identifier until elaboration).
+    /// resistor's or capacitor's model after its value (`R1 a b 1k RMOD`;
+    /// one in place of the value is the value's identifier until
+    /// elaboration).
     Passive {
         value: Value<'a>,
         model: Option<Name<'a>>,

@@ -213,9 +213,9 @@ impl<'a> Parser<'a> {
         {
             value = Some(self.value_tok(c, name.text, "value")?);
         }
-        // A resistor's model after its value.
+        // A resistor's or capacitor's model after its value.
         let mut model = None;
-        if letter == ElementLetter::R
+        if matches!(letter, ElementLetter::R | ElementLetter::C)
             && value.is_some()
             && let Some(&t) = c.peek()
             && t.kind == TokKind::Word
