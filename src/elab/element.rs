@@ -296,12 +296,12 @@ impl Elab {
                 dtemp = self.value(&p.value, scope)?;
             } else if p.name.is("scale") {
                 scale = self.value(&p.value, scope)?;
-            } else if r_model && v.is_none() && (p.name.is("r") || p.name.is("resistance")) {
-                v = Some(self.value(&p.value, scope)?);
-            } else if c_model
-                && v.is_none()
-                && (p.name.is("c") || p.name.is("cap") || p.name.is("capacitance"))
+            } else if v.is_none()
+                && ((r_model && (p.name.is("r") || p.name.is("resistance")))
+                    || (c_model
+                        && (p.name.is("c") || p.name.is("cap") || p.name.is("capacitance"))))
             {
+                // The value given as a parameter beside a model.
                 v = Some(self.value(&p.value, scope)?);
             } else if (r_model || c_model) && p.name.is("l") {
                 length = Some(self.value(&p.value, scope)?);
