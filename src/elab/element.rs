@@ -261,6 +261,8 @@ impl Elab {
             }
             (None, v) => (None, Some(v)),
         };
+        // Where a model stands in place of the value, errors point at it.
+        let model_span = model.map(|m| m.span);
         let (rmodel, cmodel) = match (model, letter) {
             (Some(m), ElementLetter::R) => (Some(self.resistor_model(m, name, scope)?), None),
             (Some(m), _) => (None, Some(self.capacitor_model(m, name, scope)?)),
@@ -361,7 +363,7 @@ impl Elab {
             None => 1.0 + (tc1 + tc2 * delta) * delta,
         } * scale;
         let v = v * factor;
-        let span = value.map_or(Span::default(), |v| v.span());
+        let span = value.map_or(model_span.unwrap_or_default(), |v| v.span());
         Some(match letter {
             ElementLetter::R => ElementKind::Resistor {
                 r: self.nonzero(v, span, name, "resistance")? / m,
