@@ -1,5 +1,8 @@
 //! Diode `.model` cards → [`DiodeModel`]: the level-1 parameters kausal
-//! reads, the ones it ignores, and the junction capacitance it adds.
+//! reads, the ones it ignores, and the junction capacitance it adds; and
+//! resistor and capacitor models (ngspice's `res` and `cap` devices), which
+//! give an R or C its value from its geometry and its temperature
+//! coefficients.
 
 use super::{DiodeModel, Elab, ElabError, Scope};
 use crate::front::ast;
