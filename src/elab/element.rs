@@ -2,7 +2,6 @@
 //! multipliers applied, sources' transient functions made waveforms; one
 //! function per element kind. Diode models are read in `model.rs`.
 
-use super::model::ResistorModel;
 use super::{Elab, ElabError, ElemId, Element, ElementKind, NodeId, Pending, PendingRef, Scope};
 use crate::diag::Span;
 use crate::front::ast::{self, ElementBody, ElementLetter, TranFnKind, Value};
@@ -268,7 +267,6 @@ impl Elab {
             (Some(m), _) => (None, Some(self.capacitor_model(m, name, scope)?)),
             (None, _) => (None, None),
         };
-        let model = rmodel;
         let mut v = match value {
             Some(value) => Some(self.value(value, scope)?),
             None => None,
@@ -280,8 +278,7 @@ impl Elab {
             (None, None, None, None, 0.0, 1.0);
         let (mut length, mut width) = (None, None);
         for p in params {
-            let r_model = letter == ElementLetter::R && model.is_some();
-            let c_model = cmodel.is_some();
+            let (r_model, c_model) = (rmodel.is_some(), cmodel.is_some());
             if p.name.is("ic") && letter != ElementLetter::R {
                 ic = Some(self.value(&p.value, scope)?);
             } else if p.name.is("m") {
@@ -313,38 +310,33 @@ impl Elab {
                 self.ignored_param(p, name);
             }
         }
-        let model = model.unwrap_or_default();
-        // A capacitor without a value: the model's, else its plates' area
+        // Without a value: a capacitor's model's CAP, else its plates' area
         // and perimeter on the model's CJ and CJSW (ngspice's `captemp.c`;
-        // the length defaults to 0, as there); its TC1, TC2 and TNOM as a
-        // resistor model's.
-        let model = match &cmodel {
-            Some(cm) => ResistorModel {
-                tc1: cm.tc1,
-                tc2: cm.tc2,
-                tnom: cm.tnom,
-                ..model
-            },
-            None => model,
-        };
-        let v = match (v, &cmodel) {
-            (Some(v), _) => v,
-            (None, Some(cm)) => cm.cap.unwrap_or_else(|| {
+        // the length defaults to 0, as there); a resistor's geometry on its
+        // model's sheet resistance, else the model's value, else 1 mΩ
+        // (ngspice's `RESupdate_conduct`).
+        let v = match (v, &rmodel, &cmodel) {
+            (Some(v), _, _) => v,
+            (None, _, Some(cm)) => cm.cap.unwrap_or_else(|| {
                 let w = width.unwrap_or(cm.defw) - cm.narrow;
                 let l = length.unwrap_or(0.0) - cm.short;
                 cm.cj * w * l + cm.cjsw * 2.0 * (l + w)
             }),
-            // A resistor without a value: its geometry on the model's sheet
-            // resistance, else the model's value, else 1 mΩ (ngspice's
-            // `RESupdate_conduct`).
-            (None, None) => {
-                let (l, w) = (length.unwrap_or(model.defl), width.unwrap_or(model.defw));
-                if l * w * model.rsh > 0.0 {
-                    (l - 2.0 * model.short) / (w - 2.0 * model.narrow) * model.rsh
+            (None, rm, None) => {
+                let rm = rm.clone().unwrap_or_default();
+                let (l, w) = (length.unwrap_or(rm.defl), width.unwrap_or(rm.defw));
+                if l * w * rm.rsh > 0.0 {
+                    (l - 2.0 * rm.short) / (w - 2.0 * rm.narrow) * rm.rsh
                 } else {
-                    model.r.unwrap_or(1e-3)
+                    rm.r.unwrap_or(1e-3)
                 }
             }
+        };
+        // The model's temperature coefficients and TNOM.
+        let (m_tc1, m_tc2, m_tce, m_tnom) = match (&rmodel, &cmodel) {
+            (Some(r), _) => (r.tc1, r.tc2, r.tce, r.tnom),
+            (_, Some(c)) => (c.tc1, c.tc2, None, c.tnom),
+            _ => (None, None, None, None),
         };
         // The value holds at TNOM (the model's, else the circuit's); at the
         // element's temperature (its own `temp`, else the circuit's plus
@@ -353,12 +345,9 @@ impl Elab {
         // coefficients before the model's).
         let options = &self.circuit.options;
         let delta = temp.unwrap_or(options.temp.unwrap_or(27.0) + dtemp)
-            - model.tnom.or(options.tnom).unwrap_or(27.0);
-        let (tc1, tc2) = (
-            tc1.or(model.tc1).unwrap_or(0.0),
-            tc2.or(model.tc2).unwrap_or(0.0),
-        );
-        let factor = match tce.or(model.tce) {
+            - m_tnom.or(options.tnom).unwrap_or(27.0);
+        let (tc1, tc2) = (tc1.or(m_tc1).unwrap_or(0.0), tc2.or(m_tc2).unwrap_or(0.0));
+        let factor = match tce.or(m_tce) {
             Some(tce) => 1.01f64.powf(tce * delta),
             None => 1.0 + (tc1 + tc2 * delta) * delta,
         } * scale;
