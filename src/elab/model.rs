@@ -124,13 +124,9 @@ impl Elab {
         };
         let (mut cj, mut del, mut di, mut thick) = (None, None, None, 0.0);
         let (mut narrow, mut short) = (None, None);
-        for p in &def.params {
-            let key = p.name.key();
-            if self.unread_model_param(p, &key, CAPACITOR_PARAMS, CAPACITOR_IGNORED, def, first_use)
-            {
-                continue;
-            }
-            let v = self.value(&p.value, scope)?;
+        let params =
+            self.read_model_params(def, CAPACITOR_PARAMS, CAPACITOR_IGNORED, first_use, scope)?;
+        for (key, v) in params {
             match key.as_str() {
                 "cap" => m.cap = Some(v),
                 "cj" | "cox" => cj = Some(v),
@@ -172,12 +168,9 @@ impl Elab {
             .passive_models_seen
             .insert((def.span.file.0, def.span.start));
         let mut m = ResistorModel::default();
-        for p in &def.params {
-            let key = p.name.key();
-            if self.unread_model_param(p, &key, RESISTOR_PARAMS, RESISTOR_IGNORED, def, first_use) {
-                continue;
-            }
-            let v = self.value(&p.value, scope)?;
+        let params =
+            self.read_model_params(def, RESISTOR_PARAMS, RESISTOR_IGNORED, first_use, scope)?;
+        for (key, v) in params {
             match key.as_str() {
                 "rsh" => m.rsh = v,
                 "narrow" | "dw" => m.narrow = v,
@@ -224,6 +217,27 @@ impl Elab {
             });
         }
         true
+    }
+
+    /// The parameters of `def` among `known`, by key, with their values;
+    /// the others reported on the model's first use (see
+    /// [`Elab::unread_model_param`]).
+    fn read_model_params(
+        &mut self,
+        def: &ast::Model<'_>,
+        known: &[&str],
+        ignored: &[&str],
+        first_use: bool,
+        scope: &Scope<'_, '_>,
+    ) -> Option<Vec<(String, f64)>> {
+        let mut out = Vec::with_capacity(def.params.len());
+        for p in &def.params {
+            let key = p.name.key();
+            if !self.unread_model_param(p, &key, known, ignored, def, first_use) {
+                out.push((key, self.value(&p.value, scope)?));
+            }
+        }
+        Some(out)
     }
 
     /// The model `model` names, if it is of one of `kinds` (its index
@@ -278,12 +292,8 @@ impl Elab {
             name: def.name.key(),
             ..DiodeModel::default()
         };
-        for p in &def.params {
-            let key = p.name.key();
-            if self.unread_model_param(p, &key, DIODE_PARAMS, DIODE_IGNORED, def, first_use) {
-                continue;
-            }
-            let v = self.value(&p.value, scope)?;
+        let params = self.read_model_params(def, DIODE_PARAMS, DIODE_IGNORED, first_use, scope)?;
+        for (key, v) in params {
             match key.as_str() {
                 "is" | "js" => m.is = v,
                 "n" => m.n = v,
