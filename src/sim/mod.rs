@@ -147,6 +147,8 @@ pub struct Stats {
     pub states: usize,
     pub steps: usize,
     pub rejected: usize,
+    /// Steps whose corrector (the integrator's Newton) failed to converge.
+    pub newton_fails: usize,
     pub rhs_evals: usize,
     pub jac_mul_evals: usize,
     pub jacobians: usize,

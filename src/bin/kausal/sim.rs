@@ -196,13 +196,14 @@ fn print_stats(s: &sim::Stats) {
 /// The integrator's work.
 fn print_solver(s: &sim::Stats) {
     eprintln!(
-        "{} states, {:?}{}: {} steps ({} rejected), {} f-evaluations, {} J·v, {} Jacobians, {} LU factorizations, {} restarts{}; {:.3} s",
+        "{} states, {:?}{}: {} steps ({} rejected, {} Newton failures), {} f-evaluations, {} J·v, {} Jacobians, {} LU factorizations, {} restarts{}; {:.3} s",
         s.states,
         s.method.unwrap_or(sim::Method::Bdf),
         s.switched_at
             .map_or_else(String::new, |t| format!(" then Esdirk34 from t = {t:.4e}")),
         s.steps,
         s.rejected,
+        s.newton_fails,
         s.rhs_evals,
         s.jac_mul_evals,
         s.jacobians,
