@@ -415,11 +415,13 @@ where
             if matches!(attempt, Attempt::Accepted) {
                 return Ok(());
             }
-            self.stats.rejected += 1;
             failures += 1;
             if matches!(attempt, Attempt::NoConvergence) {
+                self.stats.newton_fails += 1;
                 self.h = 0.25 * h;
                 self.no_growth = true;
+            } else {
+                self.stats.rejected += 1;
             }
             if failures >= 3 {
                 // A kink in the history (a diode that switched): predict
@@ -734,6 +736,7 @@ where
     }
     stats.steps += s.stats.steps;
     stats.rejected += s.stats.rejected;
+    stats.newton_fails += s.stats.newton_fails;
     stats.rhs_evals += s.stats.rhs_evals;
     stats.jacobians += s.stats.jacobians;
     stats.lu_factorizations += s.stats.lu_factorizations;
