@@ -249,24 +249,23 @@ impl Elab {
         inherited: f64,
         scope: &Scope<'_, '_>,
     ) -> Option<ElementKind> {
-        // A resistor's or capacitor's model: named after the value, or in
-        // its place (a name that is a model's, as ngspice takes a value that
-        // is no number for a model name).
-        let has_models = matches!(letter, ElementLetter::R | ElementLetter::C);
+        // A model: named beside the value, or in its place (a name that is
+        // a model's, as ngspice takes a value that is no number for a model
+        // name).
         let (model, value) = match (model, value) {
             (Some(m), v) => (Some(m), Some(v)),
-            (None, Value::Ident(n)) if has_models && scope.model(&n.key()).is_some() => {
-                (Some(n), None)
-            }
+            (None, Value::Ident(n)) if scope.model(&n.key()).is_some() => (Some(n), None),
             (None, v) => (None, Some(v)),
         };
         // Where a model stands in place of the value, errors point at it.
         let model_span = model.map(|m| m.span);
-        let (rmodel, cmodel) = match (model, letter) {
-            (Some(m), ElementLetter::R) => (Some(self.resistor_model(m, name, scope)?), None),
-            (Some(m), _) => (None, Some(self.capacitor_model(m, name, scope)?)),
-            (None, _) => (None, None),
-        };
+        let (mut rmodel, mut cmodel, mut lmodel) = (None, None, None);
+        match (model, letter) {
+            (Some(m), ElementLetter::R) => rmodel = Some(self.resistor_model(m, name, scope)?),
+            (Some(m), ElementLetter::C) => cmodel = Some(self.capacitor_model(m, name, scope)?),
+            (Some(m), _) => lmodel = Some(self.inductor_model(m, name, scope)?),
+            (None, _) => {}
+        }
         let mut v = match value {
             Some(value) => Some(self.value(value, scope)?),
             None => None,
@@ -276,7 +275,7 @@ impl Elab {
         // Temperature: ngspice's `restemp.c`, `captemp.c`, `indtemp.c`.
         let (mut tc1, mut tc2, mut tce, mut temp, mut dtemp, mut scale) =
             (None, None, None, None, 0.0, 1.0);
-        let (mut length, mut width) = (None, None);
+        let (mut length, mut width, mut turns) = (None, None, None);
         for p in params {
             let (r_model, c_model) = (rmodel.is_some(), cmodel.is_some());
             if p.name.is("ic") && letter != ElementLetter::R {
@@ -306,6 +305,8 @@ impl Elab {
                 length = Some(self.value(&p.value, scope)?);
             } else if (r_model || c_model) && p.name.is("w") {
                 width = Some(self.value(&p.value, scope)?);
+            } else if letter == ElementLetter::L && p.name.is("nt") {
+                turns = Some(self.value(&p.value, scope)?);
             } else {
                 self.ignored_param(p, name);
             }
@@ -314,9 +315,17 @@ impl Elab {
         // and perimeter on the model's CJ and CJSW (ngspice's `captemp.c`;
         // the length defaults to 0, as there); a resistor's geometry on its
         // model's sheet resistance, else the model's value, else 1 mΩ
-        // (ngspice's `RESupdate_conduct`).
+        // (ngspice's `RESupdate_conduct`); an inductor's turns (its own
+        // NT, else its model's) on its model's coil (`indtemp.c`).
         let v = match (v, &rmodel, &cmodel) {
             (Some(v), _, _) => v,
+            (None, _, _) if letter == ElementLetter::L => {
+                let lm = lmodel.as_ref();
+                match turns {
+                    Some(nt) => lm.map_or(0.0, |lm| lm.per_turn2) * nt * nt,
+                    None => lm.map_or(0.0, |lm| lm.ind),
+                }
+            }
             (None, _, Some(cm)) => cm.cap.unwrap_or_else(|| {
                 let w = width.unwrap_or(cm.defw) - cm.narrow;
                 let l = length.unwrap_or(0.0) - cm.short;
@@ -333,9 +342,10 @@ impl Elab {
             }
         };
         // The model's temperature coefficients and TNOM.
-        let (m_tc1, m_tc2, m_tce, m_tnom) = match (&rmodel, &cmodel) {
-            (Some(r), _) => (r.tc1, r.tc2, r.tce, r.tnom),
-            (_, Some(c)) => (c.tc1, c.tc2, None, c.tnom),
+        let (m_tc1, m_tc2, m_tce, m_tnom) = match (&rmodel, &cmodel, &lmodel) {
+            (Some(r), _, _) => (r.tc1, r.tc2, r.tce, r.tnom),
+            (_, Some(c), _) => (c.tc1, c.tc2, None, c.tnom),
+            (_, _, Some(l)) => (l.tc1, l.tc2, None, l.tnom),
             _ => (None, None, None, None),
         };
         // The value holds at TNOM (the model's, else the circuit's); at the

@@ -173,7 +173,7 @@ struct Elab {
     bjt_cache: HashMap<(u32, u32, String), Option<bjt::BjtModel>>,
     /// JFET model definitions already read (their warnings are given once).
     jfet_seen: HashSet<(u32, u32)>,
-    /// Resistor and capacitor model definitions already read, as `jfet_seen`.
+    /// Resistor, capacitor and inductor model definitions already read, as `jfet_seen`.
     passive_models_seen: HashSet<(u32, u32)>,
     /// MOS models read, as `bjt_cache`.
     mos_cache: HashMap<(u32, u32, String), Option<mos::MosModel>>,

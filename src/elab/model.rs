@@ -1,8 +1,8 @@
 //! Diode `.model` cards → [`DiodeModel`]: the level-1 parameters kausal
 //! reads, the ones it ignores, and the junction capacitance it adds; and
-//! resistor and capacitor models (ngspice's `res` and `cap` devices), which
-//! give an R or C its value from its geometry and its temperature
-//! coefficients.
+//! resistor, capacitor and inductor models (ngspice's `res`, `cap` and `ind`
+//! devices), which give an R, C or L its value from its geometry and its
+//! temperature coefficients.
 
 use super::{DiodeModel, Elab, ElabError, Scope};
 use crate::front::ast;
@@ -99,7 +99,102 @@ const CAPACITOR_PARAMS: &[&str] = &[
 /// Capacitor model parameters that do not change a transient.
 const CAPACITOR_IGNORED: &[&str] = &["bv_max", "defl", "l"];
 
+/// An inductor model (ngspice's `ind` device: `.model NAME L(...)`), as
+/// `indsetup.c` reads it: `ind` is the model's inductance (IND, else NT
+/// turns on the coil's inductance per squared turn), `per_turn2` that
+/// inductance per squared turn, for an instance's own `nt=`.
+#[derive(Clone, Debug)]
+pub(super) struct InductorModel {
+    pub ind: f64,
+    pub per_turn2: f64,
+    pub tc1: Option<f64>,
+    pub tc2: Option<f64>,
+    pub tnom: Option<f64>,
+}
+
+/// Inductor model parameters kausal reads. `l` only says that the model is
+/// an inductor's: ngspice reads no value from it, nor does kausal.
+const INDUCTOR_PARAMS: &[&str] = &[
+    "ind", "tc1", "tc2", "tnom", "csect", "dia", "length", "nt", "mu", "l",
+];
+
+/// The vacuum permeability ngspice uses, H/m.
+const MU_ZERO: f64 = 4.0 * std::f64::consts::PI * 1e-7;
+
+/// Lundin's correction of a long solenoid's inductance for a coil of
+/// `length` and cross-section `csect` (H. Lundin, "A handbook formula for
+/// the inductance of a single-layer circular coil", Proc. IEEE 73, 1985),
+/// with x = diameter / length; 1 for coils below a micrometre, as ngspice.
+fn lundin(length: f64, csect: f64) -> f64 {
+    use std::f64::consts::PI;
+    if csect < 1e-12 || length < 1e-6 {
+        return 1.0;
+    }
+    let x = 2.0 * (csect / PI).sqrt() / length;
+    let (x2, x4) = (x * x, x * x * x * x);
+    if x < 1.0 {
+        (1.0 + 0.383901 * x2 + 0.017108 * x4) / (1.0 + 0.258952 * x2) - 4.0 * x / (3.0 * PI)
+    } else {
+        let ratio =
+            ((4.0 * x).ln() - 0.5) * (1.0 + 0.383901 / x2 + 0.017108 / x4) / (1.0 + 0.258952 / x2);
+        let k = 0.093842 / x2 + 0.002029 / x4 - 0.000801 / (x2 * x4);
+        2.0 * (ratio + k) / (PI * x)
+    }
+}
+
 impl Elab {
+    /// The inductor model `model` names (type L).
+    pub(super) fn inductor_model(
+        &mut self,
+        model: &ast::Name<'_>,
+        element: &str,
+        scope: &Scope<'_, '_>,
+    ) -> Option<InductorModel> {
+        let (def, _) = self.typed_model(model, element, scope, &["l"], "L")?;
+        let first_use = self
+            .passive_models_seen
+            .insert((def.span.file.0, def.span.start));
+        let params = self.read_model_params(def, INDUCTOR_PARAMS, &[], first_use, scope)?;
+        let mut m = InductorModel {
+            ind: 0.0,
+            per_turn2: 0.0,
+            tc1: None,
+            tc2: None,
+            tnom: None,
+        };
+        let (mut ind, mut csect, mut dia, mut length, mut nt, mut mu) =
+            (None, None, None, None, 0.0, 1.0);
+        for (key, v) in params {
+            match key.as_str() {
+                "ind" => ind = Some(v),
+                "tc1" => m.tc1 = Some(v),
+                "tc2" => m.tc2 = Some(v),
+                "tnom" => m.tnom = Some(v),
+                "csect" => csect = Some(v),
+                "dia" => dia = Some(v),
+                "length" => length = Some(v),
+                "nt" => nt = v,
+                "mu" => mu = v,
+                _ => {}
+            }
+        }
+        // The diameter before the cross-section; a coil's inductance per
+        // squared turn μ·μ0·A/ℓ, corrected by Lundin's factor where both
+        // its length and its section are given.
+        let area = match dia {
+            Some(d) => std::f64::consts::PI * d * d / 4.0,
+            None => csect.unwrap_or(0.0),
+        };
+        if let Some(len) = length.filter(|&l| l > 0.0) {
+            m.per_turn2 = mu * MU_ZERO * area / len;
+            if dia.is_some() || csect.is_some() {
+                m.per_turn2 *= lundin(len, area);
+            }
+        }
+        m.ind = ind.unwrap_or(nt * nt * m.per_turn2);
+        Some(m)
+    }
+
     /// The capacitor model `model` names (type C).
     pub(super) fn capacitor_model(
         &mut self,

@@ -213,18 +213,27 @@ impl<'a> Parser<'a> {
         {
             value = Some(self.value_tok(c, name.text, "value")?);
         }
-        // A resistor's or capacitor's model after its value.
+        // A model after the value (`R1 a b 1k RMOD`), or before it
+        // (`L1 a b LMOD 10m`: ngspice takes a value that is no number for a
+        // model name, and a number after it for the value).
         let mut model = None;
-        if matches!(letter, ElementLetter::R | ElementLetter::C)
-            && value.is_some()
-            && let Some(&t) = c.peek()
-            && t.kind == TokKind::Word
-            && t.text
-                .starts_with(|ch: char| ch.is_ascii_alphabetic() || ch == '_')
-            && !c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq)
-        {
-            c.next();
-            model = Some(name_of(&t));
+        let not_assign = |c: &Cursor<'_, 'a>| !c.peek_at(1).is_some_and(|n| n.kind == TokKind::Eq);
+        if let Some(v) = &value {
+            if let Value::Ident(m) = v
+                && c.peek().is_some_and(is_value_token)
+                && not_assign(c)
+            {
+                model = Some(*m);
+                value = Some(self.value_tok(c, name.text, "value")?);
+            } else if let Some(&t) = c.peek()
+                && t.kind == TokKind::Word
+                && t.text
+                    .starts_with(|ch: char| ch.is_ascii_alphabetic() || ch == '_')
+                && not_assign(c)
+            {
+                c.next();
+                model = Some(name_of(&t));
+            }
         }
         let mut params = self.assigns(c);
         // A resistor's `tc=tc1 tc2`, which ngspice reads as `tc1=tc1 tc2=tc2`.
