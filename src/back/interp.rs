@@ -24,6 +24,7 @@ pub fn eval(sys: &EquationSystem, x: &ExprArena, e: ExprId, vals: &[f64], t: f64
         Expr::Var(v) => vals[v.0 as usize],
         Expr::Param(p) => sys.params[p].value,
         Expr::Time => t,
+        Expr::TimeRate => 1.0,
         Expr::Source(s, order) => sys.sources[s].wave.eval(t, order),
         Expr::Neg(a) => -eval(sys, x, a, vals, t),
         Expr::Add(a, b) => eval(sys, x, a, vals, t) + eval(sys, x, b, vals, t),

@@ -8,7 +8,8 @@ use super::expr::{Expr, ExprArena, ExprId, Func, Slope};
 use super::system::VarId;
 
 /// d/dt of `e`, where `dvar(x)` gives the expression of dx/dt. Sources
-/// differentiate to their next derivative; time to 1.
+/// differentiate to their next derivative; time to its rate (1, but 0 at
+/// the operating point, as every source's derivative).
 pub fn time_derivative(
     x: &mut ExprArena,
     e: ExprId,
@@ -60,7 +61,8 @@ fn derive(
         let r = match x.get(n) {
             Expr::Const(_) | Expr::Param(_) => x.constant(0.0),
             Expr::Var(v) => dvar(v, x).unwrap_or_else(|| x.constant(0.0)),
-            Expr::Time => x.constant(if time { 1.0 } else { 0.0 }),
+            Expr::Time if time => x.time_rate(),
+            Expr::Time | Expr::TimeRate => x.constant(0.0),
             Expr::Source(s, k) => {
                 if time {
                     x.source(s, k.saturating_add(1))

@@ -196,6 +196,10 @@ pub enum Expr {
     Param(ParamId),
     /// Simulation time `t`.
     Time,
+    /// d/dt of time: 1 in a transient, 0 at the operating point, where
+    /// every source's derivative is 0 (ngspice's first point is its DC
+    /// solution). What index reduction makes of `time` in a B source.
+    TimeRate,
     /// The `order`-th time derivative of an independent source's waveform.
     Source(SourceId, u8),
     Neg(ExprId),
@@ -225,9 +229,12 @@ impl Expr {
             | Expr::Pow(a, b)
             | Expr::Cmp(_, a, b) => [Some(a), Some(b), None],
             Expr::Select(c, a, b) => [Some(c), Some(a), Some(b)],
-            Expr::Const(_) | Expr::Var(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => {
-                [None, None, None]
-            }
+            Expr::Const(_)
+            | Expr::Var(_)
+            | Expr::Param(_)
+            | Expr::Time
+            | Expr::TimeRate
+            | Expr::Source(..) => [None, None, None],
         }
     }
 }
@@ -342,6 +349,10 @@ impl ExprArena {
 
     pub fn time(&mut self) -> ExprId {
         self.intern(Expr::Time)
+    }
+
+    pub fn time_rate(&mut self) -> ExprId {
+        self.intern(Expr::TimeRate)
     }
 
     pub fn source(&mut self, s: SourceId, order: u8) -> ExprId {
@@ -685,7 +696,9 @@ impl ExprArena {
         let d = depth + 1;
         let r = match self.get(root) {
             Expr::Var(v) => map(v).unwrap_or(root),
-            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) => root,
+            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::TimeRate | Expr::Source(..) => {
+                root
+            }
             Expr::Neg(a) => {
                 let a = self.substitute_at(a, map, memo, d);
                 self.neg(a)

@@ -56,6 +56,7 @@ pub fn write_expr_in(sys: &EquationSystem, x: &ExprArena, id: ExprId, out: &mut 
         Expr::Var(v) => out.push_str(&sys.vars[v].name),
         Expr::Param(p) => out.push_str(&sys.params[p].name),
         Expr::Time => out.push('t'),
+        Expr::TimeRate => out.push_str("der(t)"),
         Expr::Source(s, order) => {
             let name = &sys.source_name(s);
             match order {

@@ -127,7 +127,7 @@ pub(super) fn set_constant_jacobians(
                     let moves = v(c) || v(a) || v(b);
                     (moves, !moves)
                 }
-                Instr::Src { .. } | Instr::Time { .. } => (false, true),
+                Instr::Src { .. } | Instr::Time { .. } | Instr::TimeRate { .. } => (false, true),
                 Instr::Block { .. } => (true, false),
             };
             if !stays_affine {
@@ -383,7 +383,7 @@ impl Tape {
                     }
                     _ => (d, Dep::Bad),
                 },
-                Instr::Src { d, .. } | Instr::Time { d } => (d, Dep::Time),
+                Instr::Src { d, .. } | Instr::Time { d } | Instr::TimeRate { d } => (d, Dep::Time),
                 Instr::Block { k } => {
                     self.classify_block(&self.blocks[k as usize], dep);
                     continue;

@@ -148,6 +148,7 @@ impl Compiler<'_> {
                     | Expr::Const(_)
                     | Expr::Param(_)
                     | Expr::Time
+                    | Expr::TimeRate
                     | Expr::Source(..) => [None, None, None],
                     op => op.operands(),
                 };
@@ -193,6 +194,11 @@ impl Compiler<'_> {
             Expr::Time => {
                 let d = self.reg(0.0);
                 out.push(Instr::Time { d });
+                d
+            }
+            Expr::TimeRate => {
+                let d = self.reg(1.0);
+                out.push(Instr::TimeRate { d });
                 d
             }
             Expr::Source(s, order) => {

@@ -34,6 +34,15 @@ impl Tape {
         }
     }
 
+    /// d/dt of time: 0 at the operating point, as a source's derivative.
+    pub(super) fn time_rate(&self) -> f64 {
+        if self.mode.get() == Mode::Dc {
+            0.0
+        } else {
+            1.0
+        }
+    }
+
     /// Fresh registers (parameters and constants set).
     pub fn registers(&self) -> Vec<f64> {
         self.init.clone()
@@ -155,6 +164,7 @@ impl Tape {
                 Instr::Device { d, f, a } => r[d] = self.device(f, r[a]).0,
                 Instr::Src { d, s, order } => r[d] = self.source(s, t, order),
                 Instr::Time { d } => r[d] = t,
+                Instr::TimeRate { d } => r[d] = self.time_rate(),
                 Instr::Block { k } => self.solve_block(k as usize, r, t)?,
             }
         }

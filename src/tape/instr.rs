@@ -119,6 +119,10 @@ pub enum Instr {
     Time {
         d: Reg,
     },
+    /// d/dt of time: 1, but 0 in [`super::Mode::Dc`] (see [`crate::ir::Expr::TimeRate`]).
+    TimeRate {
+        d: Reg,
+    },
     /// Solve block `k` (see [`TapeBlock`]).
     Block {
         k: u32,
@@ -162,7 +166,8 @@ impl Instr {
             | Instr::Select { d, .. }
             | Instr::Device { d, .. }
             | Instr::Src { d, .. }
-            | Instr::Time { d } => d,
+            | Instr::Time { d }
+            | Instr::TimeRate { d } => d,
             Instr::Block { .. } => NONE,
         }
     }
@@ -182,7 +187,10 @@ impl Instr {
             | Instr::Pow { a, b, .. }
             | Instr::Cmp { a, b, .. } => ([a, b, NONE], 2),
             Instr::Select { c, a, b, .. } => ([c, a, b], 3),
-            Instr::Src { .. } | Instr::Time { .. } | Instr::Block { .. } => ([NONE, NONE, NONE], 0),
+            Instr::Src { .. }
+            | Instr::Time { .. }
+            | Instr::TimeRate { .. }
+            | Instr::Block { .. } => ([NONE, NONE, NONE], 0),
         };
         Operands { regs, n }
     }

@@ -137,6 +137,10 @@ impl Tape {
                     r[d] = t;
                     dr[d] = 0.0;
                 }
+                Instr::TimeRate { d } => {
+                    r[d] = self.time_rate();
+                    dr[d] = 0.0;
+                }
                 Instr::Block { k } => {
                     // Value first (Newton), then the tangent of the solution by
                     // the implicit function theorem: J dt = -(dR/dx) dx.
@@ -333,6 +337,10 @@ impl Tape {
                 }
                 Instr::Time { d } => {
                     r[d] = t;
+                    zero(&mut dr[d.idx() * m..(d.idx() + 1) * m]);
+                }
+                Instr::TimeRate { d } => {
+                    r[d] = self.time_rate();
                     zero(&mut dr[d.idx() * m..(d.idx() + 1) * m]);
                 }
                 Instr::Block { k } => {

@@ -98,6 +98,8 @@ fn generated_rust_and_c_agree_with_the_evaluator() {
         // B sources: comparisons and choices, and a torn nonlinear loop.
         "b_limiter",
         "b_multiplier",
+        // Time functions differentiated by index reduction: der(t).
+        "b_slope_at_start",
         // Transistors: junction functions, the base charge, IRB's base
         // resistance, a PNP mirror.
         "bjt_ce_amp",

@@ -60,9 +60,12 @@ impl Gen<'_> {
         match self.x.get(e) {
             Expr::Var(_) => true,
             // A comparison's tangent is zero wherever it is defined.
-            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) | Expr::Cmp(..) => {
-                false
-            }
+            Expr::Const(_)
+            | Expr::Param(_)
+            | Expr::Time
+            | Expr::TimeRate
+            | Expr::Source(..)
+            | Expr::Cmp(..) => false,
             Expr::Select(_, a, b) => self.varies(a) || self.varies(b),
             Expr::Neg(a) | Expr::Call(_, a) | Expr::Device(_, a) => self.varies(a),
             Expr::Add(a, b)
@@ -82,6 +85,8 @@ impl Gen<'_> {
             Expr::Var(v) => leaf(Leaf::Var(v.0)),
             Expr::Param(p) => leaf(Leaf::Param(p.0)),
             Expr::Time => "t".into(),
+            // The generated f is the transient's.
+            Expr::TimeRate => syn.float("1.0"),
             Expr::Source(s, order) => format!("src_{}(t, {order})", s.0),
             Expr::Neg(a) => format!("(-{})", sub(a)),
             Expr::Add(a, b) => format!("({} + {})", sub(a), sub(b)),
@@ -146,7 +151,12 @@ impl Gen<'_> {
                     .unwrap_or_else(|| self.syn.float("0.0"));
                 self.syn.select(ec, da, db)
             }
-            Expr::Const(_) | Expr::Param(_) | Expr::Time | Expr::Source(..) | Expr::Cmp(..) => {
+            Expr::Const(_)
+            | Expr::Param(_)
+            | Expr::Time
+            | Expr::TimeRate
+            | Expr::Source(..)
+            | Expr::Cmp(..) => {
                 return None;
             }
         };
