@@ -223,6 +223,7 @@ where
         }
         Method::Bdf => {
             let s = problem.bdf::<LS>().map_err(|e| solver_err(t0, e))?;
+            let s = floored_start(&problem, s, &|p, st| p.bdf_solver::<LS>(st))?;
             match drive(&stops, s, |p, st| p.bdf_solver::<LS>(st), rec, &mut stats)? {
                 Driven::Done(rec) => rec,
                 Driven::Stalled(rec, bdf, h) => {
@@ -260,6 +261,7 @@ where
         }
         Method::TrBdf2 => {
             let s = problem.tr_bdf2::<LS>().map_err(|e| solver_err(t0, e))?;
+            let s = floored_start(&problem, s, &|p, st| p.tr_bdf2_solver::<LS>(st))?;
             drive(
                 &stops,
                 s,
@@ -271,6 +273,7 @@ where
         }
         Method::Esdirk34 => {
             let s = problem.esdirk34::<LS>().map_err(|e| solver_err(t0, e))?;
+            let s = floored_start(&problem, s, &|p, st| p.esdirk34_solver::<LS>(st))?;
             drive(
                 &stops,
                 s,
@@ -282,6 +285,7 @@ where
         }
         Method::Tsit5 => {
             let s = problem.tsit45().map_err(|e| solver_err(t0, e))?;
+            let s = floored_start(&problem, s, &|p, st| p.tsit45_solver(st))?;
             drive(&stops, s, |p, st| p.tsit45_solver(st), rec, &mut stats)?.recorder()
         }
     };
@@ -855,6 +859,10 @@ fn soft_stop(t: f64, tmax: f64, stop: f64) -> Option<f64> {
     }
 }
 
+/// The shortest first step after a restart, in multiples of the step floor
+/// (see [`restart_at`]).
+const RESTART_STEP_FLOOR: f64 = 1e3;
+
 /// Newton failures allowed within one step. A step that halves its way from
 /// 1e-3 of the span down to diffsol's floor (1e-16 of it) fails about 50
 /// times; four times that leaves the floor as what normally ends a step.
@@ -946,6 +954,49 @@ where
     state
         .as_mut()
         .set_step_size(problem.h0, &problem.atol, problem.rtol, &problem.eqn, order);
+    // diffsol sizes the first step by an explicit Euler probe, which a fast
+    // mode (a floored gate capacitance) can drive to 1e-24 s, below the step
+    // floor: the run would end there. Restart at no less than
+    // [`RESTART_STEP_FLOOR`] times the floor; above it the probe's step
+    // stands (a larger one, a tenth of the step before as ngspice restarts,
+    // costs accuracy at a corner on a virtual ground: measured on
+    // `opamp_adder_tstart`).
+    floor_first_step(problem, state.as_mut().h);
+    make(problem, state).map_err(|e| solver_err(t, e))
+}
+
+/// A first step `h` raised to [`RESTART_STEP_FLOOR`] times the step floor
+/// (see [`restart_at`]).
+fn floor_first_step<M: Matrix<T = f64>>(problem: &OdeSolverProblem<CircuitOde<M>>, h: &mut f64)
+where
+    M::V: HostVec,
+{
+    let least = RESTART_STEP_FLOOR * problem.ode_options.min_timestep;
+    if h.is_finite() && h.abs() < least {
+        *h = if *h < 0.0 { -least } else { least };
+    }
+}
+
+/// `solver` as diffsol started it, its first step raised as after a restart
+/// (see [`restart_at`]).
+fn floored_start<'p, M, S>(
+    problem: &'p OdeSolverProblem<CircuitOde<M>>,
+    solver: S,
+    make: &impl Fn(&'p OdeSolverProblem<CircuitOde<M>>, S::State) -> Result<S, diffsol::DiffsolError>,
+) -> Result<S, SimError>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+    S: OdeSolverMethod<'p, CircuitOde<M>>,
+{
+    let mut h = solver.state().h;
+    floor_first_step(problem, &mut h);
+    if h == solver.state().h {
+        return Ok(solver);
+    }
+    let t = solver.state().t;
+    let mut state = solver.into_state();
+    *state.as_mut().h = h;
     make(problem, state).map_err(|e| solver_err(t, e))
 }
 
