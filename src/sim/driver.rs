@@ -791,10 +791,12 @@ where
         // (the right-sided one: the next run's end set first).
         stats.restarts += 1;
         problem.eqn.tape.set_slope_end(stops[k + 1]);
+        problem.eqn.tape.set_slope_start(solver.state().t);
         solver = restart(problem, solver, &make, reason, stats, order)?;
         k += 1;
     }
     problem.eqn.tape.set_slope_end(f64::INFINITY);
+    problem.eqn.tape.set_slope_start(f64::NEG_INFINITY);
     Ok(Driven::Done(rec))
 }
 

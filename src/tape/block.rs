@@ -760,6 +760,7 @@ mod tests {
             mode: std::cell::Cell::new(Mode::Transient),
             source_scale: std::cell::Cell::new(1.0),
             slope_end: std::cell::Cell::new(f64::INFINITY),
+            slope_start: std::cell::Cell::new(f64::NEG_INFINITY),
             gmin_step: std::cell::Cell::new(0.0),
             source_params: Vec::new(),
             switch_regs: Vec::new(),

@@ -807,6 +807,7 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
         mode: std::cell::Cell::new(Mode::Transient),
         source_scale: std::cell::Cell::new(1.0),
         slope_end: std::cell::Cell::new(f64::INFINITY),
+        slope_start: std::cell::Cell::new(f64::NEG_INFINITY),
         gmin_step: std::cell::Cell::new(0.0),
         source_params,
         switch_regs,

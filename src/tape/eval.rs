@@ -26,8 +26,19 @@ impl Tape {
                 // PULSE source: its current jumps at the corner, and seen
                 // from the left it would fail the step's error test at any
                 // step size but one too short to reach the corner).
-                let end = self.slope_end.get();
-                let t = if t >= end { end - 1e-12 * end.abs() } else { t };
+                // The run that starts at a corner needs the slope after it,
+                // though the corner as a breakpoint (TD + k PER + TR + PW)
+                // and as the waveform finds it (t - TD modulo PER) may
+                // round an ulp apart (the slope before it made every first
+                // step fail its error test).
+                let (start, end) = (self.slope_start.get(), self.slope_end.get());
+                let t = if t >= end {
+                    end - 1e-12 * end.abs()
+                } else if t <= start {
+                    (start + 1e-12 * start.abs()).min(0.5 * (start + end))
+                } else {
+                    t
+                };
                 self.sources[s as usize].eval(t, order)
             };
             value * self.source_scale.get()
@@ -139,6 +150,12 @@ impl Tape {
     /// past `t` are the left-sided ones at `t` (`f64::INFINITY`: none).
     pub fn set_slope_end(&self, t: f64) {
         self.slope_end.set(t);
+    }
+
+    /// Where the integrator's current run starts: source derivatives at and
+    /// before `t` are the right-sided ones at `t` (`f64::NEG_INFINITY`: none).
+    pub fn set_slope_start(&self, t: f64) {
+        self.slope_start.set(t);
     }
 
     pub fn scale_sources(&self, regs: &mut [f64], s: f64) {

@@ -207,6 +207,10 @@ pub struct Tape {
     /// the step that lands on a corner sees the slope before it (see
     /// [`Tape::set_slope_end`]).
     slope_end: std::cell::Cell<f64>,
+    /// Where the integrator's run started (a source corner): at and before
+    /// it a source's derivatives are the right-sided ones, whatever rounding
+    /// put the corner on either side of it (see [`Tape::set_slope_start`]).
+    slope_start: std::cell::Cell<f64>,
     /// A conductance added across every junction that has GMIN (0 but
     /// while the DC solve steps it down, see [`Tape::set_gmin_step`]).
     pub gmin_step: std::cell::Cell<f64>,
