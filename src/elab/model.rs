@@ -150,11 +150,13 @@ impl Elab {
         element: &str,
         scope: &Scope<'_, '_>,
     ) -> Option<InductorModel> {
-        let (def, _) = self.typed_model(model, element, scope, &["l"], "L")?;
-        let first_use = self
-            .passive_models_seen
-            .insert((def.span.file.0, def.span.start));
-        let params = self.read_model_params(def, INDUCTOR_PARAMS, &[], first_use, scope)?;
+        let params = self.passive_model_params(
+            model,
+            element,
+            scope,
+            (&["l"], "L"),
+            (INDUCTOR_PARAMS, &[]),
+        )?;
         let mut m = InductorModel {
             ind: 0.0,
             per_turn2: 0.0,
@@ -202,10 +204,6 @@ impl Elab {
         element: &str,
         scope: &Scope<'_, '_>,
     ) -> Option<CapacitorModel> {
-        let (def, _) = self.typed_model(model, element, scope, &["c"], "C")?;
-        let first_use = self
-            .passive_models_seen
-            .insert((def.span.file.0, def.span.start));
         let mut m = CapacitorModel {
             cap: None,
             cj: 0.0,
@@ -219,8 +217,13 @@ impl Elab {
         };
         let (mut cj, mut del, mut di, mut thick) = (None, None, None, 0.0);
         let (mut narrow, mut short) = (None, None);
-        let params =
-            self.read_model_params(def, CAPACITOR_PARAMS, CAPACITOR_IGNORED, first_use, scope)?;
+        let params = self.passive_model_params(
+            model,
+            element,
+            scope,
+            (&["c"], "C"),
+            (CAPACITOR_PARAMS, CAPACITOR_IGNORED),
+        )?;
         for (key, v) in params {
             match key.as_str() {
                 "cap" => m.cap = Some(v),
@@ -258,13 +261,14 @@ impl Elab {
         element: &str,
         scope: &Scope<'_, '_>,
     ) -> Option<ResistorModel> {
-        let (def, _) = self.typed_model(model, element, scope, &["r", "res"], "R")?;
-        let first_use = self
-            .passive_models_seen
-            .insert((def.span.file.0, def.span.start));
         let mut m = ResistorModel::default();
-        let params =
-            self.read_model_params(def, RESISTOR_PARAMS, RESISTOR_IGNORED, first_use, scope)?;
+        let params = self.passive_model_params(
+            model,
+            element,
+            scope,
+            (&["r", "res"], "R"),
+            (RESISTOR_PARAMS, RESISTOR_IGNORED),
+        )?;
         for (key, v) in params {
             match key.as_str() {
                 "rsh" => m.rsh = v,
@@ -280,6 +284,25 @@ impl Elab {
             }
         }
         Some(m)
+    }
+
+    /// The parameters a resistor's, capacitor's or inductor's model reads
+    /// (`read`: the known and the ignored ones), for the model `model` names,
+    /// which must have one of `kinds` (the type `expected` in messages); its
+    /// other parameters are reported on its first use.
+    fn passive_model_params(
+        &mut self,
+        model: &ast::Name<'_>,
+        element: &str,
+        scope: &Scope<'_, '_>,
+        (kinds, expected): (&[&str], &'static str),
+        (known, ignored): (&[&str], &[&str]),
+    ) -> Option<Vec<(String, f64)>> {
+        let (def, _) = self.typed_model(model, element, scope, kinds, expected)?;
+        let first_use = self
+            .passive_models_seen
+            .insert((def.span.file.0, def.span.start));
+        self.read_model_params(def, known, ignored, first_use, scope)
     }
 
     /// Whether model parameter `p` (its key `key`) is not one of `known`:
