@@ -298,7 +298,7 @@ impl ToDiagnostic for ElabError {
             BadOption { .. } => (codes::BAD_OPTION, "out of range", "tolerances are positive and reltol below 1 (ngspice's defaults: reltol=1e-3 abstol=1e-12 vntol=1e-6 chgtol=1e-14 trtol=7); maxord is 1 to 6".into()),
             BadTran { .. } => (codes::BAD_TRAN, "here", "write `.tran TSTEP TSTOP [TSTART [TMAX]] [uic]`".into()),
             UnknownModelParam { .. } => (codes::UNKNOWN_MODEL_PARAM, "unknown", "it is not a parameter of ngspice's level-1 model of this type".into()),
-            IgnoredModelParam { .. } => (codes::IGNORED_MODEL_PARAM, "ignored", "temperature and noise parameters (and UTRA, which ngspice's level 2 does not read either) do not affect kausal's transient run".into()),
+            IgnoredModelParam { .. } => (codes::IGNORED_MODEL_PARAM, "ignored", "noise parameters and ngspice's safe-operating limits do not change a transient; a temperature coefficient kausal does not model changes it only away from the model's TNOM; ngspice's level 2 does not read UTRA either".into()),
             IgnoredElementParam { .. } => (codes::IGNORED_ELEMENT_PARAM, "ignored", "kausal does not model this instance parameter".into()),
             IgnoredOption { .. } => (codes::IGNORED_OPTION, "ignored", "kausal honours reltol, abstol, vntol, chgtol, trtol, method, maxord, temp and tnom".into()),
             DanglingNode { .. } => (codes::DANGLING_NODE, "dangling node", "a node with one connection carries no current".into()),
