@@ -132,73 +132,26 @@ pub fn parse_number(s: &str) -> Option<f64> {
 /// compatibility mode; kausal reads it only to say so in the error. `None`
 /// where the token is not of that form.
 pub fn parse_rkm(s: &str) -> Option<f64> {
-    let b = s.as_bytes();
-    let mut at = 0;
-    let sign = match b.first() {
-        Some(b'-') => {
-            at = 1;
-            -1.0
+    let (rest, head) = recognize_float::<_, nom::error::Error<&str>>(s).ok()?;
+    let lower = rest.to_ascii_lowercase();
+    let (scale, letters) = if lower.starts_with("meg") {
+        (1e6, 3)
+    } else {
+        match lower.as_bytes().first()? {
+            b'r' => (1.0, 1),
+            b'l' => (1e-3, 1),
+            b't' | b'g' | b'k' | b'u' | b'n' | b'p' | b'm' => (suffix_scale(&lower[..1])?, 1),
+            _ => return None,
         }
-        Some(b'+') => {
-            at = 1;
-            1.0
-        }
-        _ => 1.0,
     };
-    if !b.get(at).is_some_and(|c| c.is_ascii_digit() || *c == b'.') {
+    let tail = &rest[letters..];
+    let n = tail.bytes().take_while(u8::is_ascii_digit).count();
+    if n == 0 || (letters == 1 && scale == 1.0 && n != tail.len()) {
         return None;
     }
-    let digits = |at: &mut usize| {
-        let start = *at;
-        while b.get(*at).is_some_and(u8::is_ascii_digit) {
-            *at += 1;
-        }
-        &s[start..*at]
-    };
-    let mut mantissa: f64 = digits(&mut at).parse().unwrap_or(0.0);
-    let mut exponent = 0i32;
-    if b.get(at) == Some(&b'.') {
-        at += 1;
-        let frac = digits(&mut at);
-        for d in frac.bytes() {
-            mantissa = 10.0 * mantissa + f64::from(d - b'0');
-        }
-        exponent -= frac.len() as i32;
-    }
-    if b.get(at)
-        .is_some_and(|c| matches!(c, b'e' | b'E' | b'd' | b'D'))
-    {
-        at += 1;
-        let negative = b.get(at) == Some(&b'-');
-        if matches!(b.get(at), Some(b'-' | b'+')) {
-            at += 1;
-        }
-        let e: i32 = digits(&mut at).parse().unwrap_or(0);
-        exponent += if negative { -e } else { e };
-    }
-    let rest = s[at..].to_ascii_lowercase();
-    let (scale, letters) = match rest.as_bytes().first()? {
-        _ if rest.starts_with("meg") => (6, 3),
-        _ if rest.starts_with("mil") => return None,
-        b't' => (12, 1),
-        b'g' => (9, 1),
-        b'k' => (3, 1),
-        b'u' => (-6, 1),
-        b'r' if rest.len() > 1 && rest[1..].bytes().all(|c| c.is_ascii_digit()) => (0, 1),
-        b'n' => (-9, 1),
-        b'p' => (-12, 1),
-        b'm' | b'l' => (-3, 1),
-        _ => return None,
-    };
-    at += letters;
-    let frac = digits(&mut at);
-    if frac.is_empty() {
-        return None;
-    }
-    let fraction: f64 = frac.parse().ok()?;
-    let value = sign
-        * (mantissa + fraction * 10f64.powi(-(frac.len() as i32)))
-        * 10f64.powi(exponent + scale);
+    let head: f64 = head.parse().ok()?;
+    let fraction = tail[..n].parse::<f64>().ok()? * 10f64.powi(-(n as i32));
+    let value = (head + fraction.copysign(head)) * scale;
     value.is_finite().then_some(value)
 }
 
