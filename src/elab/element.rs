@@ -276,8 +276,8 @@ impl Elab {
         let (mut tc1, mut tc2, mut tce, mut temp, mut dtemp, mut scale) =
             (None, None, None, None, 0.0, 1.0);
         let (mut length, mut width, mut turns) = (None, None, None);
+        let (r_model, c_model) = (rmodel.is_some(), cmodel.is_some());
         for p in params {
-            let (r_model, c_model) = (rmodel.is_some(), cmodel.is_some());
             if p.name.is("ic") && letter != ElementLetter::R {
                 ic = Some(self.value(&p.value, scope)?);
             } else if p.name.is("m") {
