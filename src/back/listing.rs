@@ -101,60 +101,98 @@ fn push_right(out: &mut String, mut n: usize, width: usize) {
 
 /// The numbered sorted assignments with blocks marked, then a summary.
 pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
-    // Rows are written once into one buffer (a listing of 10^6 equations
-    // would otherwise allocate several strings a row), then padded to the
-    // widest assignment row when copied out.
-    enum Row {
-        Assign {
-            end: usize,
-            chars: usize,
-            eq: crate::ir::EqId,
-        },
-        Plain {
-            end: usize,
-        },
+    let mut out = Vec::new();
+    // Writing into a vector cannot fail, and every piece is a `str`.
+    let _ = write_text(sys, s, &mut out);
+    String::from_utf8(out).unwrap_or_else(|e| String::from_utf8_lossy(e.as_bytes()).into_owned())
+}
+
+/// One row of a listing chunk: an assignment's text ends at `mid` and its
+/// note (`; eq7 branch of R1`) at `end`; the padding between them waits for
+/// the widest row of the whole listing. A plain row (a block's header or
+/// end) has no note: `mid == end`.
+struct Row {
+    mid: usize,
+    end: usize,
+    /// The assignment's width in characters; `None` for a plain row.
+    chars: Option<usize>,
+}
+
+/// Consecutive steps' rows, formatted into one buffer.
+struct Chunk {
+    buf: String,
+    rows: Vec<Row>,
+}
+
+/// Listings with at least this many rows are formatted in parallel chunks.
+const PARALLEL_ROWS: usize = 1 << 16;
+
+/// Rows a step prints with a number (a block's header and end have none).
+fn numbered_rows(step: &Step) -> usize {
+    match step {
+        Step::Assign(_) => 1,
+        Step::Block(b) => b.inner.len() + b.residuals.len(),
     }
-    let n_rows = s.assignments().count() + 2 * s.blocks().count();
-    let mut buf = String::with_capacity(n_rows * 40);
-    let mut rows: Vec<Row> = Vec::with_capacity(n_rows);
-    let mut k = 0;
-    let mut line =
-        |buf: &mut String, rows: &mut Vec<Row>, a: &Assignment, indent: &str, note: &str| {
-            k += 1;
-            let start = buf.len();
-            let name = &sys.vars[a.var].name;
-            push_right(buf, k, 5);
-            buf.push_str("  ");
-            buf.push_str(indent);
-            match a.solved {
-                Solved::Explicit(e) => {
-                    buf.push_str(name);
-                    buf.push_str(" := ");
-                    write_expr(sys, &s.exprs, e, buf);
-                }
-                Solved::Implicit(e) => {
-                    buf.push_str("0 = ");
-                    write_expr(sys, &s.exprs, e, buf);
-                    let _ = write!(buf, "  (solved numerically for {name})");
-                }
+}
+
+/// Format `steps`, whose first numbered row is `first + 1`.
+fn chunk(sys: &EquationSystem, s: &Schedule, steps: &[Step], first: usize) -> Chunk {
+    let n_rows: usize = steps.iter().map(|st| numbered_rows(st) + 2).sum();
+    let mut c = Chunk {
+        buf: String::with_capacity(n_rows * 64),
+        rows: Vec::with_capacity(n_rows),
+    };
+    let mut k = first;
+    let mut line = |c: &mut Chunk, a: &Assignment, indent: &str, note: &str| {
+        k += 1;
+        let buf = &mut c.buf;
+        let start = buf.len();
+        let name = &sys.vars[a.var].name;
+        push_right(buf, k, 5);
+        buf.push_str("  ");
+        buf.push_str(indent);
+        match a.solved {
+            Solved::Explicit(e) => {
+                buf.push_str(name);
+                buf.push_str(" := ");
+                write_expr(sys, &s.exprs, e, buf);
             }
-            buf.push_str(note);
-            let text = &buf[start..];
-            // Most listings are ASCII: count characters only when they are not.
-            let chars = if text.is_ascii() {
-                text.len()
-            } else {
-                text.chars().count()
-            };
-            rows.push(Row::Assign {
-                end: buf.len(),
-                chars,
-                eq: a.eq,
-            });
+            Solved::Implicit(e) => {
+                buf.push_str("0 = ");
+                write_expr(sys, &s.exprs, e, buf);
+                let _ = write!(buf, "  (solved numerically for {name})");
+            }
+        }
+        buf.push_str(note);
+        let text = &buf[start..];
+        // Most listings are ASCII: count characters only when they are not.
+        let chars = if text.is_ascii() {
+            text.len()
+        } else {
+            text.chars().count()
         };
-    for step in &s.steps {
+        let mid = buf.len();
+        buf.push_str("    ; eq");
+        push_right(buf, a.eq.0 as usize, 0);
+        buf.push(' ');
+        let _ = sys.eqs[a.eq].origin.write_description(buf);
+        c.rows.push(Row {
+            mid,
+            end: buf.len(),
+            chars: Some(chars),
+        });
+    };
+    let plain = |c: &mut Chunk| {
+        let end = c.buf.len();
+        c.rows.push(Row {
+            mid: end,
+            end,
+            chars: None,
+        });
+    };
+    for step in steps {
         match step {
-            Step::Assign(a) => line(&mut buf, &mut rows, a, "", ""),
+            Step::Assign(a) => line(&mut c, a, "", ""),
             Step::Block(b) => {
                 let tears: Vec<&str> = b.tears.iter().map(|&v| sys.vars[v].name.as_str()).collect();
                 let whole = if b.solved_whole() {
@@ -163,58 +201,104 @@ pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
                     String::new()
                 };
                 let _ = write!(
-                    buf,
+                    c.buf,
                     "       block {}: {}; tearing: {}{whole}",
                     b.index,
                     block_header(b),
                     shortened(&tears, ELEMENTS_SHOWN)
                 );
-                rows.push(Row::Plain { end: buf.len() });
+                plain(&mut c);
                 for a in &b.inner {
-                    line(&mut buf, &mut rows, a, "  ", "");
+                    line(&mut c, a, "  ", "");
                 }
                 for a in &b.residuals {
-                    line(&mut buf, &mut rows, a, "  ", "  (residual)");
+                    line(&mut c, a, "  ", "  (residual)");
                 }
-                let _ = write!(buf, "       end of block {}", b.index);
-                rows.push(Row::Plain { end: buf.len() });
+                let _ = write!(c.buf, "       end of block {}", b.index);
+                plain(&mut c);
             }
         }
     }
-    let width = rows
-        .iter()
-        .filter_map(|r| match r {
-            Row::Assign { chars, .. } => Some(*chars),
-            Row::Plain { .. } => None,
+    c
+}
+
+/// [`text`] written to `w` as it is formatted: a listing of 10^6 equations
+/// is never held twice. Large listings are formatted on up to four threads,
+/// in chunks of consecutive steps.
+pub fn write_text<W: std::io::Write + ?Sized>(
+    sys: &EquationSystem,
+    s: &Schedule,
+    w: &mut W,
+) -> std::io::Result<()> {
+    let rows: usize = s.steps.iter().map(numbered_rows).sum();
+    let threads = if rows < PARALLEL_ROWS {
+        1
+    } else {
+        std::thread::available_parallelism().map_or(1, |n| n.get().min(4))
+    };
+    write_chunked(sys, s, threads, rows, w)
+}
+
+/// [`write_text`] in `threads` chunks; `rows` is the number of numbered rows.
+fn write_chunked<W: std::io::Write + ?Sized>(
+    sys: &EquationSystem,
+    s: &Schedule,
+    threads: usize,
+    rows: usize,
+    w: &mut W,
+) -> std::io::Result<()> {
+    // Cut the steps where each chunk has about the same number of rows.
+    let mut bounds = vec![(0, 0)];
+    let mut seen = 0;
+    for (i, st) in s.steps.iter().enumerate() {
+        seen += numbered_rows(st);
+        if bounds.len() < threads && seen * threads >= rows * bounds.len() {
+            bounds.push((i + 1, seen));
+        }
+    }
+    let spans: Vec<(usize, usize, usize)> = (0..bounds.len())
+        .map(|j| {
+            let end = bounds.get(j + 1).map_or(s.steps.len(), |b| b.0);
+            (bounds[j].0, end, bounds[j].1)
         })
+        .collect();
+    let chunks: Vec<Chunk> = if spans.len() == 1 {
+        vec![chunk(sys, s, &s.steps, 0)]
+    } else {
+        std::thread::scope(|scope| {
+            let handles: Vec<_> = spans
+                .iter()
+                .map(|&(a, b, first)| scope.spawn(move || chunk(sys, s, &s.steps[a..b], first)))
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+                .collect()
+        })
+    };
+    let width = (chunks.iter().flat_map(|c| &c.rows))
+        .filter_map(|r| r.chars)
         .max()
         .unwrap_or(0)
         .min(72);
-    let mut out = String::with_capacity(buf.len() + rows.len() * 40);
-    let _ = writeln!(out, "* {}", sys.title);
-    let _ = writeln!(out, "sorted assignments:");
-    let mut start = 0;
-    for row in &rows {
-        match *row {
-            Row::Plain { end } => {
-                out.push_str(&buf[start..end]);
-                out.push('\n');
-                start = end;
-            }
-            Row::Assign { end, chars, eq } => {
-                out.push_str(&buf[start..end]);
+    writeln!(w, "* {}", sys.title)?;
+    writeln!(w, "sorted assignments:")?;
+    for c in &chunks {
+        let mut start = 0;
+        for row in &c.rows {
+            w.write_all(&c.buf.as_bytes()[start..row.mid])?;
+            if let Some(chars) = row.chars {
                 // `width` is at most 72, the length of `SPACES`.
-                out.push_str(&SPACES[..width.saturating_sub(chars).min(SPACES.len())]);
-                out.push_str("    ; eq");
-                push_right(&mut out, eq.0 as usize, 0);
-                out.push(' ');
-                let _ = sys.eqs[eq].origin.write_description(&mut out);
-                out.push('\n');
-                start = end;
+                let pad = width.saturating_sub(chars).min(SPACES.len());
+                w.write_all(&SPACES.as_bytes()[..pad])?;
+                w.write_all(&c.buf.as_bytes()[row.mid..row.end])?;
             }
+            w.write_all(b"\n")?;
+            start = row.end;
         }
     }
     let sm = summary(sys, s);
+    let mut out = String::new();
     let _ = write!(
         out,
         "summary: {} equations, {} state{}, {} algebraic block{}",
@@ -244,7 +328,7 @@ pub fn text(sys: &EquationSystem, s: &Schedule) -> String {
         let _ = write!(out, ", {} implicit", sm.implicit);
     }
     out.push('\n');
-    out
+    w.write_all(out.as_bytes())
 }
 
 /// The colouring trace: every rule firing in order, stalls and tears.
@@ -542,4 +626,41 @@ pub fn index_reduction_json(
         })).collect::<Vec<_>>(),
         "states": sys.states().map(|v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Chunks formatted apart (on threads) give the listing one chunk gives:
+    /// row numbers continue across chunks and one width pads them all.
+    #[test]
+    fn chunked_listing_equals_the_whole() {
+        // A resistive loop (a block with tears) between RC sections whose
+        // rows differ in width.
+        let mut net = String::from("chunks\nV1 n0 0 PULSE(0 1 0 1u 1u 1m 2m)\n");
+        for i in 1..=40 {
+            net.push_str(&format!("R{i} n{} n{i} 1k\nC{i} n{i} 0 1n\n", i - 1));
+        }
+        net.push_str("R100 n40 m 1k\nR101 m 0 {1k*2}\nR102 m n40 3k\n.tran 1u 1m\n.end\n");
+        let Ok(sorted) = crate::pipeline::sort_text("chunks.cir", net, &Default::default()) else {
+            panic!("the circuit does not sort");
+        };
+        let (sys, s) = (sorted.system(), &sorted.schedule);
+        let rows: usize = s.steps.iter().map(numbered_rows).sum();
+        let whole = text(sys, s);
+        for threads in [2, 3, 7] {
+            let mut out = Vec::new();
+            write_chunked(sys, s, threads, rows, &mut out).expect("writes");
+            assert_eq!(
+                String::from_utf8(out).expect("text"),
+                whole,
+                "{threads} chunks"
+            );
+        }
+        assert!(
+            whole.contains("end of block 1") && whole.contains("   41  "),
+            "{whole}"
+        );
+    }
 }

@@ -54,12 +54,24 @@ pub fn print_diags(sources: &SourceMap, diags: &[Diagnostic]) {
 
 /// Write command output to a file (atomically) or standard output.
 pub fn emit(out: Option<&PathBuf>, text: &str) -> Result<(), Error> {
+    emit_with(out, |w| w.write_all(text.as_bytes()))
+}
+
+/// [`emit`] of output that `write` produces piece by piece (a listing of
+/// 10^6 equations is not gathered into one string first).
+pub fn emit_with(
+    out: Option<&PathBuf>,
+    write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+) -> Result<(), Error> {
     match out {
-        Some(path) => kausal::io::write_atomic(path, text.as_bytes()).map_err(Error::write(path)),
+        Some(path) => {
+            let mut f = AtomicFile::create(path).map_err(Error::write(path))?;
+            write(&mut f).map_err(Error::write(path))?;
+            f.commit().map_err(Error::write(path))
+        }
         None => {
-            let mut stdout = std::io::stdout().lock();
-            stdout
-                .write_all(text.as_bytes())
+            let mut stdout = std::io::BufWriter::with_capacity(1 << 16, std::io::stdout().lock());
+            write(&mut stdout)
                 .and_then(|_| stdout.flush())
                 .or_else(|e| {
                     // A closed pipe (`| head`) is not an error.

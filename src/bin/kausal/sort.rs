@@ -1,6 +1,7 @@
 //! `kausal sort`: the equations sorted into causal assignments, algebraic
 //! loops torn, printed as a listing, JSON or a Graphviz graph.
 
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -12,7 +13,7 @@ use kausal::pipeline::{self, Sorted};
 
 use crate::args::BuildArgs;
 use crate::error::Error;
-use crate::output::{emit, json, print_diags};
+use crate::output::{emit, emit_with, json, print_diags};
 
 #[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
 enum SortFormat {
@@ -62,38 +63,35 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
     print_diags(&el.sources, &el.warnings);
     let faults: Vec<Diagnostic> = sorted.faults.iter().map(|f| f.to_diagnostic()).collect();
     print_diags(&el.sources, &faults);
-    let text = match args.format {
-        SortFormat::Text => text(&sorted, &args),
-        SortFormat::Json => sorted_json(&sorted)?,
-        SortFormat::Dot => listing::dot(sorted.system(), &sorted.causal),
-    };
-    emit(args.out.as_ref(), &text)?;
+    match args.format {
+        SortFormat::Text => emit_with(args.out.as_ref(), |w| text(&sorted, &args, w))?,
+        SortFormat::Json => emit(args.out.as_ref(), &sorted_json(&sorted)?)?,
+        SortFormat::Dot => emit(
+            args.out.as_ref(),
+            &listing::dot(sorted.system(), &sorted.causal),
+        )?,
+    }
     // The process ends here: freeing a 10^6-equation IR piece by piece
     // would cost a tenth of the run.
     std::mem::forget(sorted);
-    std::mem::forget(text);
     Ok(ExitCode::SUCCESS)
 }
 
 /// The text listing: the index reduction (if any), the colouring trace and
 /// the incidence matrix when asked, around the sorted assignments.
-fn text(sorted: &Sorted, args: &Args) -> String {
+fn text(sorted: &Sorted, args: &Args, w: &mut dyn Write) -> std::io::Result<()> {
     let sys = sorted.system();
-    if sorted.reduction.is_none() && !args.trace && !args.incidence {
-        return listing::text(sys, &sorted.schedule);
-    }
-    let mut t = String::new();
     if let Some(red) = &sorted.reduction {
-        t.push_str(&listing::index_reduction(&sorted.built.system, red));
+        w.write_all(listing::index_reduction(&sorted.built.system, red).as_bytes())?;
     }
     if args.trace {
-        t.push_str(&listing::trace(sys, &sorted.causal));
+        w.write_all(listing::trace(sys, &sorted.causal).as_bytes())?;
     }
-    t.push_str(&listing::text(sys, &sorted.schedule));
+    listing::write_text(sys, &sorted.schedule, w)?;
     if args.incidence {
-        t.push_str(&listing::incidence(sys, &sorted.causal, &sorted.schedule));
+        w.write_all(listing::incidence(sys, &sorted.causal, &sorted.schedule).as_bytes())?;
     }
-    t
+    Ok(())
 }
 
 /// The sorted listing as JSON, with the index reduction (if any).
