@@ -262,6 +262,7 @@ def process(repo, path, corpus, kausal, out, dry=False):
     except OSError:
         text = ""
     rec["tran_card"] = bool(TRAN_CARD.search(text))
+    rec["elements"] = sorted(elements_of(file))
 
     # 1. ngspice, as its authors ran it (control section and all).
     with tempfile.TemporaryDirectory(prefix="corpus-") as tmp:
@@ -367,6 +368,55 @@ def process(repo, path, corpus, kausal, out, dry=False):
             v["ngspice_said"] = [l.strip() for l in m.group(2).splitlines() if l.strip()][:20]
     rec["validate"] = v
     return rec
+
+
+ELEMENT_KINDS = {
+    "A": "XSPICE code model", "B": "behavioural source", "C": "capacitor", "D": "diode",
+    "E": "VCVS", "F": "CCCS", "G": "VCCS", "H": "CCVS", "I": "current source", "J": "JFET",
+    "K": "coupling", "L": "inductor", "M": "MOSFET", "N": "OSDI/numerical device",
+    "O": "lossy line", "P": "coupled line", "Q": "BJT", "R": "resistor", "S": "switch",
+    "T": "transmission line", "U": "RC line", "V": "voltage source", "W": "current switch",
+    "X": "subcircuit instance", "Y": "TXL line", "Z": "MESFET",
+}
+INCLUDE = re.compile(r"^\.(?:include|inc|lib)\s+(?:\"([^\"]+)\"|'([^']+)'|(\S+))", re.I)
+
+
+def elements_of(file, top=True, seen=None):
+    """The element letters a netlist's lines use (upper case), its `.include` and `.lib` files
+    followed (a `.lib` file whole, whatever section it names); `.control` sections, comments,
+    continuations and cards are skipped, and so is the top file's title line."""
+    seen = set() if seen is None else seen
+    real = os.path.realpath(file)
+    if real in seen or len(seen) > 64 or not os.path.isfile(real):
+        return set()
+    seen.add(real)
+    try:
+        with open(real, "rb") as f:
+            text = f.read(8 << 20).decode("utf-8", "replace")
+    except OSError:
+        return set()
+    found, control = set(), False
+    for n, line in enumerate(text.splitlines()):
+        line = line.strip()
+        if (top and n == 0) or not line:
+            continue
+        low = line.lower()
+        if low.startswith(".control"):
+            control = True
+        elif low.startswith(".endc"):
+            control = False
+        elif control:
+            continue
+        elif line[0] == ".":
+            m = INCLUDE.match(line)
+            # `.lib FILE SECTION` reads a file; `.lib SECTION` alone opens a section of this one.
+            if m and (not low.startswith(".lib") or len(line.split()) >= 3):
+                inc = next(g for g in m.groups() if g)
+                path = inc if os.path.isabs(inc) else os.path.join(os.path.dirname(real), inc)
+                found |= elements_of(path, False, seen)
+        elif line[0].isalpha() and line[0].upper() in ELEMENT_KINDS:
+            found.add(line[0].upper())
+    return found
 
 
 # ---------------------------------------------------------------- summary
@@ -654,6 +704,32 @@ def sources(corpus):
         return ""
 
 
+def by_element(scope, a):
+    """The in-scope netlists that use each element kind, and how many of them kausal accepts and
+    passes (a netlist counts once under every kind it uses)."""
+    rows = {}
+    for r in scope:
+        for e in r.get("elements", []):
+            rows.setdefault(e, []).append(r)
+    if not rows:
+        return
+    a("### By element")
+    a("")
+    a("In-scope netlists by the element kinds their lines use (includes and libraries followed, "
+      "`.control` sections skipped; a netlist counts under every kind it uses), and the share of "
+      "them kausal accepts and passes:")
+    a("")
+    a("| element | netlists | accepted | passed |")
+    a("|---|---:|---:|---:|")
+    share = lambda n, d: "%d (%.0f %%)" % (n, 100.0 * n / d)
+    for e, rs in sorted(rows.items(), key=lambda kv: (-len(kv[1]), kv[0])):
+        acc = [r for r in rs if r["check"]["verdict"] == "accepted"]
+        ok = [r for r in acc if "validate" in r and verdict(r) == "pass"]
+        a("| %s (%s) | %d | %s | %s |" % (e, ELEMENT_KINDS[e], len(rs), share(len(acc), len(rs)),
+                                         share(len(ok), len(rs))))
+    a("")
+
+
 def summary(recs, explanations, manifest_count, command, corpus="", info=None):
     info = info or {}
     L = []
@@ -706,6 +782,8 @@ def summary(recs, explanations, manifest_count, command, corpus="", info=None):
     a("| nothing to compare (no signal: an empty circuit, a `.print` line for another tool) | %d |" % len(empty))
     a("| no verdict (validate stopped with an error or timed out) | %d |" % len(errored))
     a("")
+
+    by_element(scope, a)
 
     # ngspice
     groups = {}
@@ -958,6 +1036,10 @@ def main():
     LOGS = os.path.join(args.out, "logs")
     keys = {key_of(r, p) for r, p in entries}
     recs = [r for r in load(args.out) if r["key"] in keys]
+    for r in recs:
+        # Records written before the element scan: read the netlist now.
+        if "elements" not in r and r.get("fetched"):
+            r["elements"] = sorted(elements_of(os.path.join(args.corpus, r["repo"].replace("/", "+"), r["path"])))
     tsv(recs, os.path.join(args.out, "results.tsv"))
     expl = old_explanations(args.write) if args.write else {}
     try:
