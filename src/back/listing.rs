@@ -643,10 +643,18 @@ mod tests {
             net.push_str(&format!("R{i} n{} n{i} 1k\nC{i} n{i} 0 1n\n", i - 1));
         }
         net.push_str("R100 n40 m 1k\nR101 m 0 {1k*2}\nR102 m n40 3k\n.tran 1u 1m\n.end\n");
-        let Ok(sorted) = crate::pipeline::sort_text("chunks.cir", net, &Default::default()) else {
+        let path = std::path::Path::new("chunks.cir");
+        let (sources, _) = crate::front::load("chunks.cir", path, net, &crate::io::FsLoader);
+        let (ast, errors) = crate::front::parse(&sources);
+        assert!(errors.is_empty());
+        let (circuit, errors) = crate::elab::elaborate(&ast);
+        assert!(errors.is_empty());
+        let sys = crate::build::build(&circuit, Default::default()).system;
+        let Ok(causal) = crate::analysis::causalize(&sys, Default::default()) else {
             panic!("the circuit does not sort");
         };
-        let (sys, s) = (sorted.system(), &sorted.schedule);
+        let s = &crate::analysis::schedule(&sys, &causal);
+        let sys = &sys;
         let rows: usize = s.steps.iter().map(numbered_rows).sum();
         let whole = text(sys, s);
         for threads in [2, 3, 7] {

@@ -90,7 +90,7 @@ impl Elab {
             return;
         };
         let id = self.circuit.elements.push(Element {
-            name: name.clone(),
+            name,
             kind,
             nodes,
             span: el.span,
