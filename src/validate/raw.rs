@@ -12,16 +12,21 @@ pub struct RawData {
 }
 
 /// Parse a raw file; the error says what is wrong with it. A file of
-/// several plots (an `.op` before the `.tran`) gives its transient one.
+/// several plots (an `.op` or an `.ac` before the `.tran`) gives its
+/// transient one; complex plots (AC analyses) are skipped.
 pub fn parse(bytes: &[u8]) -> Result<RawData, String> {
     let mut pos = 0;
     let mut first = None;
+    let mut complex = false;
     while pos < bytes.len() {
         let (plot, transient, end) = parse_plot(bytes, pos)?;
-        if transient {
-            return Ok(plot);
+        match plot {
+            Some(plot) if transient => return Ok(plot),
+            Some(plot) => {
+                first.get_or_insert(plot);
+            }
+            None => complex = true,
         }
-        first.get_or_insert(plot);
         if end <= pos {
             break;
         }
@@ -31,12 +36,19 @@ pub fn parse(bytes: &[u8]) -> Result<RawData, String> {
             pos += 1;
         }
     }
-    first.ok_or_else(|| "no `Values:` or `Binary:` section".into())
+    first.ok_or_else(|| {
+        if complex {
+            "complex data only (an AC analysis, no transient one)".into()
+        } else {
+            "no `Values:` or `Binary:` section".into()
+        }
+    })
 }
 
-/// The plot whose header starts at `pos`: its data, whether it is a
-/// transient analysis, and where it ends.
-fn parse_plot(bytes: &[u8], mut pos: usize) -> Result<(RawData, bool, usize), String> {
+/// The plot whose header starts at `pos`: its data (`None` for complex
+/// data, which is skipped), whether it is a transient analysis, and where
+/// it ends.
+fn parse_plot(bytes: &[u8], mut pos: usize) -> Result<(Option<RawData>, bool, usize), String> {
     let mut header = Vec::new();
     let mut binary = None;
     // Header lines up to `Values:` or `Binary:`.
@@ -68,11 +80,7 @@ fn parse_plot(bytes: &[u8], mut pos: usize) -> Result<(RawData, bool, usize), St
     let title = field("Title:").unwrap_or_default();
     let transient =
         field("Plotname:").is_some_and(|p| p.to_ascii_lowercase().contains("transient"));
-    if let Some(flags) = field("Flags:")
-        && flags.contains("complex")
-    {
-        return Err("complex data (not a transient analysis)".into());
-    }
+    let complex = field("Flags:").is_some_and(|f| f.contains("complex"));
     let n_vars: usize = field("No. Variables:")
         .ok_or("missing `No. Variables:`")?
         .parse()
@@ -97,6 +105,27 @@ fn parse_plot(bytes: &[u8], mut pos: usize) -> Result<(RawData, bool, usize), St
             "expected {n_vars} variables, found {}",
             names.len()
         ));
+    }
+    if complex {
+        // Each value is a pair: 16 bytes, or one `re,im` token.
+        if binary {
+            let need = n_points * n_vars * 16;
+            if bytes.len() - pos < need {
+                return Err(format!(
+                    "complex data is truncated: {} of {need} bytes",
+                    bytes.len() - pos
+                ));
+            }
+            pos += need;
+        } else {
+            let mut nums = Tokens { bytes, pos };
+            for p in 0..n_points * (n_vars + 1) {
+                nums.next()
+                    .ok_or(format!("complex point {} is short", p / (n_vars + 1)))?;
+            }
+            pos = nums.pos;
+        }
+        return Ok((None, false, pos));
     }
     let mut cols = vec![Vec::with_capacity(n_points); n_vars];
     if binary {
@@ -144,7 +173,7 @@ fn parse_plot(bytes: &[u8], mut pos: usize) -> Result<(RawData, bool, usize), St
         time,
         data: cols,
     };
-    Ok((plot, transient, pos))
+    Ok((Some(plot), transient, pos))
 }
 
 /// Whitespace-separated tokens of `bytes` from `pos`, which follows them.
@@ -201,5 +230,20 @@ mod tests {
                 .unwrap_err()
                 .contains("truncated")
         );
+        // An AC analysis (complex: a pair per value) before the transient
+        // is skipped, binary or ASCII; alone, it is no transient.
+        let ac = "Title: t\nPlotname: AC Analysis\nFlags: complex\nNo. Variables: 2\nNo. Points: 2\nVariables:\n\t0\tfrequency\tfrequency\n\t1\tv(a)\tvoltage\nBinary:\n";
+        let mut both = ac.as_bytes().to_vec();
+        for v in [1.0f64, 0.0, 0.5, -0.5, 10.0, 0.0, 0.25, -0.75] {
+            both.extend_from_slice(&v.to_le_bytes());
+        }
+        let ac_only = both.clone();
+        both.extend_from_slice(&bin);
+        assert_eq!(parse(&both).unwrap(), a);
+        let mut both = ac.replace("Binary:", "Values:").into_bytes();
+        both.extend_from_slice(b" 0\t1.0,0.0\n\t5e-1,-5e-1\n 1\t1e1,0\n\t0.25,-0.75\n");
+        both.extend_from_slice(ascii.as_bytes());
+        assert_eq!(parse(&both).unwrap(), a);
+        assert!(parse(&ac_only).unwrap_err().contains("complex"));
     }
 }
