@@ -285,6 +285,10 @@ pub struct Model<'a> {
     pub name: Name<'a>,
     pub kind: Name<'a>,
     pub params: Vec<Assign<'a>>,
+    /// PSpice's `AKO:ORIG` ("a kind of"): ORIG's parameters, then this
+    /// card's (a later value wins). The parser merges them into `params`
+    /// and clears this once ORIG is found.
+    pub ako: Option<Name<'a>>,
     pub span: Span,
 }
 

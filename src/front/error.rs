@@ -49,6 +49,16 @@ pub enum ParseError {
     UnclosedControl { span: Span },
     #[error("unknown directive `{name}`")]
     UnknownDirective { span: Span, name: String },
+    #[error("model `{name}` is not defined")]
+    AkoUndefined { span: Span, name: String },
+    #[error("model `{orig}` has type `{orig_kind}`, but `{name}` needs a `{kind}` model")]
+    AkoType {
+        span: Span,
+        name: String,
+        kind: String,
+        orig: String,
+        orig_kind: String,
+    },
     #[error("`{name}` is not supported by kausal")]
     UnsupportedDirective { span: Span, name: String },
     #[error("source function `{name}` is not supported by kausal")]
@@ -132,6 +142,8 @@ impl ParseError {
             | StrayEnds { span }
             | UnclosedControl { span }
             | UnknownDirective { span, .. }
+            | AkoUndefined { span, .. }
+            | AkoType { span, .. }
             | UnsupportedDirective { span, .. }
             | UnsupportedSource { span, .. }
             | BehavioralSource { span, .. }
@@ -188,6 +200,8 @@ impl ParseError {
             UnclosedSubckt { .. } => (codes::UNCLOSED_SUBCKT, "opened here", "end the subcircuit with `.ends`".into()),
             StrayEnds { .. } => (codes::STRAY_ENDS, "no open subcircuit", "remove it, or add the `.subckt` line it closes".into()),
             UnclosedControl { .. } => (codes::UNCLOSED_CONTROL, "opened here", "end the block with `.endc`".into()),
+            AkoUndefined { .. } => (codes::UNDEFINED_MODEL, "`AKO:` names it", "define it with `.model` in the same subcircuit or at the top level (as ngspice's PSpice compatibility mode looks it up)".into()),
+            AkoType { orig_kind, .. } => (codes::WRONG_MODEL_TYPE, "`AKO:` names it", format!("a model made from another keeps its type: write `{orig_kind}`, or name a model of the type you need")),
             UnknownDirective { .. } => (codes::UNKNOWN_DIRECTIVE, "unknown directive", "check the spelling against the ngspice manual".into()),
             UnsupportedDirective { .. } => (codes::UNSUPPORTED_DIRECTIVE, "not supported", "remove it. kausal reads these directives: param, subckt, model, include, lib, global, func, ic, tran, options, print, save, probe".into()),
             UnsupportedSource { .. } => (codes::UNSUPPORTED_SOURCE, "not supported", "use DC, PULSE, SIN, PWL or EXP".into()),

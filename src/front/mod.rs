@@ -4,6 +4,7 @@
 //! It knows nothing of circuits' meaning: parameter values, subcircuit
 //! expansion and models are the business of [`crate::elab`].
 
+mod ako;
 pub mod ast;
 mod error;
 pub mod expr;
@@ -21,6 +22,7 @@ use crate::diag::{FileId, SourceMap};
 /// AST holds every statement that parsed.
 pub fn parse(sources: &SourceMap) -> (ast::Netlist<'_>, Vec<ParseError>) {
     let mut p = parse::Parser::new(sources);
-    let netlist = p.parse_root(FileId(0));
+    let mut netlist = p.parse_root(FileId(0));
+    ako::resolve(&mut netlist.stmts, &mut p.errors);
     (netlist, p.errors)
 }

@@ -1317,3 +1317,28 @@ fn a_compressed_jacobian_equals_its_columns() {
     let nonzero = full.iter().filter(|v| **v != 0.0).count();
     assert!(nonzero <= pattern.len(), "{nonzero} > {}", pattern.len());
 }
+
+/// PSpice's `AKO:` model is its original's parameters, then its own (a
+/// later value wins): `ako_models.cir` simulates exactly as the circuit
+/// with the merged card written out, and not as the original model.
+#[test]
+fn an_ako_model_is_its_original_with_its_own_parameters_after() {
+    let text = std::fs::read_to_string(root().join("netlists/ako_models.cir")).unwrap();
+    let card = ".model QHI AKO:QBASE NPN(BF=300 IS=2e-15)";
+    let base = "IS=1e-15 BF=100 VAF=50 RB=50";
+    assert!(text.contains(card) && text.contains(base));
+    let merged = text.replace(card, &format!(".model QHI NPN({base} BF=300 IS=2e-15)"));
+    let unmodified = text.replace(card, &format!(".model QHI NPN({base})"));
+    let wave = |t: &str| {
+        let w = sim::simulate(&sort_text(t), &sim::Options::default())
+            .unwrap_or_else(|e| panic!("{e}"));
+        let c2 = w.names.iter().position(|n| n == "v(c2)").unwrap();
+        w.data[c2].clone()
+    };
+    let ako = wave(&text);
+    assert_eq!(ako, wave(&merged));
+    // BF 300 and IS 2e-15 draw more collector current: v(c2) sits lower.
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let (lower, plain) = (mean(&ako), mean(&wave(&unmodified)));
+    assert!(lower < plain - 0.2, "v(c2): {lower} against {plain}");
+}

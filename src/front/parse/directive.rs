@@ -71,13 +71,44 @@ impl<'a> Parser<'a> {
 
     /// `.model NAME TYPE(PARAM=VALUE ...)`; the parentheses are optional.
     fn model(&mut self, c: &mut Cursor<'_, 'a>, span: Span) -> Option<Stmt<'a>> {
-        let (Some(name), Some(kind)) = (c.word(), c.word()) else {
-            self.errors.push(ParseError::Expected {
+        let missing = |p: &mut Self| {
+            p.errors.push(ParseError::Expected {
                 span,
                 expected: "`.model NAME TYPE(PARAM=VALUE ...)`".into(),
             });
+        };
+        let (Some(name), Some(mut kind)) = (c.word(), c.word()) else {
+            missing(self);
             return None;
         };
+        // `AKO:ORIG TYPE(...)` (or `AKO: ORIG`): the model ORIG is named first.
+        let mut ako = None;
+        if kind
+            .text
+            .get(..4)
+            .is_some_and(|p| p.eq_ignore_ascii_case("ako:"))
+        {
+            let orig = if kind.text.len() > 4 {
+                Name {
+                    text: &kind.text[4..],
+                    span: Span {
+                        start: kind.span.start + 4,
+                        ..kind.span
+                    },
+                }
+            } else if let Some(w) = c.word() {
+                w
+            } else {
+                missing(self);
+                return None;
+            };
+            let Some(k) = c.word() else {
+                missing(self);
+                return None;
+            };
+            ako = Some(orig);
+            kind = k;
+        }
         let paren = c.eat(TokKind::LParen);
         let mut closed = false;
         let mut params = Vec::new();
@@ -123,6 +154,7 @@ impl<'a> Parser<'a> {
             name,
             kind,
             params,
+            ako,
             span,
         }))
     }
