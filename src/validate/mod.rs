@@ -358,6 +358,13 @@ pub fn exec_within(
     let rawp = dir.path().join("out.raw");
     std::fs::write(&net, prepare_netlist(path, &text, extra))
         .map_err(|e| ValidateError::Io(e.to_string()))?;
+    // ngspice reads `.spiceinit` from its working directory: the netlist's
+    // own (`set ngbehavior=ps`, PSpice's syntax) goes with it.
+    let init = path.parent().map(|d| d.join(".spiceinit"));
+    if let Some(init) = init.filter(|p| p.is_file()) {
+        std::fs::copy(&init, dir.path().join(".spiceinit"))
+            .map_err(|e| ValidateError::Io(format!("{}: {e}", init.display())))?;
+    }
     let program = program.to_string();
     let started = std::time::Instant::now();
     let (output, peak) = crate::io::run_child_measured(

@@ -25,10 +25,8 @@ fn require_ngspice() {
 
 /// Circuits ngspice cannot simulate: seed D's inductor cutset is exactly
 /// the structure ngspice's MNA cannot start (a singular matrix); an `AKO:`
-/// model is read by ngspice only in its PSpice compatibility mode (validate
-/// runs it in its default mode), so `ako_models` is checked against the
-/// same circuit with the merged card written out (`tests/it/simulate.rs`),
-/// which passes against ngspice.
+/// model is read by ngspice only in its PSpice compatibility mode, which
+/// `an_ako_model_agrees_with_ngspice_in_its_pspice_mode` sets.
 const NGSPICE_CANNOT: &[&str] = &["seed_d_singular", "ako_models"];
 
 /// A normalized error as an even power of ten (stable across machines);
@@ -292,26 +290,28 @@ fn the_suite_agrees_with_ngspice() {
 }
 
 /// `ako_models.cir` against ngspice, which reads `AKO:` only in its PSpice
-/// compatibility mode: ngspice runs the circuit with the merged card
-/// written out, kausal the netlist as it is.
+/// compatibility mode: with `set ngbehavior=psa` in a `.spiceinit` beside
+/// the netlist (which validate's ngspice reads, as ngspice run in that
+/// directory does) it agrees; without, ngspice refuses the model.
 #[test]
-fn an_ako_model_agrees_with_ngspice_on_its_merged_card() {
+fn an_ako_model_agrees_with_ngspice_in_its_pspice_mode() {
     require_ngspice();
-    let path = root().join("netlists/ako_models.cir");
-    let text = std::fs::read_to_string(&path).unwrap();
-    let merged = text.replace(
-        ".model QHI AKO:QBASE NPN(BF=300 IS=2e-15)",
-        ".model QHI NPN(IS=1e-15 BF=100 VAF=50 RB=50 BF=300 IS=2e-15)",
-    );
-    assert_ne!(merged, text);
     let dir = tempfile::tempdir().unwrap();
-    let written = dir.path().join("ako_merged.cir");
-    std::fs::write(&written, merged).unwrap();
+    let path = dir.path().join("ako_models.cir");
+    std::fs::copy(root().join("netlists/ako_models.cir"), &path).unwrap();
     let sorted = pipeline::sort(&path, &FsLoader, &SortOptions::default())
         .ok()
         .unwrap();
-    let report = validate::validate(&written, &sorted, &validate::Options::default())
-        .unwrap_or_else(|e| panic!("{e}"));
+    let opts = validate::Options::default();
+    match validate::validate(&path, &sorted, &opts) {
+        Err(e) => assert!(e.to_string().contains("ngspice"), "{e}"),
+        Ok(r) => panic!(
+            "ngspice read AKO in its default mode:\n{}",
+            validate::table(&r)
+        ),
+    }
+    std::fs::write(dir.path().join(".spiceinit"), "set ngbehavior=psa\n").unwrap();
+    let report = validate::validate(&path, &sorted, &opts).unwrap_or_else(|e| panic!("{e}"));
     assert!(report.pass, "{}", validate::table(&report));
 }
 
