@@ -289,6 +289,22 @@ impl<'a> Parser<'a> {
             }
             c.next();
             c.next();
+            // A BSIM card's `version=4.7.0` names a release, not a number:
+            // kept as written (no model kausal has reads it).
+            if n.is_word("version")
+                && let Some(v) = c.peek().copied()
+                && v.text.contains('.')
+                && v.text
+                    .split('.')
+                    .all(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
+            {
+                c.next();
+                out.push(Assign {
+                    name: name_of(n),
+                    value: Value::Ident(name_of(&v)),
+                });
+                continue;
+            }
             match self.value_tok(c, n.text, "value") {
                 Some(value) => out.push(Assign {
                     name: name_of(n),
