@@ -109,14 +109,7 @@ fn parse_plot(bytes: &[u8], mut pos: usize) -> Result<(Option<RawData>, bool, us
     if complex {
         // Each value is a pair: 16 bytes, or one `re,im` token.
         if binary {
-            let need = n_points * n_vars * 16;
-            if bytes.len() - pos < need {
-                return Err(format!(
-                    "complex data is truncated: {} of {need} bytes",
-                    bytes.len() - pos
-                ));
-            }
-            pos += need;
+            pos = binary_end(bytes, pos, n_points, n_vars, 16)?;
         } else {
             let mut nums = Tokens { bytes, pos };
             for p in 0..n_points * (n_vars + 1) {
@@ -127,15 +120,15 @@ fn parse_plot(bytes: &[u8], mut pos: usize) -> Result<(Option<RawData>, bool, us
         }
         return Ok((None, false, pos));
     }
-    let mut cols = vec![Vec::with_capacity(n_points); n_vars];
+    let end = if binary {
+        binary_end(bytes, pos, n_points, n_vars, 8)?
+    } else {
+        bytes.len()
+    };
+    // A value takes at least a byte: a header's count reserves no more
+    // than the file holds.
+    let mut cols = vec![Vec::with_capacity(n_points.min(end - pos)); n_vars];
     if binary {
-        let need = n_points * n_vars * 8;
-        if bytes.len() - pos < need {
-            return Err(format!(
-                "binary data is truncated: {} of {need} bytes",
-                bytes.len() - pos
-            ));
-        }
         for p in 0..n_points {
             for (v, col) in cols.iter_mut().enumerate() {
                 let at = pos + (p * n_vars + v) * 8;
@@ -144,7 +137,7 @@ fn parse_plot(bytes: &[u8], mut pos: usize) -> Result<(Option<RawData>, bool, us
                 col.push(f64::from_le_bytes(b));
             }
         }
-        pos += need;
+        pos = end;
     } else {
         let mut nums = Tokens { bytes, pos };
         for p in 0..n_points {
@@ -174,6 +167,26 @@ fn parse_plot(bytes: &[u8], mut pos: usize) -> Result<(Option<RawData>, bool, us
         data: cols,
     };
     Ok((Some(plot), transient, pos))
+}
+
+/// Where `n_points` rows of `n_vars` binary values of `width` bytes from
+/// `pos` end; an error if the file is shorter.
+fn binary_end(
+    bytes: &[u8],
+    pos: usize,
+    n_points: usize,
+    n_vars: usize,
+    width: usize,
+) -> Result<usize, String> {
+    let have = bytes.len() - pos;
+    match n_points
+        .checked_mul(n_vars)
+        .and_then(|n| n.checked_mul(width))
+    {
+        Some(need) if need <= have => Ok(pos + need),
+        Some(need) => Err(format!("binary data is truncated: {have} of {need} bytes")),
+        None => Err(format!("{n_points} points of {n_vars} variables overflow")),
+    }
 }
 
 /// Whitespace-separated tokens of `bytes` from `pos`, which follows them.
@@ -245,5 +258,16 @@ mod tests {
         both.extend_from_slice(ascii.as_bytes());
         assert_eq!(parse(&both).unwrap(), a);
         assert!(parse(&ac_only).unwrap_err().contains("complex"));
+        // A header that claims more points than the file holds (or than
+        // memory could) is an error, not an allocation.
+        for n in ["1000000000000000000", "18446744073709551615"] {
+            let huge = ascii
+                .replace("No. Points: 2", &format!("No. Points: {n}"))
+                .replace("Values:", "Binary:");
+            let huge = huge.split("Binary:").next().unwrap().to_string() + "Binary:\n";
+            assert!(parse(huge.as_bytes()).is_err());
+            let text = ascii.replace("No. Points: 2", &format!("No. Points: {n}"));
+            assert!(parse(text.as_bytes()).unwrap_err().contains("missing"));
+        }
     }
 }
