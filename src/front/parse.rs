@@ -293,7 +293,7 @@ impl<'a> Parser<'a> {
             // kept as written (no model kausal has reads it).
             if n.is_word("version")
                 && let Some(v) = c.peek().copied()
-                && v.text.contains('.')
+                && v.text.split('.').count() > 2
                 && v.text
                     .split('.')
                     .all(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
