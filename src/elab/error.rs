@@ -263,6 +263,10 @@ impl ElabError {
             | PwlParamOnCurrent { .. }
             | TransitTimeWithoutCapacitance { .. }
             | ShortedElement { .. } => Severity::Warning,
+            // An output vector naming nothing is left out, as ngspice leaves
+            // it out (it warns and runs): Xyce's `v(*)`, `i(X1:L1)`.
+            UnknownCurrent { .. } => Severity::Warning,
+            UnknownNode { directive, .. } if *directive == "output" => Severity::Warning,
             _ => Severity::Error,
         }
     }
@@ -293,8 +297,9 @@ impl ToDiagnostic for ElabError {
             BadSourceArgs { .. } => (codes::BAD_SOURCE_ARGS, "here", "see the ngspice manual for the source function's arguments".into()),
             BadElementValue { .. } => (codes::BAD_ELEMENT_VALUE, "here", "use a nonzero, finite value".into()),
             UnscalableElement { .. } => (codes::UNSCALABLE_ELEMENT, "cannot be multiplied", "give the instance no `m=`, or write the parallel copies out".into()),
+            UnknownNode { directive, .. } if *directive == "output" => (codes::UNKNOWN_NODE, "no such node", "the vector is left out, as ngspice leaves it out; check the node name".into()),
             UnknownNode { .. } => (codes::UNKNOWN_NODE, "no such node", "check the node name".into()),
-            UnknownCurrent { .. } => (codes::UNKNOWN_CURRENT, "no such source", "ngspice names currents of V sources, e.g. `i(v1)`".into()),
+            UnknownCurrent { .. } => (codes::UNKNOWN_CURRENT, "no such source", "the vector is left out, as ngspice leaves it out; ngspice names currents of V sources, e.g. `i(v1)`".into()),
             BadOption { .. } => (codes::BAD_OPTION, "out of range", "tolerances are positive and reltol below 1 (ngspice's defaults: reltol=1e-3 abstol=1e-12 vntol=1e-6 chgtol=1e-14 trtol=7); maxord is 1 to 6".into()),
             BadTran { .. } => (codes::BAD_TRAN, "here", "write `.tran TSTEP TSTOP [TSTART [TMAX]] [uic]`".into()),
             UnknownModelParam { .. } => (codes::UNKNOWN_MODEL_PARAM, "unknown", "it is not a parameter of ngspice's level-1 model of this type".into()),

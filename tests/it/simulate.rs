@@ -1342,3 +1342,20 @@ fn an_ako_model_is_its_original_with_its_own_parameters_after() {
     let (lower, plain) = (mean(&ako), mean(&wave(&unmodified)));
     assert!(lower < plain - 0.2, "v(c2): {lower} against {plain}");
 }
+
+/// An output vector that names no node or source is left out with a
+/// warning, as ngspice leaves it out (Xyce's decks print `v(*)` and
+/// `i(X1:L1)`), and the run writes the others.
+#[test]
+fn outputs_naming_nothing_are_left_out() {
+    let s = sort_text(
+        "left out\nV1 a 0 1\nR1 a b 1k\nC1 b 0 1u\n.save v(b) v(elsewhere) i(r9)\n.tran 1u 1m\n.end\n",
+    );
+    let codes: Vec<&str> = s.elaborated.warnings.iter().map(|d| d.code.id).collect();
+    assert!(
+        codes.contains(&"K0214") && codes.contains(&"K0215"),
+        "{codes:?}"
+    );
+    let w = sim::simulate(&s, &sim::Options::default()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(w.names, ["v(b)"]);
+}
