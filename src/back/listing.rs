@@ -266,13 +266,22 @@ fn write_chunked<W: std::io::Write + ?Sized>(
         vec![chunk(sys, s, &s.steps, 0)]
     } else {
         std::thread::scope(|scope| {
+            // A chunk whose thread cannot be started is formatted here.
             let handles: Vec<_> = spans
                 .iter()
-                .map(|&(a, b, first)| scope.spawn(move || chunk(sys, s, &s.steps[a..b], first)))
+                .map(|&(a, b, first)| {
+                    let work = move || chunk(sys, s, &s.steps[a..b], first);
+                    std::thread::Builder::new()
+                        .spawn_scoped(scope, work)
+                        .map_err(|_| work)
+                })
                 .collect();
             handles
                 .into_iter()
-                .map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+                .map(|h| match h {
+                    Ok(h) => h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)),
+                    Err(work) => work(),
+                })
                 .collect()
         })
     };
