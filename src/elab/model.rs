@@ -103,7 +103,7 @@ const CAPACITOR_IGNORED: &[&str] = &["bv_max", "defl", "l"];
 /// `indsetup.c` reads it: `ind` is the model's inductance (IND, else NT
 /// turns on the coil's inductance per squared turn), `per_turn2` that
 /// inductance per squared turn, for an instance's own `nt=`.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub(super) struct InductorModel {
     pub ind: f64,
     pub per_turn2: f64,
@@ -157,13 +157,7 @@ impl Elab {
             (&["l"], "L"),
             (INDUCTOR_PARAMS, &[]),
         )?;
-        let mut m = InductorModel {
-            ind: 0.0,
-            per_turn2: 0.0,
-            tc1: None,
-            tc2: None,
-            tnom: None,
-        };
+        let mut m = InductorModel::default();
         let (mut ind, mut csect, mut dia, mut length, mut nt, mut mu) =
             (None, None, None, None, 0.0, 1.0);
         for (key, v) in params {
