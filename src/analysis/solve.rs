@@ -53,6 +53,46 @@ fn dependence<'n>(
     dep
 }
 
+/// The variables of `root` that occur in an arm of a select whose condition
+/// depends on other variables but not on them (sorted): as a tear, such a
+/// variable holds its value while the others flip the condition, so the
+/// residual jumps by the arms' difference (a MOSFET's current in its own
+/// frame, `vds ≥ 0 ? id : −id`, unless `id` is 0).
+pub fn switched_vars(x: &ExprArena, root: ExprId) -> Vec<VarId> {
+    let nodes = subtree(x, root);
+    let vars_of = |e: ExprId| -> Vec<VarId> {
+        let mut v: Vec<VarId> = subtree(x, e)
+            .into_iter()
+            .filter_map(|n| match x.get(n) {
+                Expr::Var(v) => Some(v),
+                _ => None,
+            })
+            .collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    };
+    let mut out = Vec::new();
+    for &n in &nodes {
+        if let Expr::Select(c, a, b) = x.get(n) {
+            let cond = vars_of(c);
+            if cond.is_empty() {
+                continue;
+            }
+            for arm in [a, b] {
+                out.extend(
+                    vars_of(arm)
+                        .into_iter()
+                        .filter(|v| cond.binary_search(v).is_err()),
+                );
+            }
+        }
+    }
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
 /// Whether `root` is affine in the variables selected by `is_var`.
 pub fn is_linear_in(x: &ExprArena, root: ExprId, is_var: &dyn Fn(VarId) -> bool) -> bool {
     affine_in(x, root, is_var, false)

@@ -39,6 +39,10 @@ pub struct Tear {
 /// O(block): a block torn k times costs O(block + k * trials).
 pub struct BlockTearer {
     buckets: Vec<Vec<EqId>>,
+    /// The block's unknowns that some equation of it switches between the
+    /// arms of a select on other unknowns ([`solve::switched_vars`]):
+    /// torn, they make the residual jump; chosen after the others.
+    switched: Vec<VarId>,
     nonlinear_edges: Vec<u32>,
     nl_cursor: usize,
 }
@@ -49,6 +53,7 @@ impl BlockTearer {
         c.strict = true;
         let mut buckets: Vec<Vec<EqId>> = Vec::new();
         let mut nonlinear_edges = Vec::new();
+        let mut switched = Vec::new();
         for &e in block {
             let eq = &sys.eqs[e];
             // Affine in all its unknowns together is affine in each: one pass
@@ -56,6 +61,11 @@ impl BlockTearer {
             // quadratic in a KVL loop of 10^4 elements).
             let affine = solve::is_linear_in(&sys.exprs, eq.lhs, &|_| true)
                 && solve::is_linear_in(&sys.exprs, eq.rhs, &|_| true);
+            if !affine {
+                for side in [eq.lhs, eq.rhs] {
+                    switched.extend(solve::switched_vars(&sys.exprs, side));
+                }
+            }
             for k in c.g.eq_edges(e) {
                 let v = c.g.edge_var[k as usize];
                 let linear = affine
@@ -81,6 +91,11 @@ impl BlockTearer {
         }
         BlockTearer {
             buckets,
+            switched: {
+                switched.sort_unstable();
+                switched.dedup();
+                switched
+            },
             nonlinear_edges,
             nl_cursor: 0,
         }
@@ -189,11 +204,13 @@ impl BlockTearer {
                 mates.mate(v).unwrap_or(e)
             };
             let (gain, inversions) = c.trial_tear(e, v);
+            let switched = self.switched.binary_search(&v).is_ok();
             let better = match best {
                 None => true,
                 Some(b) => {
-                    (inversions, std::cmp::Reverse(gain))
-                        < (b.inversions, std::cmp::Reverse(b.gain))
+                    let b_switched = self.switched.binary_search(&b.var).is_ok();
+                    (inversions, switched, std::cmp::Reverse(gain))
+                        < (b.inversions, b_switched, std::cmp::Reverse(b.gain))
                 }
             };
             if better {

@@ -1089,6 +1089,43 @@ where
 /// Its switches change state at their controls' crossings, located between
 /// the grid's points and the sources' corners by bisection in time (see
 /// [`super::events::Switches::first_crossing_stateless`]).
+/// Evaluates `at` on times from `from` (solved) to `to`: each interval
+/// half the last failed one or twice the last solved one, until `to` is
+/// solved or an interval falls below `resolution` or 400 evaluations
+/// (`Err`: the last failure).
+fn approach<E>(
+    from: f64,
+    to: f64,
+    resolution: f64,
+    stats: &mut Stats,
+    mut at: impl FnMut(f64) -> Result<(), E>,
+) -> Result<(), E> {
+    let (mut a, mut h) = (from, 0.5 * (to - from));
+    let mut last = None;
+    for _ in 0..400 {
+        let b = if a + h >= to { to } else { a + h };
+        stats.rhs_evals += 1;
+        match at(b) {
+            Ok(()) if b == to => return Ok(()),
+            Ok(()) => {
+                a = b;
+                h *= 2.0;
+            }
+            Err(e) => {
+                last = Some(e);
+                h *= 0.5;
+                if h < resolution {
+                    break;
+                }
+            }
+        }
+    }
+    match last {
+        Some(e) => Err(e),
+        None => at(to),
+    }
+}
+
 pub(super) fn algebraic(
     sorted: &Sorted,
     tape: Rc<Tape>,
@@ -1167,6 +1204,8 @@ pub(super) fn algebraic(
         }
         Ok(())
     };
+    // The last time whose loops were solved.
+    let mut solved: Option<f64> = None;
     for k in 0..times.len() {
         let t = times.at(k);
         let first = k == 0 && t == 0.0;
@@ -1181,13 +1220,51 @@ pub(super) fn algebraic(
         } else {
             Mode::Transient
         };
-        tape.in_mode(mode, || ode.outputs(t, &[], &mut out))
-            .map_err(|error| SimError::Eval { error })?;
+        let at = |t: f64, out: &mut [f64]| tape.in_mode(mode, || ode.outputs(t, &[], out));
         stats.rhs_evals += 1;
+        if let Err(error) = at(t, &mut out) {
+            // A loop whose Newton fails from the last point's solution may
+            // follow its solution there in time: shorter intervals from the
+            // last point solved, each warm-started from the one before
+            // (continuation in time, as a step cut is for a circuit with
+            // states).
+            let Some(from) = solved.filter(|_| mode == Mode::Transient) else {
+                return Err(SimError::Eval { error });
+            };
+            approach(from, t, resolution, &mut stats, |t| at(t, &mut out))
+                .map_err(|_| SimError::Eval { error })?;
+        }
+        solved = Some(t);
         rows.push(t, &out)?;
     }
     let mut w = rows.into_waveforms(stats);
     w.warnings = warnings;
     w.events = switches.events.take();
     Ok(w)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A loop that converges only from within 0.1 of its last solution:
+    /// the approach halves its intervals down to that, then lengthens them.
+    #[test]
+    fn the_approach_follows_a_loop_in_short_intervals() {
+        let mut last = 0.0;
+        let mut stats = Stats::default();
+        let result = approach(0.0, 1.0, 1e-12, &mut stats, |t: f64| {
+            if t - last > 0.1 {
+                return Err(t);
+            }
+            last = t;
+            Ok(())
+        });
+        assert_eq!(result, Ok(()));
+        assert_eq!(last, 1.0);
+        assert!(stats.rhs_evals < 40, "{} evaluations", stats.rhs_evals);
+        // One that converges nowhere past its start ends with its failure.
+        let result = approach(0.0, 1.0, 1e-6, &mut stats, |t: f64| Err(t));
+        assert!(matches!(result, Err(t) if t < 1e-5), "{result:?}");
+    }
 }

@@ -345,6 +345,9 @@ impl Tape {
         };
         // The last full step: start, correction, slope, scaled size, damping.
         let mut last: Option<(f64, f64, f64, f64, f64)> = None;
+        // The last tear seen with a negative and with a positive residual:
+        // where Newton fails between them, a bracketed search does not.
+        let mut bracket = Bracket::default();
         for _ in 0..400 {
             if self.over_budget() {
                 return Err(b.no_convergence(r[res].abs(), t));
@@ -355,6 +358,7 @@ impl Tape {
             w.dr[x] = 1.0;
             self.run_tangent(&b.body, r, &mut w.dr, t, None)?;
             let (fx, slope, xv) = (r[res], w.dr[res], r[x]);
+            bracket.see(xv, fx);
             if let Some((x0, step0, slope0, full0, lambda)) = last {
                 let simplified = (fx / slope0).abs() / (1.0 + x0.abs());
                 if !newton::monotone(simplified, full0, lambda) {
@@ -373,7 +377,8 @@ impl Tape {
                         if (slope0 * step0).abs() <= STALL_FLOOR && full0 <= 1e-6 {
                             return finish(r, x0);
                         }
-                        return Err(b.no_convergence(fx.abs(), t));
+                        let fail = b.no_convergence(fx.abs(), t);
+                        return self.scalar_bracketed(b, r, t, w, bracket, fail);
                     }
                     r[x] = x0 - lambda * step0;
                     last = Some((x0, step0, slope0, full0, lambda));
@@ -386,8 +391,11 @@ impl Tape {
             let step = fx / slope;
             let full = step.abs() / (1.0 + xv.abs());
             if !full.is_finite() {
-                return Err(b.singular(t));
+                // A flat residual (a MOSFET cut off in the loop) is not a
+                // singular block where another tear brackets a root.
+                return self.scalar_bracketed(b, r, t, w, bracket, b.singular(t));
             }
+            bracket.scale = bracket.scale.max(step.abs());
             if b.affine() {
                 // Affine in its tear: the full step solves it, and one more
                 // with the same slope refines it where that helps, as in
@@ -436,7 +444,131 @@ impl Tape {
             r[x] = xv - step;
             last = Some((xv, step, slope, full, 1.0));
         }
-        Err(b.no_convergence(r[res].abs(), t))
+        let fail = b.no_convergence(r[res].abs(), t);
+        self.scalar_bracketed(b, r, t, w, bracket, fail)
+    }
+
+    /// Every residual seen was of one sign: search both ways from the
+    /// smallest one for the other sign, in steps doubling from the largest
+    /// Newton correction seen, as far as the residual stays finite.
+    fn widen(&self, b: &TapeBlock, r: &mut [f64], t: f64, bracket: &mut Bracket) {
+        let Some((x0, f0)) = bracket.best else {
+            return;
+        };
+        let (x, res) = (b.tears[0].idx(), b.residuals[0].idx());
+        let h0 = bracket.scale.max(1e-9 * (1.0 + x0.abs()));
+        let mut open = [true, true];
+        for k in 0..64 {
+            let h = h0 * f64::powi(2.0, k);
+            for (side, dir) in [-1.0, 1.0].into_iter().enumerate() {
+                if !open[side] {
+                    continue;
+                }
+                if self.over_budget() {
+                    return;
+                }
+                let xv = x0 + dir * h;
+                r[x] = xv;
+                let f = match self.run(&b.body, r, t) {
+                    Ok(()) => r[res],
+                    Err(_) => f64::NAN,
+                };
+                if !f.is_finite() || !xv.is_finite() {
+                    open[side] = false;
+                } else if f.signum() != f0.signum() {
+                    bracket.see(xv, f);
+                    return;
+                }
+            }
+            if open == [false, false] {
+                return;
+            }
+        }
+    }
+
+    /// Where Newton on one tear fails (a kink or a flat stretch of the
+    /// residual, as a MOSFET's cutoff gives a high-gain loop), the root is
+    /// searched between the tears of opposite residual seen so far: Newton
+    /// steps that stay inside the bracket and halve the last step, bisection
+    /// otherwise (safeguarded Newton, Press et al., Numerical Recipes §9.4).
+    /// A continuous residual always has a root there. The bracket shrinks to
+    /// rounding; its end of smaller residual is the solution when that
+    /// residual is what the slope there gives over the bracket's width. No
+    /// bracket (every residual of one sign): `fail`, Newton's own error.
+    fn scalar_bracketed(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        t: f64,
+        w: &mut Work,
+        mut bracket: Bracket,
+        fail: EvalError,
+    ) -> Result<(), EvalError> {
+        let (x, res) = (b.tears[0].idx(), b.residuals[0].idx());
+        if bracket.neg.is_none() || bracket.pos.is_none() {
+            self.widen(b, r, t, &mut bracket);
+        }
+        let (Some((mut lo, _)), Some((mut hi, _))) = (bracket.neg, bracket.pos) else {
+            return Err(fail);
+        };
+        let mut best = (f64::INFINITY, f64::NAN, 0.0);
+        let mut xv = 0.5 * (lo + hi);
+        let mut step_before = (hi - lo).abs();
+        let mut step = step_before;
+        for _ in 0..200 {
+            if self.over_budget() {
+                break;
+            }
+            r[x] = xv;
+            for &z in &b.touched {
+                w.dr[z] = 0.0;
+            }
+            w.dr[x] = 1.0;
+            self.run_tangent(&b.body, r, &mut w.dr, t, None)?;
+            let (f, slope) = (r[res], w.dr[res]);
+            if f == 0.0 {
+                return Ok(());
+            }
+            if !f.is_finite() {
+                return Err(fail);
+            }
+            if f.abs() < best.0 {
+                best = (f.abs(), xv, slope);
+            }
+            if f < 0.0 {
+                lo = xv;
+            } else {
+                hi = xv;
+            }
+            let width = (hi - lo).abs();
+            if width <= 4.0 * f64::EPSILON * xv.abs().max(f64::MIN_POSITIVE) {
+                break;
+            }
+            let newton = xv - f / slope;
+            let inside = (newton - lo) * (newton - hi) < 0.0;
+            if inside && (2.0 * f).abs() <= (step_before * slope).abs() {
+                step_before = step;
+                step = f / slope;
+                if step.abs() <= 1e-13 * (1.0 + xv.abs()) {
+                    r[x] = newton;
+                    return self.settle(b, r, t);
+                }
+                xv = newton;
+            } else {
+                step_before = step;
+                step = 0.5 * width;
+                xv = 0.5 * (lo + hi);
+            }
+        }
+        // The bracket closed on a residual that the slope over its width
+        // accounts for (a root between neighbouring floats), or on a jump.
+        let (f, xb, slope) = best;
+        let width = (hi - lo).abs().max(f64::EPSILON * xb.abs());
+        if f.is_finite() && f <= 16.0 * (slope * width).abs() + RESIDUAL_FLOOR {
+            r[x] = xb;
+            return self.settle(b, r, t);
+        }
+        Err(b.no_convergence(f, t))
     }
 
     /// Damped Newton with the natural monotonicity test (Deuflhard): a step
@@ -599,6 +731,34 @@ const STALL_FLOOR: f64 = 1e-15;
 /// breakdown `bv`.
 pub(super) fn limit_junction(new: f64, old: f64, vt: f64, bv: f64) -> f64 {
     crate::ir::junction_limit(new, old, vt, 12.0 * vt, bv)
+}
+
+/// The last tear seen with a negative and with a positive residual (with
+/// those residuals) in a one-tear Newton iteration.
+#[derive(Clone, Copy, Default)]
+pub(super) struct Bracket {
+    neg: Option<(f64, f64)>,
+    pos: Option<(f64, f64)>,
+    /// The tear of smallest residual seen, and that residual.
+    best: Option<(f64, f64)>,
+    /// The largest Newton correction seen: the scale of a search.
+    scale: f64,
+}
+
+impl Bracket {
+    fn see(&mut self, x: f64, f: f64) {
+        if !(x.is_finite() && f.is_finite()) {
+            return;
+        }
+        if self.best.is_none_or(|(_, fb)| f.abs() < fb.abs()) {
+            self.best = Some((x, f));
+        }
+        if f < 0.0 {
+            self.neg = Some((x, f));
+        } else if f > 0.0 {
+            self.pos = Some((x, f));
+        }
+    }
 }
 
 /// Buffers of one Newton solve, pooled per thread so that evaluating `f`
@@ -997,6 +1157,56 @@ mod tests {
             (0.25, 0.5),
             "the warm start is left for a retry"
         );
+    }
+
+    /// `max(x, 0)² − 1 = 0` on tear register 0 from `x0` (root 1): flat
+    /// for x ≤ 0, as a loop's residual is where its MOSFET is cut off.
+    fn cut_off(x0: f64) -> Tape {
+        use Instr::*;
+        let body = vec![
+            Call {
+                d: Reg(1),
+                f: Func::Abs,
+                a: Reg(0),
+            },
+            Add {
+                d: Reg(2),
+                a: Reg(0),
+                b: Reg(1),
+            },
+            Mul {
+                d: Reg(3),
+                a: Reg(2),
+                b: Reg(6),
+            },
+            Mul {
+                d: Reg(4),
+                a: Reg(3),
+                b: Reg(3),
+            },
+            Sub {
+                d: Reg(5),
+                a: Reg(4),
+                b: Reg(7),
+            },
+        ];
+        tape_of(
+            vec![x0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5, 1.0],
+            vec![block(vec![0], vec![5], body)],
+        )
+    }
+
+    #[test]
+    fn one_tear_on_a_flat_residual_is_found_by_bracketing() {
+        // From x = -3 the slope is 0: Newton has no step, and the search
+        // outwards brackets the root.
+        let r = solved(&cut_off(-3.0)).expect("converges");
+        assert!((r[0] - 1.0).abs() < 1e-13, "x = {}", r[0]);
+        assert!(r[5].abs() < 1e-12, "residual {}", r[5]);
+        // From just above the kink Newton's first step overshoots by
+        // hundreds, and the root is found either way.
+        let r = solved(&cut_off(1e-3)).expect("converges");
+        assert!((r[0] - 1.0).abs() < 1e-13, "x = {}", r[0]);
     }
 
     #[test]

@@ -251,6 +251,26 @@ fn a_loop_affine_under_a_select_agrees_with_ngspice() {
     hard_case_validates("bjt_high_injection");
 }
 
+/// A regulator loop (no states) whose one tear's residual is flat where
+/// the pass transistor is cut off: Newton has no slope there, and the root
+/// is bracketed between tears of opposite residual.
+#[test]
+fn a_loop_with_a_flat_residual_agrees_with_ngspice() {
+    require_ngspice();
+    hard_case_validates("mos_regulator_dropout");
+}
+
+/// The same regulator fed through a resistance, a loop of several tears:
+/// the pass transistor's current in its own frame is not torn (it would
+/// make the residual jump wherever VDS changes sign, as it does in
+/// dropout), and an output point Newton misses is reached in shorter
+/// intervals from the last.
+#[test]
+fn a_loop_through_a_switching_frame_agrees_with_ngspice() {
+    require_ngspice();
+    hard_case_validates("mos_regulator_source_r");
+}
+
 #[test]
 fn the_suite_agrees_with_ngspice() {
     require_ngspice();
