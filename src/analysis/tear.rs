@@ -9,7 +9,10 @@
 //! arguments of nonlinear functions in the block join the candidates. Such an
 //! inversion is only defined on part of the range (`ln` of a negative
 //! number), so a Newton iteration on the tearing variables could leave it.
-//! On linear blocks this is exactly Cellier's rule.
+//! Next, an unknown that a select on other unknowns switches between its
+//! arms (a MOSFET's current in its own frame, `vds ≥ 0 ? id : −id`) comes
+//! after the rest: torn, it keeps its value while the condition flips, and
+//! the residual jumps. On linear blocks this is exactly Cellier's rule.
 
 use super::EdgeColour;
 use super::colour::Colouring;

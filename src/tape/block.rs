@@ -9,8 +9,9 @@
 //! whose `Q, Q′, Q″` it keeps in four registers of its own, so its first step
 //! costs no evaluation), affine in its tears with coefficients no code writes
 //! (`constant_jacobian`: the Jacobian is factored once, then one correction
-//! per call), one tear (a Newton step per tangent run), or the damped block
-//! Newton. Up to 48 tears a block's Jacobian is dense: one multi-direction
+//! per call), one tear (a Newton step per tangent run; where it fails, the
+//! root is bracketed between tears of opposite residual and found by
+//! safeguarded Newton), or the damped block Newton. Up to 48 tears a block's Jacobian is dense: one multi-direction
 //! tangent pass of its body, each instruction decoded once for all tears
 //! (a pass per tear makes an inverter chain's run a third longer). Past 48
 //! tears it is sparse: which tears each
