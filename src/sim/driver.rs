@@ -1084,11 +1084,6 @@ where
     Ok(())
 }
 
-/// A circuit without states: every output is a function of time alone, so
-/// it is evaluated on the grid (and at the source corners with `--all-steps`).
-/// Its switches change state at their controls' crossings, located between
-/// the grid's points and the sources' corners by bisection in time (see
-/// [`super::events::Switches::first_crossing_stateless`]).
 /// Evaluates `at` on times from `from` (solved) to `to`: each interval
 /// half the last failed one or twice the last solved one, until `to` is
 /// solved or an interval falls below `resolution` or 400 evaluations
@@ -1126,6 +1121,11 @@ fn approach<E>(
     }
 }
 
+/// A circuit without states: every output is a function of time alone, so
+/// it is evaluated on the grid (and at the source corners with `--all-steps`).
+/// Its switches change state at their controls' crossings, located between
+/// the grid's points and the sources' corners by bisection in time (see
+/// [`super::events::Switches::first_crossing_stateless`]).
 pub(super) fn algebraic(
     sorted: &Sorted,
     tape: Rc<Tape>,

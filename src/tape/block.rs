@@ -11,11 +11,11 @@
 //! (`constant_jacobian`: the Jacobian is factored once, then one correction
 //! per call), one tear (a Newton step per tangent run; where it fails, the
 //! root is bracketed between tears of opposite residual and found by
-//! safeguarded Newton), or the damped block Newton. Up to 48 tears a block's Jacobian is dense: one multi-direction
-//! tangent pass of its body, each instruction decoded once for all tears
-//! (a pass per tear makes an inverter chain's run a third longer). Past 48
-//! tears it is sparse: which tears each
-//! residual depends on is followed through the body once, the tears are
+//! safeguarded Newton), or the damped block Newton. Up to 48 tears a
+//! block's Jacobian is dense: one multi-direction tangent pass of its body,
+//! each instruction decoded once for all tears (a pass per tear makes an
+//! inverter chain's run a third longer). Past 48 tears it is sparse: which
+//! tears each residual depends on is followed through the body once, the tears are
 //! coloured so that no residual sees two of one colour, each colour is one
 //! tangent run, and the entries are factored by the circuit sparse LU (a
 //! resistive ladder tears every few sections, and a dense LU is cubic in
