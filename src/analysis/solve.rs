@@ -53,11 +53,12 @@ fn dependence<'n>(
     dep
 }
 
-/// The variables of `root` that occur in an arm of a select whose condition
-/// depends on other variables but not on them (sorted): as a tear, such a
-/// variable holds its value while the others flip the condition, so the
-/// residual jumps by the arms' difference (a MOSFET's current in its own
-/// frame, `vds ≥ 0 ? id : −id`, unless `id` is 0).
+/// The variables of `root` that a select on other variables flips in sign,
+/// `c ? a : −a` (sorted): as a tear, such a variable holds its value while
+/// the others flip the condition, so the residual jumps by `2a` (a
+/// MOSFET's current in its own frame, `vds ≥ 0 ? id : −id`, unless `id`
+/// is 0). An arm that only one side has, or both alike, is continuous
+/// where the condition's own terms make it so (`vds ≥ 0 ? vd − vg : vs − vg`).
 pub fn switched_vars(x: &ExprArena, root: ExprId) -> Vec<VarId> {
     let nodes = subtree(x, root);
     let vars_of = |e: ExprId| -> Vec<VarId> {
@@ -75,17 +76,16 @@ pub fn switched_vars(x: &ExprArena, root: ExprId) -> Vec<VarId> {
     let mut out = Vec::new();
     for &n in &nodes {
         if let Expr::Select(c, a, b) = x.get(n) {
+            let negated = x.get(a) == Expr::Neg(b) || x.get(b) == Expr::Neg(a);
             let cond = vars_of(c);
-            if cond.is_empty() {
+            if !negated || cond.is_empty() {
                 continue;
             }
-            for arm in [a, b] {
-                out.extend(
-                    vars_of(arm)
-                        .into_iter()
-                        .filter(|v| cond.binary_search(v).is_err()),
-                );
-            }
+            out.extend(
+                vars_of(a)
+                    .into_iter()
+                    .filter(|v| cond.binary_search(v).is_err()),
+            );
         }
     }
     out.sort_unstable();

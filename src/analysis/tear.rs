@@ -23,6 +23,12 @@ use crate::ir::{EqId, EquationSystem, VarId};
 /// tear costs O(block) even when a huge block ties everywhere.
 const MAX_TRIED: usize = 24;
 
+/// Up to this many equations, a nonlinear block tries every unknown as a
+/// tear: Cellier's candidates (the widest equations' unknowns) miss the
+/// one node potential from which a CMOS inverter's loop is computed
+/// forward, and four tears instead of one make its Newton fail.
+const SMALL_BLOCK: usize = 160;
+
 /// The tearing decision: `var` is guessed and `eq` becomes its residual.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Tear {
@@ -46,6 +52,9 @@ pub struct BlockTearer {
     /// arms of a select on other unknowns ([`solve::switched_vars`]):
     /// torn, they make the residual jump; chosen after the others.
     switched: Vec<VarId>,
+    /// A small nonlinear block's equations (else empty): every unknown of
+    /// them is a candidate, with each of its equations as the residual.
+    small: Vec<EqId>,
     nonlinear_edges: Vec<u32>,
     nl_cursor: usize,
 }
@@ -98,6 +107,11 @@ impl BlockTearer {
                 switched.sort_unstable();
                 switched.dedup();
                 switched
+            },
+            small: if !nonlinear_edges.is_empty() && block.len() <= SMALL_BLOCK {
+                block.to_vec()
+            } else {
+                Vec::new()
             },
             nonlinear_edges,
             nl_cursor: 0,
@@ -195,6 +209,18 @@ impl BlockTearer {
             if let Some(j) = partner {
                 candidates.push((c.g.edge_eq[j as usize], v));
                 extra += 1;
+            }
+        }
+        for &e in &self.small {
+            if c.is_done(e) {
+                continue;
+            }
+            // Each of its unknowns with each equation as the residual: the
+            // residual decides what the tear computes forward.
+            for v in c.black_vars(e) {
+                if !candidates.contains(&(e, v)) {
+                    candidates.push((e, v));
+                }
             }
         }
         let mut best: Option<Tear> = None;
