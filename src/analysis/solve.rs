@@ -319,6 +319,36 @@ mod tests {
         (s, u, i)
     }
 
+    /// A frame current (`vds ≥ 0 ? id : −id`) is switched by its select; a
+    /// node potential in one arm of a frame's gate voltage, or in both
+    /// alike, is not.
+    #[test]
+    fn only_a_sign_flip_switches_an_unknown() {
+        use crate::ir::Cmp;
+        let (mut s, vds, id) = sys();
+        let o = Origin {
+            kind: OriginKind::Element { name: "M1".into() },
+            span: None,
+        };
+        let vd = s.add_var("vd".into(), VarKind::Potential, o.clone());
+        let vg = s.add_var("vg".into(), VarKind::Potential, o);
+        let x = &mut s.exprs;
+        let (e_vds, e_id, e_vd, e_vg) = (x.var(vds), x.var(id), x.var(vd), x.var(vg));
+        let zero = x.constant(0.0);
+        let c = x.cmp(Cmp::Ge, e_vds, zero);
+        let minus_id = x.neg(e_id);
+        let current = x.select(c, e_id, minus_id);
+        assert_eq!(switched_vars(x, current), vec![id]);
+        let a = x.sub(e_vd, e_vg);
+        let b = x.neg(e_vg);
+        let gate = x.select(c, a, b);
+        assert!(switched_vars(x, gate).is_empty());
+        // A condition on the unknown itself is its own switch: continuous.
+        let c_id = x.cmp(Cmp::Ge, e_id, zero);
+        let own = x.select(c_id, e_id, minus_id);
+        assert!(switched_vars(x, own).is_empty());
+    }
+
     #[test]
     fn ohm_both_ways() {
         let (mut s, u, i) = sys();

@@ -12,7 +12,11 @@
 //! Next, an unknown that a select on other unknowns switches between its
 //! arms (a MOSFET's current in its own frame, `vds ≥ 0 ? id : −id`) comes
 //! after the rest: torn, it keeps its value while the condition flips, and
-//! the residual jumps. On linear blocks this is exactly Cellier's rule.
+//! the residual jumps. And in a block of at most [`SMALL_BLOCK`] equations
+//! with such an unknown, every unknown with each of its equations as the
+//! residual is a candidate (a CMOS inverter's output loop: one tear where
+//! Cellier's candidates take four). On linear blocks this is exactly
+//! Cellier's rule.
 
 use super::EdgeColour;
 use super::colour::Colouring;
@@ -23,10 +27,14 @@ use crate::ir::{EqId, EquationSystem, VarId};
 /// tear costs O(block) even when a huge block ties everywhere.
 const MAX_TRIED: usize = 24;
 
-/// Up to this many equations, a nonlinear block tries every unknown as a
-/// tear: Cellier's candidates (the widest equations' unknowns) miss the
-/// one node potential from which a CMOS inverter's loop is computed
-/// forward, and four tears instead of one make its Newton fail.
+/// Up to this many equations, a block with a MOSFET's frame (a switched
+/// unknown) tries every unknown as a tear: Cellier's candidates (the widest
+/// equations' unknowns) tear the frame's own quantities, whose residual
+/// jumps where the frame flips; a CMOS inverter's loop is computed forward
+/// from one node potential instead of four such tears. Blocks without one
+/// keep Cellier's candidates: on a BJT block (Xyce's bug_138_2) the greedy
+/// gain through the junctions' exponentials tore half as often, and the
+/// integrator's Newton no longer converged.
 const SMALL_BLOCK: usize = 160;
 
 /// The tearing decision: `var` is guessed and `eq` becomes its residual.
@@ -52,8 +60,9 @@ pub struct BlockTearer {
     /// arms of a select on other unknowns ([`solve::switched_vars`]):
     /// torn, they make the residual jump; chosen after the others.
     switched: Vec<VarId>,
-    /// A small nonlinear block's equations (else empty): every unknown of
-    /// them is a candidate, with each of its equations as the residual.
+    /// The equations of a small block with a switched unknown (else
+    /// empty): every unknown of them, with each of its equations as the
+    /// residual, is a candidate.
     small: Vec<EqId>,
     nonlinear_edges: Vec<u32>,
     nl_cursor: usize,
@@ -101,18 +110,18 @@ impl BlockTearer {
         for b in &mut buckets {
             b.reverse();
         }
+        switched.sort_unstable();
+        switched.dedup();
+        // A MOSFET's frame in a small block: every unknown is a candidate.
+        let small = if !switched.is_empty() && block.len() <= SMALL_BLOCK {
+            block.to_vec()
+        } else {
+            Vec::new()
+        };
         BlockTearer {
             buckets,
-            switched: {
-                switched.sort_unstable();
-                switched.dedup();
-                switched
-            },
-            small: if !nonlinear_edges.is_empty() && block.len() <= SMALL_BLOCK {
-                block.to_vec()
-            } else {
-                Vec::new()
-            },
+            switched,
+            small,
             nonlinear_edges,
             nl_cursor: 0,
         }
@@ -233,6 +242,7 @@ impl BlockTearer {
                 mates.mate(v).unwrap_or(e)
             };
             let (gain, inversions) = c.trial_tear(e, v);
+
             let switched = self.switched.binary_search(&v).is_ok();
             let better = match best {
                 None => true,

@@ -271,10 +271,11 @@ fn a_loop_through_a_switching_frame_agrees_with_ngspice() {
 }
 
 /// CMOS inverters without gate capacitance: each output node is an
-/// algebraic loop through both transistors. Torn at the one node potential
-/// it is computed forward from (every unknown of a small nonlinear block is
-/// a candidate), not at four of the transistors' own quantities, where
-/// Newton failed (K0402 at 5.2 us).
+/// algebraic loop through both transistors, computed forward from the
+/// output node's potential. Torn at one unknown (the PMOS bulk junction's
+/// voltage, that potential less VDD: every unknown of a small nonlinear
+/// block is a candidate), not at four of the transistors' own quantities,
+/// where Newton failed (K0402 at 5.2 us).
 #[test]
 fn an_inverter_loop_torn_at_one_unknown_agrees_with_ngspice() {
     require_ngspice();
