@@ -9,9 +9,9 @@
 //! arguments of nonlinear functions in the block join the candidates. Such an
 //! inversion is only defined on part of the range (`ln` of a negative
 //! number), so a Newton iteration on the tearing variables could leave it.
-//! Next, an unknown that a select on other unknowns switches between its
-//! arms (a MOSFET's current in its own frame, `vds ≥ 0 ? id : −id`) comes
-//! after the rest: torn, it keeps its value while the condition flips, and
+//! Next, an unknown that a select on other unknowns flips in sign (a
+//! MOSFET's current in its own frame, `vds ≥ 0 ? id : −id`) comes after
+//! the rest: torn, it keeps its value while the condition flips, and
 //! the residual jumps. And in a block of at most [`SMALL_BLOCK`] equations
 //! with such an unknown, every unknown with each of its equations as the
 //! residual is a candidate (a CMOS inverter's output loop: one tear where
@@ -56,9 +56,9 @@ pub struct Tear {
 /// O(block): a block torn k times costs O(block + k * trials).
 pub struct BlockTearer {
     buckets: Vec<Vec<EqId>>,
-    /// The block's unknowns that some equation of it switches between the
-    /// arms of a select on other unknowns ([`solve::switched_vars`]):
-    /// torn, they make the residual jump; chosen after the others.
+    /// The block's unknowns that a select of one of its equations flips in
+    /// sign on other unknowns ([`solve::switched_vars`]): torn, they make
+    /// the residual jump; chosen after the others.
     switched: Vec<VarId>,
     /// The equations of a small block with a switched unknown (else
     /// empty): every unknown of them, with each of its equations as the
@@ -242,7 +242,6 @@ impl BlockTearer {
                 mates.mate(v).unwrap_or(e)
             };
             let (gain, inversions) = c.trial_tear(e, v);
-
             let switched = self.switched.binary_search(&v).is_ok();
             let better = match best {
                 None => true,
