@@ -37,6 +37,10 @@ const MAX_TRIED: usize = 24;
 /// integrator's Newton no longer converged.
 const SMALL_BLOCK: usize = 160;
 
+/// How a candidate tear ranks, smallest first: nonlinear inversions, then
+/// whether a select flips it in sign, then the most equations causalized.
+type TearKey = (usize, bool, std::cmp::Reverse<usize>);
+
 /// The tearing decision: `var` is guessed and `eq` becomes its residual.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Tear {
@@ -232,7 +236,7 @@ impl BlockTearer {
                 }
             }
         }
-        let mut best: Option<Tear> = None;
+        let mut best: Option<(Tear, TearKey)> = None;
         for &(e, v) in &candidates {
             // The residual a perfect matching allows (the candidate's own
             // equation when possible).
@@ -243,25 +247,19 @@ impl BlockTearer {
             };
             let (gain, inversions) = c.trial_tear(e, v);
             let switched = self.switched.binary_search(&v).is_ok();
-            let better = match best {
-                None => true,
-                Some(b) => {
-                    let b_switched = self.switched.binary_search(&b.var).is_ok();
-                    (inversions, switched, std::cmp::Reverse(gain))
-                        < (b.inversions, b_switched, std::cmp::Reverse(b.gain))
-                }
-            };
-            if better {
-                best = Some(Tear {
+            let key = (inversions, switched, std::cmp::Reverse(gain));
+            if best.is_none_or(|(_, k)| key < k) {
+                let tear = Tear {
                     eq: e,
                     var: v,
                     gain,
                     inversions,
                     candidates: candidates.len(),
-                });
+                };
+                best = Some((tear, key));
             }
         }
-        let mut t = best?;
+        let (mut t, _) = best?;
         t.eq = mates.pair(c, t.eq, t.var);
         Some(t)
     }

@@ -353,12 +353,8 @@ impl Tape {
             if self.over_budget() {
                 return Err(b.no_convergence(r[res].abs(), t));
             }
-            for &z in &b.touched {
-                w.dr[z] = 0.0;
-            }
-            w.dr[x] = 1.0;
-            self.run_tangent(&b.body, r, &mut w.dr, t, None)?;
-            let (fx, slope, xv) = (r[res], w.dr[res], r[x]);
+            let (fx, slope) = self.scalar_tangent(b, r, t, w)?;
+            let xv = r[x];
             bracket.see(xv, fx);
             if let Some((x0, step0, slope0, full0, lambda)) = last {
                 let simplified = (fx / slope0).abs() / (1.0 + x0.abs());
@@ -449,6 +445,24 @@ impl Tape {
         self.scalar_bracketed(b, r, t, w, bracket, fail)
     }
 
+    /// One tangent run of a one-tear block at its tear's current value:
+    /// the residual and its slope (the body evaluated there too).
+    fn scalar_tangent(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        t: f64,
+        w: &mut Work,
+    ) -> Result<(f64, f64), EvalError> {
+        let (x, res) = (b.tears[0].idx(), b.residuals[0].idx());
+        for &z in &b.touched {
+            w.dr[z] = 0.0;
+        }
+        w.dr[x] = 1.0;
+        self.run_tangent(&b.body, r, &mut w.dr, t, None)?;
+        Ok((r[res], w.dr[res]))
+    }
+
     /// Every residual seen was of one sign: search both ways from the
     /// smallest one for the other sign, in steps doubling from the largest
     /// Newton correction seen, as far as the residual stays finite.
@@ -505,11 +519,11 @@ impl Tape {
         mut bracket: Bracket,
         fail: EvalError,
     ) -> Result<(), EvalError> {
-        let (x, res) = (b.tears[0].idx(), b.residuals[0].idx());
+        let x = b.tears[0].idx();
         if bracket.neg.is_none() || bracket.pos.is_none() {
             self.widen(b, r, t, &mut bracket);
         }
-        let (Some((mut lo, _)), Some((mut hi, _))) = (bracket.neg, bracket.pos) else {
+        let (Some(mut lo), Some(mut hi)) = (bracket.neg, bracket.pos) else {
             return Err(fail);
         };
         let mut best = (f64::INFINITY, f64::NAN, 0.0);
@@ -521,12 +535,7 @@ impl Tape {
                 break;
             }
             r[x] = xv;
-            for &z in &b.touched {
-                w.dr[z] = 0.0;
-            }
-            w.dr[x] = 1.0;
-            self.run_tangent(&b.body, r, &mut w.dr, t, None)?;
-            let (f, slope) = (r[res], w.dr[res]);
+            let (f, slope) = self.scalar_tangent(b, r, t, w)?;
             if f == 0.0 {
                 return Ok(());
             }
@@ -734,12 +743,12 @@ pub(super) fn limit_junction(new: f64, old: f64, vt: f64, bv: f64) -> f64 {
     crate::ir::junction_limit(new, old, vt, 12.0 * vt, bv)
 }
 
-/// The last tear seen with a negative and with a positive residual (with
-/// those residuals) in a one-tear Newton iteration.
+/// The last tear seen with a negative and with a positive residual in a
+/// one-tear Newton iteration.
 #[derive(Clone, Copy, Default)]
 pub(super) struct Bracket {
-    neg: Option<(f64, f64)>,
-    pos: Option<(f64, f64)>,
+    neg: Option<f64>,
+    pos: Option<f64>,
     /// The tear of smallest residual seen, and that residual.
     best: Option<(f64, f64)>,
     /// The largest Newton correction seen: the scale of a search.
@@ -755,9 +764,9 @@ impl Bracket {
             self.best = Some((x, f));
         }
         if f < 0.0 {
-            self.neg = Some((x, f));
+            self.neg = Some(x);
         } else if f > 0.0 {
-            self.pos = Some((x, f));
+            self.pos = Some(x);
         }
     }
 }
