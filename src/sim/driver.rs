@@ -902,6 +902,7 @@ where
     let s = solver.get_statistics();
     stats.steps += s.number_of_steps;
     stats.rejected += s.number_of_error_test_failures;
+    stats.newton_fails += s.number_of_nonlinear_solver_fails;
     stats.lu_factorizations += s.number_of_linear_solver_setups;
 }
 

@@ -11,7 +11,9 @@
 //! (`constant_jacobian`: the Jacobian is factored once, then one correction
 //! per call), one tear (a Newton step per tangent run; where it fails, the
 //! root is bracketed between tears of opposite residual and found by
-//! safeguarded Newton), or the damped block Newton. Up to 48 tears a
+//! safeguarded Newton; its corrections are measured against the tear's
+//! floor, a nanoampere for a current, and its rounding exits against a
+//! volt), or the damped block Newton. Up to 48 tears a
 //! block's Jacobian is dense: one multi-direction tangent pass of its body,
 //! each instruction decoded once for all tears (a pass per tear makes an
 //! inverter chain's run a third longer). Past 48 tears it is sparse: which
@@ -339,6 +341,7 @@ impl Tape {
         w: &mut Work,
     ) -> Result<(), EvalError> {
         let (x, res) = (b.tears[0].idx(), b.residuals[0].idx());
+        let floor = b.floor;
         let vt = b.junctions.first().map(|&(_, vt, bv)| (vt.idx(), bv));
         let finish = |r: &mut [f64], value: f64| {
             r[x] = value;
@@ -357,13 +360,18 @@ impl Tape {
             let xv = r[x];
             bracket.see(xv, fx);
             if let Some((x0, step0, slope0, full0, lambda)) = last {
-                let simplified = (fx / slope0).abs() / (1.0 + x0.abs());
+                let simplified = (fx / slope0).abs() / (floor + x0.abs());
                 if !newton::monotone(simplified, full0, lambda) {
-                    // A correction below 1e-9 relative that no longer
-                    // shrinks is rounding: this point (its body evaluated by
-                    // the tangent run) is the solution. Halving on would
-                    // spend the iterations at rounding level.
-                    if full0 <= 1e-9 {
+                    // A correction below 1e-9 of a volt (or of the tear,
+                    // if larger) that no longer shrinks is rounding: this
+                    // point (its body evaluated by the tangent run) is the
+                    // solution. Halving on would spend the iterations at
+                    // rounding level. The rounding exits measure against a
+                    // volt whatever the tear's floor: a current that is the
+                    // sum of amperes (a MOSFET's drain at KP = 10) is
+                    // rounding at 1e-14 A, 1e-5 of a nanoampere.
+                    let coarse = step0.abs() / (1.0 + x0.abs());
+                    if coarse <= 1e-9 {
                         return Ok(());
                     }
                     let lambda = lambda * 0.5;
@@ -371,7 +379,7 @@ impl Tape {
                         // No step along the exact slope lowers a residual
                         // that is rounding: the start is the solution (as
                         // in `newton_iterate`).
-                        if (slope0 * step0).abs() <= STALL_FLOOR && full0 <= 1e-6 {
+                        if (slope0 * step0).abs() <= STALL_FLOOR && coarse <= 1e-6 {
                             return finish(r, x0);
                         }
                         let fail = b.no_convergence(fx.abs(), t);
@@ -386,7 +394,7 @@ impl Tape {
                 return Ok(());
             }
             let step = fx / slope;
-            let full = step.abs() / (1.0 + xv.abs());
+            let full = step.abs() / (floor + xv.abs());
             if !full.is_finite() {
                 // A flat residual (a MOSFET cut off in the loop) is not a
                 // singular block where another tear brackets a root.
@@ -412,7 +420,8 @@ impl Tape {
             // below 1e-13 relative: a derivative tear at DC, whose 1e-9 V/s
             // correction is large only beside its value of ~0, and whose
             // steps would bounce at rounding level.
-            if full <= 1e-13 || (fx.abs() <= RESIDUAL_FLOOR && full <= 1e-6) {
+            let coarse = step.abs() / (1.0 + xv.abs());
+            if full <= 1e-13 || (fx.abs() <= RESIDUAL_FLOOR && coarse <= 1e-6) {
                 return finish(r, xv - step);
             }
             if let Some((_, _, _, full0, 1.0)) = last
@@ -471,7 +480,7 @@ impl Tape {
             return;
         };
         let (x, res) = (b.tears[0].idx(), b.residuals[0].idx());
-        let h0 = bracket.scale.max(1e-9 * (1.0 + x0.abs()));
+        let h0 = bracket.scale.max(1e-9 * (b.floor + x0.abs()));
         let mut open = [true, true];
         for k in 0..64 {
             let h = h0 * f64::powi(2.0, k);
@@ -559,7 +568,7 @@ impl Tape {
             if inside && (2.0 * f).abs() <= (step_before * slope).abs() {
                 step_before = step;
                 step = f / slope;
-                if step.abs() <= 1e-13 * (1.0 + xv.abs()) {
+                if step.abs() <= 1e-13 * (b.floor + xv.abs()) {
                     r[x] = newton;
                     return self.settle(b, r, t);
                 }
@@ -1217,6 +1226,72 @@ mod tests {
         // hundreds, and the root is found either way.
         let r = solved(&cut_off(1e-3)).expect("converges");
         assert!((r[0] - 1.0).abs() < 1e-13, "x = {}", r[0]);
+    }
+
+    /// A current torn through 100 MΩ: `1e8·x + 1e25·x³ = 0.7` (a resistor and
+    /// a cubic element in series across 0.7 V), its root 3.5 nA. Measured
+    /// against a volt (`1 + |x|`), Newton stopped 2.6e-12 V off on the
+    /// resistor; against a nanoampere it solves to rounding.
+    fn series_current(floor: f64) -> Tape {
+        use Instr::*;
+        let body = vec![
+            Mul {
+                d: Reg(1),
+                a: Reg(0),
+                b: Reg(0),
+            },
+            Mul {
+                d: Reg(2),
+                a: Reg(1),
+                b: Reg(0),
+            },
+            Mul {
+                d: Reg(3),
+                a: Reg(2),
+                b: Reg(7),
+            },
+            Mul {
+                d: Reg(4),
+                a: Reg(0),
+                b: Reg(8),
+            },
+            Add {
+                d: Reg(5),
+                a: Reg(3),
+                b: Reg(4),
+            },
+            Sub {
+                d: Reg(6),
+                a: Reg(5),
+                b: Reg(9),
+            },
+        ];
+        let mut b = block(vec![0], vec![6], body);
+        b.floor = floor;
+        let mut init = vec![0.0; 10];
+        init[7] = 1e25;
+        init[8] = 1e8;
+        init[9] = 0.7;
+        tape_of(init, vec![b])
+    }
+
+    #[test]
+    fn a_nanoampere_tear_is_solved_to_its_own_scale() {
+        // The root by bisection on the same arithmetic.
+        let f = |x: f64| 1e25 * (x * x * x) + 1e8 * x - 0.7;
+        let (mut lo, mut hi) = (0.0f64, 1e-8f64);
+        for _ in 0..200 {
+            let m = 0.5 * (lo + hi);
+            if f(m) < 0.0 { lo = m } else { hi = m }
+        }
+        let floor = tear_floor(crate::ir::VarKind::BranchCurrent);
+        let r = solved(&series_current(floor)).expect("converges");
+        let volts = 1e8 * (r[0] - lo).abs();
+        assert!(
+            volts < 1e-14,
+            "x = {:e}, off by {volts:e} V on the resistor",
+            r[0]
+        );
     }
 
     #[test]

@@ -399,7 +399,8 @@ impl Compiler<'_> {
 
     /// Add a block of `body` solving `residuals` for `tears`, with its
     /// junction tears and touched registers, and its solve to `out`, its
-    /// instructions that do not depend on the tears ahead of it.
+    /// instructions that do not depend on the tears ahead of it; the block,
+    /// for the caller to set its tear's floor.
     fn push_block(
         &mut self,
         index: usize,
@@ -408,7 +409,7 @@ impl Compiler<'_> {
         linear: bool,
         elements: Vec<String>,
         out: &mut Vec<Instr>,
-    ) {
+    ) -> &mut TapeBlock {
         let body = self.hoist(&tears, body, out);
         let k = self.blocks.len();
         self.blocks.push(TapeBlock::new(
@@ -421,6 +422,7 @@ impl Compiler<'_> {
         self.set_junctions(k);
         self.set_touched(k);
         out.push(Instr::Block { k: k as u32 });
+        &mut self.blocks[k]
     }
 
     fn assign(&mut self, a: &Assignment, out: &mut Vec<Instr>) {
@@ -445,7 +447,9 @@ impl Compiler<'_> {
                     .into_iter()
                     .map(String::from)
                     .collect();
-                self.push_block(0, (vec![t], vec![r]), body, false, elements, out);
+                let floor = super::tear_floor(self.sys.vars[a.var].kind);
+                self.push_block(0, (vec![t], vec![r]), body, false, elements, out)
+                    .floor = floor;
             }
         }
     }
@@ -465,6 +469,10 @@ impl Compiler<'_> {
                     b.tears.clone()
                 };
                 let tears: Vec<Reg> = unknowns.iter().map(|&v| self.var_reg_new(v)).collect();
+                let floor = match unknowns[..] {
+                    [v] => super::tear_floor(self.sys.vars[v].kind),
+                    _ => 1.0,
+                };
                 let mut body = Vec::new();
                 if !whole {
                     for a in &b.inner {
@@ -488,7 +496,8 @@ impl Compiler<'_> {
                     b.linear,
                     b.elements.clone(),
                     out,
-                );
+                )
+                .floor = floor;
             }
         }
     }
