@@ -13,7 +13,7 @@
 //! root is bracketed between tears of opposite residual and found by
 //! safeguarded Newton; its corrections are measured against the tear's
 //! floor, a nanoampere for a current, and its rounding exits against a
-//! volt), or the damped block Newton. Up to 48 tears a
+//! thousand times that), or the damped block Newton. Up to 48 tears a
 //! block's Jacobian is dense: one multi-direction tangent pass of its body,
 //! each instruction decoded once for all tears (a pass per tear makes an
 //! inverter chain's run a third longer). Past 48 tears it is sparse: which
@@ -342,6 +342,9 @@ impl Tape {
     ) -> Result<(), EvalError> {
         let (x, res) = (b.tears[0].idx(), b.residuals[0].idx());
         let floor = b.floor;
+        // The scale of the rounding exits: a thousand times the floor, a
+        // volt at most (a torn current's exits at 1e-9 of a microampere).
+        let rounding = (1e3 * floor).min(1.0);
         let vt = b.junctions.first().map(|&(_, vt, bv)| (vt.idx(), bv));
         let finish = |r: &mut [f64], value: f64| {
             r[x] = value;
@@ -367,10 +370,13 @@ impl Tape {
                     // point (its body evaluated by the tangent run) is the
                     // solution. Halving on would spend the iterations at
                     // rounding level. The rounding exits measure against a
-                    // volt whatever the tear's floor: a current that is the
-                    // sum of amperes (a MOSFET's drain at KP = 10) is
-                    // rounding at 1e-14 A, 1e-5 of a nanoampere.
-                    let coarse = step0.abs() / (1.0 + x0.abs());
+                    // thousand times the tear's floor. Against the floor
+                    // itself, a current summed from amperes (a MOSFET's drain
+                    // at KP = 10, `cmos_buffer_algebraic.cir`) stalled at a
+                    // residual of 1e-14 A and failed; against a volt, a
+                    // picoampere torn through 1 TΩ stopped 19 mV off on the
+                    // node it holds (`leakage_divider.cir`).
+                    let coarse = step0.abs() / (rounding + x0.abs());
                     if coarse <= 1e-9 {
                         return Ok(());
                     }
@@ -420,7 +426,7 @@ impl Tape {
             // below 1e-13 relative: a derivative tear at DC, whose 1e-9 V/s
             // correction is large only beside its value of ~0, and whose
             // steps would bounce at rounding level.
-            let coarse = step.abs() / (1.0 + xv.abs());
+            let coarse = step.abs() / (rounding + xv.abs());
             if full <= 1e-13 || (fx.abs() <= RESIDUAL_FLOOR && coarse <= 1e-6) {
                 return finish(r, xv - step);
             }
