@@ -365,12 +365,12 @@ impl Tape {
             if let Some((x0, step0, slope0, full0, lambda)) = last {
                 let simplified = (fx / slope0).abs() / (floor + x0.abs());
                 if !newton::monotone(simplified, full0, lambda) {
-                    // A correction below 1e-9 of a volt (or of the tear,
-                    // if larger) that no longer shrinks is rounding: this
-                    // point (its body evaluated by the tangent run) is the
-                    // solution. Halving on would spend the iterations at
-                    // rounding level. The rounding exits measure against a
-                    // thousand times the tear's floor. Against the floor
+                    // A correction below 1e-9 of a thousand times the
+                    // tear's floor (a volt, or a microampere for a current;
+                    // of the tear itself, if larger) that no longer shrinks
+                    // is rounding: this point (its body evaluated by the
+                    // tangent run) is the solution. Halving on would spend
+                    // the iterations at rounding level. Against the floor
                     // itself, a current summed from amperes (a MOSFET's drain
                     // at KP = 10, `cmos_buffer_algebraic.cir`) stalled at a
                     // residual of 1e-14 A and failed; against a volt, a
@@ -1239,7 +1239,7 @@ mod tests {
     /// a cubic element in series across 0.7 V), its root 3.3 nA. Measured
     /// against a volt (`1 + |x|`), Newton stopped 2.6e-12 V off on the
     /// resistor; against a nanoampere it solves to rounding.
-    fn series_current(floor: f64) -> Tape {
+    fn series_current() -> Tape {
         use Instr::*;
         let mut body = cube();
         body.extend([
@@ -1265,7 +1265,7 @@ mod tests {
             },
         ]);
         let mut b = block(vec![0], vec![6], body);
-        b.floor = floor;
+        b.floor = tear_floor(crate::ir::VarKind::BranchCurrent);
         let mut init = vec![0.0; 10];
         init[7] = 1e25;
         init[8] = 1e8;
@@ -1282,8 +1282,7 @@ mod tests {
             let m = 0.5 * (lo + hi);
             if f(m) < 0.0 { lo = m } else { hi = m }
         }
-        let floor = tear_floor(crate::ir::VarKind::BranchCurrent);
-        let r = solved(&series_current(floor)).expect("converges");
+        let r = solved(&series_current()).expect("converges");
         let volts = 1e8 * (r[0] - lo).abs();
         assert!(
             volts < 1e-14,
