@@ -426,8 +426,9 @@ impl Tape {
             // below 1e-13 relative: a derivative tear at DC, whose 1e-9 V/s
             // correction is large only beside its value of ~0, and whose
             // steps would bounce at rounding level.
-            let coarse = step.abs() / (rounding + xv.abs());
-            if full <= 1e-13 || (fx.abs() <= RESIDUAL_FLOOR && coarse <= 1e-6) {
+            if full <= 1e-13
+                || (fx.abs() <= RESIDUAL_FLOOR && step.abs() / (rounding + xv.abs()) <= 1e-6)
+            {
                 return finish(r, xv - step);
             }
             if let Some((_, _, _, full0, 1.0)) = last
