@@ -233,7 +233,7 @@ where
     // diffsol says so by a variant, and in the text of errors from its
     // Newton line search and its interpolation when a step can shrink no
     // further.
-    // The per-step limit on Newton failures (see `NewtonFailLimit`) ends a
+    // The per-step limit on Newton failures (see `StepLimits`) ends a
     // step that could not converge however it shrank: an underflow too.
     let underflow = matches!(
         &e,

@@ -819,6 +819,39 @@ fn a_tmax_bound_run_takes_span_over_tmax_steps_with_bdf() {
     );
 }
 
+/// Under TMAX, BDF's step grows onto TMAX and no further: grown past it and
+/// cut back to the stop time, the step ran on a Newton matrix factored for
+/// the longer step. A linear network then factored its matrix every other
+/// step (10,223 factorizations in 20,058 steps), and VACASK's graetz bridge,
+/// whose junction charges sit behind 42 mΩ (h·λ about 10^6), failed Newton
+/// on one step in ten (2,326 in 23,143 over 20 ms; 947 in 21,787 now).
+#[test]
+fn a_tmax_bound_step_keeps_its_newton_matrix() {
+    let s = sort_text(
+        "stiff linear network under TMAX\nvs in 0 sin 0 20 50\nr1 in a 0.042\n\
+         c1 a 0 26p\nr2 a b 1k\nc2 b 0 100u\n.tran 1u 20m 0 1u\n.end\n",
+    );
+    let w = sim::simulate(&s, &sim::Options::default()).expect("runs");
+    let st = &w.stats;
+    assert!(
+        st.lu_factorizations * 5 < st.steps,
+        "{} factorizations in {} steps",
+        st.lu_factorizations,
+        st.steps
+    );
+    let path = root().join("netlists/bench/vacask_graetz.cir");
+    let text = std::fs::read_to_string(path).expect("graetz is in the repository");
+    let s = sort_text(&text.replace(".tran 1u 1 0 1u", ".tran 1u 20m 0 1u"));
+    let w = sim::simulate(&s, &sim::Options::default()).expect("runs");
+    let st = &w.stats;
+    assert!(
+        st.newton_fails * 15 < st.steps,
+        "{} Newton failures in {} steps",
+        st.newton_fails,
+        st.steps
+    );
+}
+
 /// A run whose pace can never reach TSTOP (a 1 GHz sine over a second)
 /// ends after one pace window with a diagnostic that says where it got to,
 /// instead of running for ever.
