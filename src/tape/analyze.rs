@@ -309,6 +309,52 @@ impl Tape {
         of
     }
 
+    /// For each state, the zero-bias depletion capacitance of the junction
+    /// whose charge it is, if any: the sum of `CJO` over the charge
+    /// functions of the one-tear block that finds the junction's voltage
+    /// from that state and no other (a diode's inversion, a BJT junction's
+    /// depletion and diffusion charge). `None` for every other state, and
+    /// where no depletion capacitance is given.
+    pub fn charge_capacitances(&self) -> Vec<Option<f64>> {
+        let slot: HashMap<Reg, usize> = self
+            .state_regs
+            .iter()
+            .enumerate()
+            .map(|(k, &s)| (s, k))
+            .collect();
+        let mut of = vec![None; self.states.len()];
+        for ins in &self.code {
+            let Instr::Block { k } = *ins else { continue };
+            let b = &self.blocks[k as usize];
+            if b.tears.len() != 1 {
+                continue;
+            }
+            let (mut cap, mut state, mut one) = (0.0, None, true);
+            for i in &b.body {
+                if let Instr::Device { f, .. } = *i
+                    && f.part == crate::ir::DiodePart::Charge
+                    && f.order == 0
+                {
+                    cap += self.diodes[f.diode as usize].cjo;
+                }
+                for r in i.operands() {
+                    if let Some(&s) = slot.get(&r) {
+                        one &= state.is_none_or(|t| t == s);
+                        state = Some(s);
+                    }
+                }
+            }
+            if let Some(s) = state
+                && one
+                && cap > 0.0
+                && of[s].is_none()
+            {
+                of[s] = Some(cap);
+            }
+        }
+        of
+    }
+
     /// Whether `f` depends on the states nonlinearly only through junctions
     /// in the way a circuit integrator can follow exactly: each junction
     /// charge `q` is read only by its inversion `v = Q⁻¹(q)`, `v` enters
