@@ -287,15 +287,19 @@ pub(super) fn memo_links(
 }
 
 impl Tape {
-    /// For each state, the junction-charge inversion whose charge it is
-    /// (the block that finds the junction voltage from it), if any.
-    pub fn charge_states(&self) -> Vec<Option<ChargeInverse>> {
-        let slot: HashMap<Reg, usize> = self
-            .state_regs
+    /// Each state register's index among the states.
+    fn state_slots(&self) -> HashMap<Reg, usize> {
+        self.state_regs
             .iter()
             .enumerate()
             .map(|(k, &s)| (s, k))
-            .collect();
+            .collect()
+    }
+
+    /// For each state, the junction-charge inversion whose charge it is
+    /// (the block that finds the junction voltage from it), if any.
+    pub fn charge_states(&self) -> Vec<Option<ChargeInverse>> {
+        let slot = self.state_slots();
         let mut of = vec![None; self.states.len()];
         for ins in &self.code {
             if let Instr::Block { k } = *ins
@@ -316,12 +320,7 @@ impl Tape {
     /// depletion and diffusion charge). `None` for every other state, and
     /// where no depletion capacitance is given.
     pub fn charge_capacitances(&self) -> Vec<Option<f64>> {
-        let slot: HashMap<Reg, usize> = self
-            .state_regs
-            .iter()
-            .enumerate()
-            .map(|(k, &s)| (s, k))
-            .collect();
+        let slot = self.state_slots();
         let mut of = vec![None; self.states.len()];
         for ins in &self.code {
             let Instr::Block { k } = *ins else { continue };

@@ -827,28 +827,25 @@ fn a_tmax_bound_run_takes_span_over_tmax_steps_with_bdf() {
 /// on one step in ten (2,326 in 23,143 over 20 ms; 947 in 21,787 now).
 #[test]
 fn a_tmax_bound_step_keeps_its_newton_matrix() {
-    let s = sort_text(
+    let stats = |text: &str| {
+        let s = sort_text(text);
+        sim::simulate(&s, &sim::Options::default())
+            .expect("runs")
+            .stats
+    };
+    let st = stats(
         "stiff linear network under TMAX\nvs in 0 sin 0 20 50\nr1 in a 0.042\n\
          c1 a 0 26p\nr2 a b 1k\nc2 b 0 100u\n.tran 1u 20m 0 1u\n.end\n",
     );
-    let w = sim::simulate(&s, &sim::Options::default()).expect("runs");
-    let st = &w.stats;
-    assert!(
-        st.lu_factorizations * 5 < st.steps,
-        "{} factorizations in {} steps",
-        st.lu_factorizations,
-        st.steps
-    );
+    let (lu, steps) = (st.lu_factorizations, st.steps);
+    assert!(lu * 5 < steps, "{lu} factorizations in {steps} steps");
     let path = root().join("netlists/bench/vacask_graetz.cir");
     let text = std::fs::read_to_string(path).expect("graetz is in the repository");
-    let s = sort_text(&text.replace(".tran 1u 1 0 1u", ".tran 1u 20m 0 1u"));
-    let w = sim::simulate(&s, &sim::Options::default()).expect("runs");
-    let st = &w.stats;
+    let st = stats(&text.replace(".tran 1u 1 0 1u", ".tran 1u 20m 0 1u"));
+    let (fails, steps) = (st.newton_fails, st.steps);
     assert!(
-        st.newton_fails * 15 < st.steps,
-        "{} Newton failures in {} steps",
-        st.newton_fails,
-        st.steps
+        fails * 15 < steps,
+        "{fails} Newton failures in {steps} steps"
     );
 }
 
