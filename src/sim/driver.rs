@@ -190,6 +190,14 @@ where
             .map(|(k, _)| k)
             .collect()
     };
+    // Their junction inversions, where each has one and `f` follows them
+    // exactly: the settling matrix can then be judged by its junctions.
+    let inversions = if tape.jacobian_follows_junctions() {
+        let of = tape.charge_states();
+        charges.iter().map(|&k| of[k]).collect()
+    } else {
+        None
+    };
     let rec = Recorder {
         ode: &problem.eqn,
         grid: output_grid(opts, tran),
@@ -200,6 +208,7 @@ where
         first: start.row,
         charges,
         settle: None,
+        inversions,
         last: Vec::new(),
     };
     let hard = breakpoints(sys, t0, tran.tstop);

@@ -384,6 +384,11 @@ where
         self.regs.borrow()[r]
     }
 
+    /// One register of the output side's evaluations, as the last left it.
+    pub fn side_register(&self, r: crate::tape::Reg) -> f64 {
+        self.side_regs.borrow()[r]
+    }
+
     /// The registers after the last evaluation (to find where a NaN came from).
     pub fn registers(&self) -> Vec<f64> {
         self.regs.borrow().clone()

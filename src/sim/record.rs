@@ -38,17 +38,35 @@ where
     pub(super) charges: Vec<usize>,
     /// The factored shifted Jacobian of the charges in the current step.
     pub(super) settle: Option<Settle>,
+    /// Each charge's junction inversion, where every charge has one and
+    /// `f` follows them exactly (see [`Recorder::settle_charges`]).
+    pub(super) inversions: Option<Vec<crate::tape::ChargeInverse>>,
     /// The state at the end of the run.
     pub(super) last: Vec<f64>,
 }
 
-/// What [`Recorder::settle_charges`] keeps for the output points of a step.
+/// What [`Recorder::settle_charges`] keeps for the output points of a step,
+/// and of later steps of the same size while its junctions hold.
 pub(super) struct Settle {
     /// The step: the solver's (time, step size).
     pub(super) step: (f64, f64),
     /// `J_qq - σ I` factored (LU, row order); `None` when singular.
     pub(super) lu: Option<(Vec<f64>, Vec<usize>)>,
+    /// Each charge's diagonal entry `J_kk`, its junction's `Q′` and `g_d`
+    /// where the matrix was factored; empty where the matrix cannot be
+    /// judged by its junctions (see [`Recorder::settle_charges`]).
+    pub(super) at: Vec<(f64, f64, f64)>,
+    /// Steps since it was factored.
+    pub(super) age: usize,
 }
+
+/// The most steps of one size whose output points reuse one factored matrix.
+const SETTLE_REUSE: usize = 64;
+
+/// How far a charge's `J_kk` may have moved from the kept matrix's,
+/// relatively, for the matrix to be kept: three passes then leave
+/// (2 %)³ of a stiff residual.
+const SETTLE_DRIFT: f64 = 0.02;
 
 /// Newton steps of [`Recorder::settle_charges`]. One left a clamp's reverse
 /// leakage (range 1e-9 A) off ngspice by 3.5e-11 A; three, 3.6e-13 A (each
@@ -73,6 +91,17 @@ where
     /// tolerance, ~rtol·|q|) became a current error of rtol·|v|/RS, 3e-5 A
     /// on a reverse-biased 1N4001 at rtol 1e-7 where the true current is
     /// 1e-8 A. The interpolant's derivative carries no such amplification.
+    ///
+    /// The matrix is also kept for later steps of the same size (σ with
+    /// it), up to [`SETTLE_REUSE`] of them, where `f` depends on the states
+    /// nonlinearly only through junction charges it can follow
+    /// ([`crate::tape::Tape::jacobian_follows_junctions`]): there a charge's
+    /// diagonal entry is `J_kk = −(g_d + G)/Q′` with `G` fixed by the rest
+    /// of the circuit, so its move is known from the junction's `g_d` and
+    /// `Q′` at the new point, and the matrix is kept while no `J_kk` moved
+    /// by more than [`SETTLE_DRIFT`]. Under TMAX = TSTEP every step has one
+    /// output point, and a Jacobian for each took VACASK's graetz bridge
+    /// half its run.
     pub(super) fn settle_charges(&mut self, t: f64, y: &mut [f64], dy: &[f64], step: (f64, f64)) {
         let m = self.charges.len();
         let h = step.1;
@@ -86,7 +115,9 @@ where
         // small: a nearby Jacobian takes nearly all of it). Where a side
         // evaluation fails the point is output unsettled (its own
         // evaluation then reports what failed).
-        if self.settle.as_ref().is_none_or(|s| s.step != step) {
+        if self.settle_kept(t, y, &mut f, step) {
+            // `f` is at `y` already (the junctions were read from it).
+        } else if self.settle.as_ref().is_none_or(|s| s.step != step) {
             let mut jac = vec![0.0; n * m];
             if self
                 .ode
@@ -103,11 +134,14 @@ where
                     a[r * m + c] = jac[i * m + c] - if r == c { sigma } else { 0.0 };
                 }
             }
+            let at = self.junctions_at(|r| jac[self.charges[r] * m + r]);
             let mut perm = vec![0; m];
             let regular = a.iter().all(|v| v.is_finite()) && lu_factor(m, &mut a, &mut perm);
             self.settle = Some(Settle {
                 step,
                 lu: regular.then_some((a, perm)),
+                at,
+                age: 0,
             });
         } else if self.ode.side_eval(t, y, &mut f).is_err() {
             return;
@@ -131,6 +165,59 @@ where
                 y[k] -= dk;
             }
         }
+    }
+
+    /// Each charge's `(J_kk, Q′, g_d)` from the output side's registers after
+    /// an evaluation, `jkk(r)` giving charge `r`'s diagonal entry; empty
+    /// unless every charge is a junction's that `f` follows exactly.
+    fn junctions_at(&self, jkk: impl Fn(usize) -> f64) -> Vec<(f64, f64, f64)> {
+        let Some(inv) = &self.inversions else {
+            return Vec::new();
+        };
+        let tape = &self.ode.tape;
+        inv.iter()
+            .enumerate()
+            .map(|(r, ci)| {
+                let x = self.ode.side_register(ci.memo);
+                let cap = self.ode.side_register(ci.memo.offset(2));
+                let [_, gd, _] = tape.diodes[ci.diode as usize].current(x);
+                (jkk(r), cap, gd)
+            })
+            .collect()
+    }
+
+    /// Whether the kept matrix serves the point `(t, y)` of a later step of
+    /// the same size (see [`Recorder::settle_charges`]); if so `f` is
+    /// evaluated there into `f`.
+    fn settle_kept(&mut self, t: f64, y: &[f64], f: &mut [f64], step: (f64, f64)) -> bool {
+        let Some(s) = self.settle.as_ref() else {
+            return false;
+        };
+        if s.step == step
+            || s.step.1 != step.1
+            || s.age >= SETTLE_REUSE
+            || s.lu.is_none()
+            || s.at.is_empty()
+        {
+            return false;
+        }
+        if self.ode.side_eval(t, y, f).is_err() {
+            return false;
+        }
+        let now = self.junctions_at(|_| 0.0);
+        let held =
+            s.at.iter()
+                .zip(&now)
+                .all(|(&(jkk, cap0, gd0), &(_, cap, gd))| {
+                    let g = -jkk * cap0 - gd0;
+                    let moved = -(gd + g) / cap;
+                    ((moved - jkk) / jkk).abs() <= SETTLE_DRIFT
+                });
+        if held && let Some(s) = self.settle.as_mut() {
+            s.step = step;
+            s.age += 1;
+        }
+        held
     }
 
     /// The first output row at `t`, the run's start, when the grid
