@@ -65,7 +65,9 @@ const SETTLE_REUSE: usize = 64;
 
 /// How far a charge's `J_kk` may have moved from the kept matrix's,
 /// relatively, for the matrix to be kept: three passes then leave
-/// (2 %)³ of a stiff residual.
+/// (2 %)³ of a stiff residual. Measured on VACASK graetz's first 40 ms
+/// against a tight reference: 1.15e-7 of the range at 2 % (as with a fresh
+/// matrix at every point), 6.4e-7 at 5 %, 1.5e-4 at 10 %.
 const SETTLE_DRIFT: f64 = 0.02;
 
 /// Newton steps of [`Recorder::settle_charges`]. One left a clamp's reverse
