@@ -136,7 +136,18 @@ where
                     a[r * m + c] = jac[i * m + c] - if r == c { sigma } else { 0.0 };
                 }
             }
-            let at = self.junctions_at(|r| jac[self.charges[r] * m + r]);
+            // Each charge's `(J_kk, Q′, g_d)` here, where its junction can judge the
+            // matrix later (see `settle_kept`).
+            let at = self.inversions.as_ref().map_or_else(Vec::new, |inv| {
+                let jkk = |r: usize| jac[self.charges[r] * m + r];
+                inv.iter()
+                    .enumerate()
+                    .map(|(r, ci)| {
+                        let (cap, gd) = self.junction(ci);
+                        (jkk(r), cap, gd)
+                    })
+                    .collect()
+            });
             let mut perm = vec![0; m];
             let regular = a.iter().all(|v| v.is_finite()) && lu_factor(m, &mut a, &mut perm);
             self.settle = Some(Settle {
@@ -169,23 +180,13 @@ where
         }
     }
 
-    /// Each charge's `(J_kk, Q′, g_d)` from the output side's registers after
-    /// an evaluation, `jkk(r)` giving charge `r`'s diagonal entry; empty
-    /// unless every charge is a junction's that `f` follows exactly.
-    fn junctions_at(&self, jkk: impl Fn(usize) -> f64) -> Vec<(f64, f64, f64)> {
-        let Some(inv) = &self.inversions else {
-            return Vec::new();
-        };
-        let tape = &self.ode.tape;
-        inv.iter()
-            .enumerate()
-            .map(|(r, ci)| {
-                let x = self.ode.side_register(ci.memo);
-                let cap = self.ode.side_register(ci.memo.offset(2));
-                let [_, gd, _] = tape.diodes[ci.diode as usize].current(x);
-                (jkk(r), cap, gd)
-            })
-            .collect()
+    /// A junction's `Q′` and `g_d` at the voltage its inversion last found
+    /// on the output side's registers.
+    fn junction(&self, ci: &crate::tape::ChargeInverse) -> (f64, f64) {
+        let x = self.ode.side_register(ci.memo);
+        let cap = self.ode.side_register(ci.memo.offset(2));
+        let [_, gd, _] = self.ode.tape.diodes[ci.diode as usize].current(x);
+        (cap, gd)
     }
 
     /// Whether the kept matrix serves the point `(t, y)` of a later step of
@@ -206,15 +207,15 @@ where
         if self.ode.side_eval(t, y, f).is_err() {
             return false;
         }
-        let now = self.junctions_at(|_| 0.0);
-        let held =
-            s.at.iter()
-                .zip(&now)
-                .all(|(&(jkk, cap0, gd0), &(_, cap, gd))| {
-                    let g = -jkk * cap0 - gd0;
-                    let moved = -(gd + g) / cap;
-                    ((moved - jkk) / jkk).abs() <= SETTLE_DRIFT
-                });
+        let Some(inv) = &self.inversions else {
+            return false;
+        };
+        let held = s.at.iter().zip(inv).all(|(&(jkk, cap0, gd0), ci)| {
+            let (cap, gd) = self.junction(ci);
+            let g = -jkk * cap0 - gd0;
+            let moved = -(gd + g) / cap;
+            ((moved - jkk) / jkk).abs() <= SETTLE_DRIFT
+        });
         if held && let Some(s) = self.settle.as_mut() {
             s.step = step;
             s.age += 1;
