@@ -74,6 +74,15 @@ pub enum ElabError {
         found: usize,
         def: Span,
     },
+    #[error(
+        "port `{port}` is named twice in `.subckt {subckt}`: ngspice connects it to the first node, and so does kausal"
+    )]
+    DuplicatePort {
+        span: Span,
+        port: String,
+        subckt: String,
+        first: Span,
+    },
     #[error("element `{name}` is defined twice")]
     DuplicateElement {
         span: Span,
@@ -225,6 +234,7 @@ impl ElabError {
             | DeepHierarchy { span, .. }
             | TooManyElements { span, .. }
             | PortMismatch { span, .. }
+            | DuplicatePort { span, .. }
             | DuplicateElement { span, .. }
             | SingleNode { span, .. }
             | UnknownControl { span, .. }
@@ -262,6 +272,7 @@ impl ElabError {
             | TinyTmax { .. }
             | PwlParamOnCurrent { .. }
             | TransitTimeWithoutCapacitance { .. }
+            | DuplicatePort { .. }
             | ShortedElement { .. } => Severity::Warning,
             // An output vector naming nothing is left out, as ngspice leaves
             // it out (it warns and runs): Xyce's `v(*)`, `i(X1:L1)`.
@@ -288,6 +299,7 @@ impl ToDiagnostic for ElabError {
             DeepHierarchy { .. } => (codes::DEEP_HIERARCHY, "too deep", "flatten some levels of the hierarchy".into()),
             TooManyElements { .. } => (codes::TOO_MANY_ELEMENTS, "expands past the limit here", "each instance copies its subcircuit, so a tree of instances grows exponentially with its depth; reduce its fan-out or depth".into()),
             PortMismatch { expected, .. } => (codes::PORT_MISMATCH, "wrong node count", format!("connect exactly {expected} nodes")),
+            DuplicatePort { .. } => (codes::DUPLICATE_PORT, "second time", "the node an instance connects here is left unconnected (it exists only where other elements use it); rename the port if both were meant".into()),
             DuplicateElement { .. } => (codes::DUPLICATE_ELEMENT, "second definition", "rename one of them".into()),
             SingleNode { .. } => (codes::SINGLE_NODE, "both terminals here", "an element must connect two different nodes".into()),
             UnknownControl { .. } => (codes::UNKNOWN_CONTROL, "not a V source", "F and H elements sense the current of a voltage source (add a 0 V source to measure it)".into()),
@@ -320,6 +332,7 @@ impl ToDiagnostic for ElabError {
         match self {
             DuplicateElement { first, .. } => d = d.with_label(*first, "first defined here"),
             PortMismatch { def, .. } => d = d.with_label(*def, "subcircuit defined here"),
+            DuplicatePort { first, .. } => d = d.with_label(*first, "first named here"),
             UnscalableElement { instance, .. } => d = d.with_label(*instance, "the multiplier"),
             _ => {}
         }

@@ -58,6 +58,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         model_cache: HashMap::new(),
         bjt_cache: HashMap::new(),
         jfet_seen: HashSet::new(),
+        ports_seen: HashSet::new(),
         passive_models_seen: HashSet::new(),
         mos_cache: HashMap::new(),
         switch_seen: HashSet::new(),
@@ -179,6 +180,8 @@ struct Elab {
     mos_cache: HashMap<(u32, u32, String), Option<mos::MosModel>>,
     /// Switch model definitions already read (their warnings are given once).
     switch_seen: HashSet<(u32, u32)>,
+    /// Subcircuit definitions whose repeated ports were reported, as `jfet_seen`.
+    ports_seen: HashSet<(u32, u32)>,
     tstep: f64,
     tstop: f64,
     /// `.global` node names (case-folded): top-level nodes in every scope.
@@ -561,14 +564,31 @@ impl Elab {
             });
             return;
         }
-        let actual: Vec<NodeId> = el.nodes.iter().map(|n| self.node(n, scope)).collect();
         let mut inner = Scope {
             parent: Some(scope),
             prefix: format!("{name}."),
             ..Scope::default()
         };
-        for (port, node) in def.ports.iter().zip(actual) {
-            inner.ports.insert(port.key(), node);
+        // A port named twice is the node of its first position, as ngspice
+        // binds it; the node at a later position is not made here, so that
+        // it exists only where something else uses it (ngspice's raw file
+        // has no vector for it otherwise).
+        let first_use = self.ports_seen.insert((def.span.file.0, def.span.start));
+        for (port, n) in def.ports.iter().zip(&el.nodes) {
+            let key = port.key();
+            if inner.ports.contains_key(&key) {
+                if first_use && let Some(first) = def.ports.iter().find(|p| p.key() == key) {
+                    self.errors.push(ElabError::DuplicatePort {
+                        span: port.span,
+                        port: port.text.to_string(),
+                        subckt: def.name.text.to_string(),
+                        first: first.span,
+                    });
+                }
+                continue;
+            }
+            let node = self.node(n, scope);
+            inner.ports.insert(key, node);
         }
         // Defaults, evaluated where the subcircuit is used, then overrides.
         for d in &def.params {

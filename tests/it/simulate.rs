@@ -238,6 +238,33 @@ fn csv_and_raw_output_follow_ngspice_names() {
     assert_eq!(w.names, ["v(a)", "v(b)", "v(x1.n)", "i(v1)", "i(v.x1.vm)"]);
 }
 
+/// A port named twice in a `.subckt` is the node of its first position, as
+/// ngspice binds it (measured: ngspice-39 gives 0.5 V on node 3 below), with
+/// warning K0288; the node at the later position exists only where other
+/// elements use it, so a deck like Xyce's `bug_784.cir` has no `v(2)`, as
+/// ngspice's raw file has none. Fails when the later position wins (node 3
+/// at 1 V) or when the unused node is made anyway.
+#[test]
+fn a_port_named_twice_is_its_first_node() {
+    let text = "dup\nV1 1 0 1\nR1 1 3 1\nR2 2 0 5\nX1 3 2 suba\n.subckt suba b b\nr1 b 0 1\n.ends\n.tran 1n 10n\n.end\n";
+    let s = sort_text(text);
+    assert!(
+        s.elaborated.warnings.iter().any(|d| d.code == "K0288"),
+        "warned"
+    );
+    let w = sim::simulate(&s, &sim::Options::default()).unwrap();
+    let k = w.names.iter().position(|n| n == "v(3)").unwrap();
+    assert!(
+        (w.data[k][0] - 0.5).abs() < 1e-12,
+        "v(3) = {}",
+        w.data[k][0]
+    );
+    let text =
+        "dup\nR1 1 0 1\nX1 1 2 suba\n.tran 1n 10n\n.subckt suba b b\nr1 b 0 1\n.ends\n.end\n";
+    let w = sim::simulate(&sort_text(text), &sim::Options::default()).unwrap();
+    assert_eq!(w.names, ["v(1)"]);
+}
+
 /// A DC start of a circuit large enough for the sparse integrator (more than
 /// `sim::DENSE_STATES` states) solves the operating point with the sparse LU:
 /// a resistive divider along an RC ladder; with `.ic` holding the first node,
