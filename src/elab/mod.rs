@@ -82,6 +82,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     let mut stack = Vec::new();
     e.walk(&netlist.stmts, &top, &mut stack);
     e.resolve_pending();
+    e.drop_unused_nodes();
     e.outputs(&netlist.stmts, &top);
     e.dangling();
     (e.circuit, e.errors)
@@ -873,6 +874,102 @@ impl Elab {
             pos: nodes[0],
             neg: nodes[1],
         })
+    }
+
+    /// Leave out the nodes that no element connects and no expression reads:
+    /// an instance's actual node bound to a port its subcircuit never uses
+    /// (an IC's unconnected pin, `?` in eSim's netlists). ngspice makes a
+    /// node only where an element line names it, so such a node is not in
+    /// its circuit; kept, it would be floating. The other nodes keep their
+    /// order.
+    fn drop_unused_nodes(&mut self) {
+        let mut used = vec![false; self.circuit.nodes.len()];
+        used[GROUND.0 as usize] = true;
+        let pot = |x: &BExpr, used: &mut [bool]| {
+            for n in &x.nodes {
+                if let BNode::Pot(id) = n {
+                    used[id.0 as usize] = true;
+                }
+            }
+        };
+        for e in self.circuit.elements.values() {
+            for n in &e.nodes {
+                used[n.0 as usize] = true;
+            }
+            match &e.kind {
+                ElementKind::Behavioural { expr, .. } | ElementKind::Intermediate { expr, .. } => {
+                    pot(expr, &mut used)
+                }
+                ElementKind::DeviceBranch {
+                    current,
+                    charge,
+                    capacitance,
+                    ..
+                } => {
+                    for x in [current, charge, capacitance].into_iter().flatten() {
+                        pot(x, &mut used);
+                    }
+                }
+                _ => {}
+            }
+        }
+        if used.iter().all(|&u| u) {
+            return;
+        }
+        let mut new_id = vec![None; used.len()];
+        let mut nodes = crate::ir::IdVec::with_capacity(used.len());
+        for (id, node) in std::mem::take(&mut self.circuit.nodes).iter() {
+            if used[id.0 as usize] {
+                new_id[id.0 as usize] = Some(nodes.push(node.clone()));
+            }
+        }
+        self.circuit.nodes = nodes;
+        let map = |n: NodeId| new_id[n.0 as usize];
+        for e in self.circuit.elements.values_mut() {
+            for n in &mut e.nodes {
+                *n = map(*n).expect("an element's node is used");
+            }
+            let exprs: Vec<&mut BExpr> = match &mut e.kind {
+                ElementKind::Behavioural { expr, .. } | ElementKind::Intermediate { expr, .. } => {
+                    vec![&mut **expr]
+                }
+                ElementKind::DeviceBranch {
+                    current,
+                    charge,
+                    capacitance,
+                    ..
+                } => [current, charge, capacitance]
+                    .into_iter()
+                    .flatten()
+                    .map(|x| &mut **x)
+                    .collect(),
+                _ => Vec::new(),
+            };
+            for x in exprs {
+                for n in &mut x.nodes {
+                    if let BNode::Pot(id) = n {
+                        *id = map(*id).expect("a node an expression reads is used");
+                    }
+                }
+            }
+        }
+        // A subcircuit's `.ic` or `.nodeset` on such a node sets nothing.
+        for ics in [&mut self.circuit.ics, &mut self.circuit.nodesets] {
+            ics.retain_mut(|ic| match map(ic.node) {
+                Some(n) => {
+                    ic.node = n;
+                    true
+                }
+                None => false,
+            });
+        }
+        self.node_map.retain(|_, n| match map(*n) {
+            Some(m) => {
+                *n = m;
+                true
+            }
+            None => false,
+        });
     }
 
     /// Warn about nodes with one connection (skipped when errors removed

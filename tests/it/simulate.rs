@@ -265,6 +265,26 @@ fn a_port_named_twice_is_its_first_node() {
     assert_eq!(w.names, ["v(1)"]);
 }
 
+/// An instance's node bound to a port its subcircuit never uses (an IC's
+/// unconnected pin, written `?` by eSim) is not in the circuit, as ngspice
+/// makes a node only where an element names it: the netlist runs, and the
+/// node is among neither the nodes nor the default vectors. Fails when the
+/// node is kept (it is floating, K0311).
+#[test]
+fn a_node_only_an_unused_port_names_is_left_out() {
+    let text = "pins\nV1 a 0 1\nX1 a b ? amp\nRL b 0 1k\n.subckt amp in out nc\nR1 in out 1k\n.ends\n.tran 1n 10n\n.end\n";
+    let s = sort_text(text);
+    assert!(s.elaborated.circuit.find_node("?").is_none());
+    let w = sim::simulate(&s, &sim::Options::default()).unwrap();
+    assert_eq!(w.names, ["v(a)", "v(b)", "i(v1)"]);
+    let k = w.names.iter().position(|n| n == "v(b)").unwrap();
+    assert!(
+        (w.data[k][0] - 0.5).abs() < 1e-12,
+        "v(b) = {}",
+        w.data[k][0]
+    );
+}
+
 /// A DC start of a circuit large enough for the sparse integrator (more than
 /// `sim::DENSE_STATES` states) solves the operating point with the sparse LU:
 /// a resistive divider along an RC ladder; with `.ic` holding the first node,
