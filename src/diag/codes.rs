@@ -138,6 +138,7 @@ codes! {
     FIXED_STEP = "K0416", "A step length given to a method that has none, or missing where needed.";
     SWITCH_METHOD = "K0417", "Switch events are located by the adaptive diffsol methods only.";
     CHATTER = "K0418", "A B source's comparison chatters at its threshold (a sliding mode).";
+    DENSE_JACOBIAN = "K0419", "The Jacobian is too dense to integrate.";
     VALIDATE_FAILED = "K0500", "Validation against ngspice failed.";
     CAUSAL_CONFLICT = "K0600", "A causal conflict in the bond graph: a junction or source whose causality cannot be met.";
     VIEWS_DISAGREE = "K0601", "The bond graph's causality and the equations' sorting disagree (`kausal bondgraph --check`).";

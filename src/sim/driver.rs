@@ -124,7 +124,7 @@ where
     let sys = sorted.system();
     let sparse = tape.states.len() > DENSE_STATES;
     let t0 = 0.0;
-    let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; tape.states.len()], sparse);
+    let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; tape.states.len()], sparse)?;
     let c = &sorted.elaborated.circuit;
     let mut atol = atols(sys, &tape.states, opts, c);
     junction_charge_atols(&mut atol, sys, tape, atol_pair(opts, c).0);
@@ -1239,7 +1239,7 @@ pub(super) fn algebraic(
         all.dedup();
         times = Grid::Times(all);
     }
-    let ode = CircuitOde::<NalgebraMat<f64>>::new(tape.clone(), Vec::new(), false);
+    let ode = CircuitOde::<NalgebraMat<f64>>::new(tape.clone(), Vec::new(), false)?;
     let mut out = vec![0.0; tape.out_regs.len()];
     let mut rows = Rows::new(out.len(), sink);
     let mut stats = Stats::default();

@@ -313,7 +313,7 @@ where
     M::V: HostVec,
 {
     let n = tape.states.len();
-    let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; n], sparse);
+    let ode = CircuitOde::<M>::new(tape.clone(), vec![0.0; n], sparse)?;
     tape.in_mode(tape::Mode::Dc, || {
         let y = dc_point::<M>(
             &ode,

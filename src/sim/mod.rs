@@ -274,6 +274,17 @@ pub enum SimError {
         steps: u64,
         t: f64,
     },
+    #[error(
+        "the Jacobian of the {} states is too dense to integrate: {} of its entries are nonzero, past kausal's limit of {:.1e}{}",
+        dense.states,
+        format!("more than {:.1e}", dense.limit as f64),
+        dense.limit as f64,
+        match &dense.block {
+            Some((k, elements, n)) => format!("; algebraic loop {k} couples {n} of them, through {}", crate::back::listing::shortened(elements, crate::back::listing::ELEMENTS_SHOWN)),
+            None => String::new(),
+        }
+    )]
+    DenseJacobian { dense: tape::DensePattern },
     #[error("{what} is {value}; it must be {range}")]
     BadTolerance {
         what: &'static str,
@@ -397,6 +408,10 @@ impl crate::diag::ToDiagnostic for SimError {
             ),
             SimError::Write { .. } => (codes::WRITE_FAILED, "check the output path and free space"),
             SimError::BadTolerance { .. } => (codes::BAD_TOLERANCE, "e.g. rtol 1e-6, atol 1e-9"),
+            SimError::DenseJacobian { .. } => (
+                codes::DENSE_JACOBIAN,
+                "tearing this loop makes every state it reads depend on every other (`kausal sort` lists it); kausal does not yet integrate with node voltages as unknowns, whose Jacobian stays sparse",
+            ),
             SimError::BlewUp { .. } => (
                 codes::BLEW_UP,
                 "shorten --step below the bound, or use an implicit method (bdf, tr-bdf2), whose steps are not bound by the fastest mode",

@@ -13,6 +13,7 @@ use diffsol::{
 
 use diffsol_la::matrix::sparsity::MatrixSparsity;
 
+use super::SimError;
 use crate::ir::VarId;
 use crate::tape::{EvalError, TangentCache, Tape};
 use std::collections::HashMap;
@@ -171,11 +172,13 @@ impl<M: Matrix<T = f64>> CircuitOde<M>
 where
     M::V: HostVec,
 {
-    pub fn new(tape: Rc<Tape>, y0: Vec<f64>, sparse: bool) -> CircuitOde<M> {
+    pub fn new(tape: Rc<Tape>, y0: Vec<f64>, sparse: bool) -> Result<CircuitOde<M>, SimError> {
         let ctx = M::C::default();
         let n = tape.states.len();
         let (sparsity, coloring) = if sparse {
-            let mut nz = tape.jacobian_pattern();
+            let mut nz = tape
+                .jacobian_pattern()
+                .map_err(|dense| SimError::DenseJacobian { dense })?;
             nz.extend((0..n).map(|i| (i, i)));
             nz.sort_unstable();
             nz.dedup();
@@ -186,7 +189,7 @@ where
         } else {
             (None, None)
         };
-        CircuitOde {
+        Ok(CircuitOde {
             regs: RefCell::new(tape.registers()),
             side_regs: RefCell::new(tape.registers()),
             dregs: RefCell::new(vec![0.0; tape.n_regs]),
@@ -201,7 +204,7 @@ where
             jv_point: RefCell::new((f64::NAN, Vec::new())),
             tangents: RefCell::new(TangentCache::default()),
             mregs: RefCell::new(Vec::new()),
-        }
+        })
     }
 
     pub fn counts(&self) -> EvalCounts {

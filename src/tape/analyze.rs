@@ -3,6 +3,7 @@
 //! Jacobian's sparsity.
 
 use std::collections::HashMap;
+use std::rc::Rc;
 
 use super::*;
 
@@ -480,93 +481,177 @@ impl Tape {
         self.classify(&b.body, dep);
     }
 
-    /// The sparsity of `∂f/∂y`: for each derivative, the states it depends on.
-    pub fn jacobian_pattern(&self) -> Vec<(usize, usize)> {
-        // Dependencies propagate through the program as sorted state lists.
-        let mut deps: Vec<Vec<u32>> = vec![Vec::new(); self.n_regs];
+    /// The sparsity of `∂f/∂y`: for each derivative, the states it depends
+    /// on; [`DensePattern`] past [`PATTERN_LIMIT`] entries (in the pattern,
+    /// or made while it is computed), before they take gigabytes.
+    pub fn jacobian_pattern(&self) -> Result<Vec<(usize, usize)>, DensePattern> {
+        self.jacobian_pattern_within(PATTERN_LIMIT)
+    }
+
+    /// [`Tape::jacobian_pattern`] with at most `limit` entries.
+    pub fn jacobian_pattern_within(
+        &self,
+        limit: usize,
+    ) -> Result<Vec<(usize, usize)>, DensePattern> {
+        // Dependencies propagate through the program as sorted state lists,
+        // shared where a register depends on what one other does (a copy, a
+        // scaling, every value of a block): only unions are new lists.
+        let empty: Rc<[u32]> = Rc::from(Vec::new());
+        let mut deps: Vec<Rc<[u32]>> = vec![empty.clone(); self.n_regs];
         for (k, &s) in self.state_regs.iter().enumerate() {
-            deps[s] = vec![k as u32];
+            deps[s] = Rc::from(vec![k as u32]);
         }
-        fn merge(into: &mut Vec<u32>, from: &[u32]) {
-            if from.is_empty() {
-                return;
-            }
-            let mut m = Vec::with_capacity(into.len() + from.len());
-            let (mut i, mut j) = (0, 0);
-            while i < into.len() || j < from.len() {
-                let next = match (into.get(i), from.get(j)) {
-                    (Some(&a), Some(&b)) if a == b => {
-                        i += 1;
-                        j += 1;
-                        a
-                    }
-                    (Some(&a), Some(&b)) if a < b => {
-                        i += 1;
-                        a
-                    }
-                    (Some(_), Some(&b)) | (None, Some(&b)) => {
-                        j += 1;
-                        b
-                    }
-                    (Some(&a), None) => {
-                        i += 1;
-                        a
-                    }
-                    (None, None) => unreachable!(),
-                };
-                m.push(next);
-            }
-            *into = m;
+        let mut walk = PatternWalk {
+            tape: self,
+            deps,
+            empty,
+            made: 0,
+            limit,
+            widest: None,
+        };
+        walk.walk(&self.code)?;
+        let entries: usize = self.deriv_regs.iter().map(|&d| walk.deps[d].len()).sum();
+        if entries > limit {
+            return Err(walk.dense(entries));
         }
-        fn walk(tape: &Tape, code: &[Instr], deps: &mut Vec<Vec<u32>>) {
-            for ins in code {
-                if let Instr::Block { k } = ins {
-                    let b = &tape.blocks[*k as usize];
-                    // Everything in a block depends on everything it reads.
-                    let mut all = Vec::new();
-                    for i in &b.body {
-                        for s in i.operands() {
-                            let from = std::mem::take(&mut deps[s]);
-                            merge(&mut all, &from);
-                            deps[s] = from;
-                        }
-                    }
-                    for i in &b.body {
-                        let d = i.dest();
-                        if d != NONE {
-                            deps[d] = all.clone();
-                        }
-                    }
-                    for &x in &b.tears {
-                        deps[x] = all.clone();
-                    }
-                    // Second pass: body values depend on the tears' dependencies.
-                    walk(tape, &b.body, deps);
-                    for i in &b.body {
-                        let d = i.dest();
-                        if d != NONE {
-                            let mut v = std::mem::take(&mut deps[d]);
-                            merge(&mut v, &all);
-                            deps[d] = v;
-                        }
-                    }
-                    continue;
-                }
-                let d = ins.dest();
-                let mut acc = Vec::new();
-                for s in ins.operands() {
-                    merge(&mut acc, &deps[s]);
-                }
-                deps[d] = acc;
-            }
-        }
-        walk(self, &self.code, &mut deps);
-        let mut out = Vec::new();
+        let mut out = Vec::with_capacity(entries);
         for (i, &d) in self.deriv_regs.iter().enumerate() {
-            for &j in &deps[d] {
+            for &j in walk.deps[d].iter() {
                 out.push((i, j as usize));
             }
         }
-        out
+        Ok(out)
+    }
+}
+
+/// The most entries [`Tape::jacobian_pattern`] makes, in the pattern or in
+/// the dependency lists it computes it from: 2·10^7, a dense Jacobian of
+/// about 4,500 states, whose every factorization takes 3·10^10 operations.
+pub const PATTERN_LIMIT: usize = 20_000_000;
+
+/// The Jacobian is too dense to integrate: the states coupled, the entries
+/// found before the count stopped, and the block that couples the most.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DensePattern {
+    pub states: usize,
+    /// The entries counted when the limit was passed, and the limit.
+    pub entries: usize,
+    pub limit: usize,
+    /// The block whose body reads the most states: its number, elements and
+    /// how many states it reads.
+    pub block: Option<(usize, Vec<String>, usize)>,
+}
+
+/// [`Tape::jacobian_pattern`]'s walk over the program.
+struct PatternWalk<'t> {
+    tape: &'t Tape,
+    deps: Vec<Rc<[u32]>>,
+    empty: Rc<[u32]>,
+    /// Entries of the lists made so far, and the most it may make.
+    made: usize,
+    limit: usize,
+    /// The block that read the most states so far, and how many.
+    widest: Option<(usize, usize)>,
+}
+
+impl PatternWalk<'_> {
+    fn dense(&self, entries: usize) -> DensePattern {
+        DensePattern {
+            states: self.tape.states.len(),
+            entries,
+            limit: self.limit,
+            block: self.widest.map(|(k, n)| {
+                let b = &self.tape.blocks[k];
+                (b.index, b.elements.clone(), n)
+            }),
+        }
+    }
+
+    /// The union of two sorted lists, shared when one holds the other.
+    fn union(&mut self, a: &Rc<[u32]>, b: &Rc<[u32]>) -> Result<Rc<[u32]>, DensePattern> {
+        if b.is_empty() || Rc::ptr_eq(a, b) {
+            return Ok(a.clone());
+        }
+        if a.is_empty() {
+            return Ok(b.clone());
+        }
+        let mut m = Vec::with_capacity(a.len() + b.len());
+        let (mut i, mut j) = (0, 0);
+        while i < a.len() && j < b.len() {
+            match a[i].cmp(&b[j]) {
+                std::cmp::Ordering::Equal => {
+                    m.push(a[i]);
+                    i += 1;
+                    j += 1;
+                }
+                std::cmp::Ordering::Less => {
+                    m.push(a[i]);
+                    i += 1;
+                }
+                std::cmp::Ordering::Greater => {
+                    m.push(b[j]);
+                    j += 1;
+                }
+            }
+        }
+        m.extend_from_slice(&a[i..]);
+        m.extend_from_slice(&b[j..]);
+        if m.len() == a.len() {
+            return Ok(a.clone());
+        }
+        if m.len() == b.len() {
+            return Ok(b.clone());
+        }
+        self.made += m.len();
+        if self.made > self.limit {
+            return Err(self.dense(self.made));
+        }
+        Ok(Rc::from(m))
+    }
+
+    fn walk(&mut self, code: &[Instr]) -> Result<(), DensePattern> {
+        for ins in code {
+            if let Instr::Block { k } = ins {
+                let b = &self.tape.blocks[*k as usize];
+                // Everything in a block depends on everything it reads.
+                let mut all = self.empty.clone();
+                for i in &b.body {
+                    for s in i.operands() {
+                        let from = self.deps[s].clone();
+                        all = self.union(&all, &from)?;
+                    }
+                }
+                if self.widest.is_none_or(|(_, n)| all.len() > n) {
+                    self.widest = Some((*k as usize, all.len()));
+                }
+                for i in &b.body {
+                    let d = i.dest();
+                    if d != NONE {
+                        self.deps[d] = all.clone();
+                    }
+                }
+                for &x in &b.tears {
+                    self.deps[x] = all.clone();
+                }
+                // Second pass: body values depend on the tears' dependencies.
+                self.walk(&b.body)?;
+                for i in &b.body {
+                    let d = i.dest();
+                    if d != NONE {
+                        let v = self.deps[d].clone();
+                        self.deps[d] = self.union(&v, &all)?;
+                    }
+                }
+                continue;
+            }
+            let d = ins.dest();
+            let mut acc = self.empty.clone();
+            for s in ins.operands() {
+                let from = self.deps[s].clone();
+                acc = self.union(&acc, &from)?;
+            }
+            self.deps[d] = acc;
+        }
+        Ok(())
     }
 }

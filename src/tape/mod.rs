@@ -19,6 +19,7 @@ use crate::numeric::newton::{self, Damping};
 use crate::numeric::{DenseLu, Factored, TripletLu};
 
 mod analyze;
+pub use analyze::{DensePattern, PATTERN_LIMIT};
 mod block;
 mod compile;
 mod eval;

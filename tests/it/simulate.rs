@@ -1354,6 +1354,27 @@ fn a_loops_state_only_terms_are_computed_ahead_of_it() {
     assert!(run.time.last().is_some_and(|&t| (t - 20e-9).abs() < 1e-15));
 }
 
+/// The Jacobian's pattern is computed within a bound on the entries it
+/// makes, which names the loop that couples the most states when it is
+/// passed: the diode bridge's loop reads all five states, and a bound one
+/// below its pattern's size is passed where the default is not. A circuit whose torn loop couples
+/// thousands of states (CircuitSim90's `dac.cir`: 6,362, 9 GB before it
+/// aborted) ends with K0419 in seconds instead.
+#[test]
+fn a_dense_jacobian_is_refused_within_its_bound() {
+    let s = sort_file("bench/vacask_graetz.cir");
+    let t = kausal::tape::compile(s.system(), &s.schedule, &[]);
+    let pattern = t.jacobian_pattern().expect("within the default bound");
+    let limit = pattern.len() - 1;
+    let dense = t
+        .jacobian_pattern_within(limit)
+        .expect_err("past the bound");
+    assert_eq!((dense.states, dense.limit), (5, limit));
+    let (_, elements, n) = dense.block.expect("the bridge's loop");
+    assert_eq!(n, 5);
+    assert!(elements.iter().any(|e| e == "d1"), "{elements:?}");
+}
+
 /// The sparse Jacobian is computed compressed, every colour of the column
 /// colouring a direction of one tangent pass: each entry of the pattern
 /// equals the column-by-column Jacobian's, also when the scratch holds the
@@ -1363,7 +1384,7 @@ fn a_compressed_jacobian_equals_its_columns() {
     let s = sort_file("hard/dc_inverter_chain_50.cir");
     let t = kausal::tape::compile(s.system(), &s.schedule, &[]);
     let n = t.states.len();
-    let pattern = t.jacobian_pattern();
+    let pattern = t.jacobian_pattern().expect("sparse");
     let mut rows = vec![Vec::new(); n];
     for &(i, j) in &pattern {
         rows[i].push(j as u32);
