@@ -47,10 +47,17 @@ impl Elab {
         // A transistor's terminals may share a node (a diode-connected BJT).
         let device = matches!(el.body, ElementBody::Device { .. });
         // A resistor, capacitor, inductor or diode with both terminals on one
-        // node carries no current: ngspice keeps it, kausal leaves it out.
+        // node carries no current, and a current source (I, G, F, B with
+        // `I=`) between a node and itself puts none into it: ngspice keeps
+        // it, kausal leaves it out.
         let passive = matches!(
             el.body,
-            ElementBody::Passive { .. } | ElementBody::Diode { .. }
+            ElementBody::Passive { .. }
+                | ElementBody::Diode { .. }
+                | ElementBody::Behavioural { current: true, .. }
+        ) || matches!(
+            el.letter,
+            ElementLetter::I | ElementLetter::G | ElementLetter::F
         );
         if passive && nodes.len() >= 2 && nodes[0] == nodes[1] {
             self.errors.push(ElabError::ShortedElement {
