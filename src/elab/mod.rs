@@ -23,6 +23,7 @@ use rustc_hash::{FxHashMap, FxHashSet};
 pub use circuit::*;
 pub use error::ElabError;
 pub use model::JUNCTION_CAPACITANCE_FLOOR;
+pub(crate) use mos::MEYER_FLOOR;
 
 use crate::diag::Span;
 use crate::front::ast::{self, Stmt, Value};

@@ -40,9 +40,12 @@ const EPS_SI: f64 = 11.7 * 8.854_214_871e-12;
 /// The floor of a Meyer capacitance that can vanish (a gate–drain
 /// capacitance in saturation without overlap), as a fraction of the gate
 /// oxide's: the branch's voltage is a state, which a zero capacitance would
-/// leave undetermined. 1e-6 of the oxide's moves no waveform measurably; it
-/// adds a fast mode that a stiff integrator damps.
-const MEYER_FLOOR: f64 = 1e-6;
+/// leave undetermined. It adds a fast mode that a stiff integrator damps,
+/// and a current of the floor times the branch's slew where ngspice has
+/// none: at 1e-6 of the oxide's, a power MOSFET's gate–bulk current (Xyce's
+/// `power_nmos2`, whose whole range is a nanoampere) was 0.30 of its range
+/// off ngspice; at 1e-9, 3.0e-4.
+pub(crate) const MEYER_FLOOR: f64 = 1e-9;
 
 /// The model card's values; `None` where ngspice's "given" flag matters.
 #[derive(Clone, Debug, PartialEq)]

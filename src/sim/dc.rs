@@ -505,11 +505,11 @@ pub(super) fn fets(sorted: &Sorted, tape: &Tape) -> Vec<Fet> {
 }
 
 /// The factor on capacitance floors while the operating point is solved:
-/// MOSFET gate capacitances floored at 1e-6 of the oxide's are raised to
-/// 1e-2 of it, which leaves the operating point as it is and the Jacobian's
-/// rounding well away from cancelling junction conductances (see
-/// [`crate::ir::EquationSystem::add_floor_param`]).
-const DC_FLOOR_FACTOR: f64 = 1e4;
+/// MOSFET gate capacitances floored at [`crate::elab::MEYER_FLOOR`] of the
+/// oxide's are raised to 1e-2 of it, which leaves the operating point as it
+/// is and the Jacobian's rounding well away from cancelling junction
+/// conductances (see [`crate::ir::EquationSystem::add_floor_param`]).
+const DC_FLOOR_FACTOR: f64 = 1e-2 / crate::elab::MEYER_FLOOR;
 
 /// The operating point's settings for as long as it lives (floors raised,
 /// work limited): floors back at 1 and no limit when it drops, on every
