@@ -275,9 +275,8 @@ pub enum SimError {
         t: f64,
     },
     #[error(
-        "the Jacobian of the {} states is too dense to integrate: {} of its entries are nonzero, past kausal's limit of {:.1e}{}",
+        "the Jacobian of the {} states is too dense to integrate: it has more than {:.1e} nonzero entries (kausal's limit){}",
         dense.states,
-        format!("more than {:.1e}", dense.limit as f64),
         dense.limit as f64,
         match &dense.block {
             Some((k, elements, n)) => format!("; algebraic loop {k} couples {n} of them, through {}", crate::back::listing::shortened(elements, crate::back::listing::ELEMENTS_SHOWN)),
