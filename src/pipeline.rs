@@ -327,7 +327,11 @@ pub fn sort_built(
             return Err(fail(el, diags));
         }
     };
-    let system = reduction.as_ref().map_or(&built.system, |r| &r.system);
+    let (mut built, mut reduction) = (built, reduction);
+    let system = match reduction.as_mut() {
+        Some(r) => &mut r.system,
+        None => &mut built.system,
+    };
     let schedule = crate::analysis::schedule(system, &causal);
     Ok(Sorted {
         elaborated: el,

@@ -67,11 +67,10 @@ pub enum Step {
 }
 
 /// Execution order of a causalized system. Back ends follow it and never
-/// reorder it.
+/// reorder it. Its solved forms are expressions of the system's own arena
+/// ([`schedule`] adds them there).
 #[derive(Clone, Debug, Default)]
 pub struct Schedule {
-    /// The system's expressions plus the solved forms.
-    pub exprs: ExprArena,
     pub steps: Vec<Step>,
 }
 
@@ -143,9 +142,20 @@ fn kahn(n: usize, edges: &[(u32, u32)], key: impl Fn(usize) -> u32) -> Vec<usize
     order
 }
 
-/// Order the assignments of a causalization and solve each for its unknown.
-pub fn schedule(sys: &EquationSystem, c: &Causalization) -> Schedule {
-    let mut x = sys.exprs.clone();
+/// Order the assignments of a causalization and solve each for its unknown,
+/// adding the solved forms to the system's arena (not to a copy of it: on a
+/// 10^5-section ladder the copy and its growth were a fifth of the sort's
+/// peak memory).
+pub fn schedule(sys: &mut EquationSystem, c: &Causalization) -> Schedule {
+    let mut x = std::mem::take(&mut sys.exprs);
+    let steps = order(&mut x, sys, c);
+    sys.exprs = x;
+    Schedule { steps }
+}
+
+/// [`schedule`]'s steps, solved into `x` (the system's arena, taken out of
+/// `sys` meanwhile: nothing here reads `sys.exprs`).
+fn order(x: &mut ExprArena, sys: &EquationSystem, c: &Causalization) -> Vec<Step> {
     let n = sys.eqs.len();
     if c.tears.is_empty() {
         // The colouring's numbers are already a topological order.
@@ -153,11 +163,10 @@ pub fn schedule(sys: &EquationSystem, c: &Causalization) -> Schedule {
         for eq in sys.eqs.ids() {
             by_number[c.number(eq) as usize - 1] = eq;
         }
-        let steps = by_number
+        return by_number
             .into_iter()
-            .map(|eq| Step::Assign(assignment(&mut x, sys, c, eq)))
+            .map(|eq| Step::Assign(assignment(x, sys, c, eq)))
             .collect();
-        return Schedule { exprs: x, steps };
     }
     // Dependency edges producer -> consumer between equations.
     let mut edges: Vec<(u32, u32)> = Vec::new();
@@ -197,15 +206,15 @@ pub fn schedule(sys: &EquationSystem, c: &Causalization) -> Schedule {
         let comp = &comps[k];
         let is_tear = |e: u32| c.rule(EqId(e)) == Some(Rule::Tear);
         if comp.len() == 1 && !is_tear(comp[0]) {
-            steps.push(Step::Assign(assignment(&mut x, sys, c, EqId(comp[0]))));
+            steps.push(Step::Assign(assignment(x, sys, c, EqId(comp[0]))));
             continue;
         }
         n_blocks += 1;
         steps.push(Step::Block(Box::new(block(
-            &mut x, sys, c, comp, &edges, n_blocks,
+            x, sys, c, comp, &edges, n_blocks,
         ))));
     }
-    Schedule { exprs: x, steps }
+    steps
 }
 
 fn block(

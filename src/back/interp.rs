@@ -62,14 +62,13 @@ pub fn magnitude(sys: &EquationSystem, x: &ExprArena, e: ExprId, vals: &[f64], t
     }
 }
 
-fn residual_of(sys: &EquationSystem, s: &Schedule, a: &Assignment, vals: &[f64], t: f64) -> f64 {
+fn residual_of(sys: &EquationSystem, a: &Assignment, vals: &[f64], t: f64) -> f64 {
     let eq = &sys.eqs[a.eq];
-    eval(sys, &s.exprs, eq.lhs, vals, t) - eval(sys, &s.exprs, eq.rhs, vals, t)
+    eval(sys, &sys.exprs, eq.lhs, vals, t) - eval(sys, &sys.exprs, eq.rhs, vals, t)
 }
 
 fn assign(
     sys: &EquationSystem,
-    s: &Schedule,
     a: &Assignment,
     vals: &mut [f64],
     t: f64,
@@ -77,20 +76,20 @@ fn assign(
 ) -> Result<(), InterpError> {
     match a.solved {
         Solved::Explicit(e) => {
-            vals[a.var.0 as usize] = eval(sys, &s.exprs, e, vals, t);
+            vals[a.var.0 as usize] = eval(sys, &sys.exprs, e, vals, t);
             Ok(())
         }
         Solved::Implicit(f) => {
             let v = a.var.0 as usize;
             for _ in 0..100 {
-                let r = eval(sys, &s.exprs, f, vals, t);
+                let r = eval(sys, &sys.exprs, f, vals, t);
                 if r.abs() <= 1e-13 * (1.0 + vals[v].abs()) {
                     return Ok(());
                 }
                 let h = 1e-7 * (1.0 + vals[v].abs());
                 let x0 = vals[v];
                 vals[v] = x0 + h;
-                let r1 = eval(sys, &s.exprs, f, vals, t);
+                let r1 = eval(sys, &sys.exprs, f, vals, t);
                 vals[v] = x0;
                 let d = (r1 - r) / h;
                 if d == 0.0 || !d.is_finite() {
@@ -100,7 +99,7 @@ fn assign(
             }
             Err(InterpError::NoConvergence {
                 block,
-                residual: eval(sys, &s.exprs, f, vals, t).abs(),
+                residual: eval(sys, &sys.exprs, f, vals, t).abs(),
             })
         }
     }
@@ -122,17 +121,17 @@ pub fn run(
     let mut floors = Vec::new();
     for step in &s.steps {
         match step {
-            Step::Assign(a) => assign(sys, s, a, vals, t, 0)?,
+            Step::Assign(a) => assign(sys, a, vals, t, 0)?,
             Step::Block(b) => {
                 let n = b.tears.len();
                 let tears: Vec<VarId> = b.tears.clone();
                 let resid = |vals: &mut [f64]| -> Result<Vec<f64>, InterpError> {
                     for a in &b.inner {
-                        assign(sys, s, a, vals, t, b.index)?;
+                        assign(sys, a, vals, t, b.index)?;
                     }
                     Ok(b.residuals
                         .iter()
-                        .map(|a| residual_of(sys, s, a, vals, t))
+                        .map(|a| residual_of(sys, a, vals, t))
                         .collect())
                 };
                 let mut converged = false;
@@ -144,8 +143,8 @@ pub fn run(
                         .zip(&b.residuals)
                         .map(|(x, a)| {
                             let eq = &sys.eqs[a.eq];
-                            let size = magnitude(sys, &s.exprs, eq.lhs, vals, t)
-                                + magnitude(sys, &s.exprs, eq.rhs, vals, t);
+                            let size = magnitude(sys, &sys.exprs, eq.lhs, vals, t)
+                                + magnitude(sys, &sys.exprs, eq.rhs, vals, t);
                             if *x == 0.0 { 0.0 } else { x.abs() / size }
                         })
                         .fold(0.0, f64::max)

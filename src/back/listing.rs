@@ -136,7 +136,7 @@ fn numbered_rows(step: &Step) -> usize {
 }
 
 /// Format `steps`, whose first numbered row is `first + 1`.
-fn chunk(sys: &EquationSystem, s: &Schedule, steps: &[Step], first: usize) -> Chunk {
+fn chunk(sys: &EquationSystem, steps: &[Step], first: usize) -> Chunk {
     let n_rows: usize = steps.iter().map(|st| numbered_rows(st) + 2).sum();
     let mut c = Chunk {
         buf: String::with_capacity(n_rows * 64),
@@ -155,11 +155,11 @@ fn chunk(sys: &EquationSystem, s: &Schedule, steps: &[Step], first: usize) -> Ch
             Solved::Explicit(e) => {
                 buf.push_str(name);
                 buf.push_str(" := ");
-                write_expr(sys, &s.exprs, e, buf);
+                write_expr(sys, &sys.exprs, e, buf);
             }
             Solved::Implicit(e) => {
                 buf.push_str("0 = ");
-                write_expr(sys, &s.exprs, e, buf);
+                write_expr(sys, &sys.exprs, e, buf);
                 let _ = write!(buf, "  (solved numerically for {name})");
             }
         }
@@ -263,14 +263,14 @@ fn write_chunked<W: std::io::Write + ?Sized>(
         })
         .collect();
     let chunks: Vec<Chunk> = if spans.len() == 1 {
-        vec![chunk(sys, s, &s.steps, 0)]
+        vec![chunk(sys, &s.steps, 0)]
     } else {
         std::thread::scope(|scope| {
             // A chunk whose thread cannot be started is formatted here.
             let handles: Vec<_> = spans
                 .iter()
                 .map(|&(a, b, first)| {
-                    let work = move || chunk(sys, s, &s.steps[a..b], first);
+                    let work = move || chunk(sys, &s.steps[a..b], first);
                     std::thread::Builder::new()
                         .spawn_scoped(scope, work)
                         .map_err(|_| work)
@@ -395,17 +395,12 @@ pub fn trace(sys: &EquationSystem, c: &Causalization) -> String {
     out
 }
 
-fn assignment_json(
-    sys: &EquationSystem,
-    s: &Schedule,
-    a: &Assignment,
-    k: &mut usize,
-) -> serde_json::Value {
+fn assignment_json(sys: &EquationSystem, a: &Assignment, k: &mut usize) -> serde_json::Value {
     *k += 1;
     let e = &sys.eqs[a.eq];
     let (form, text) = match a.solved {
-        Solved::Explicit(x) => ("explicit", expr(sys, &s.exprs, x)),
-        Solved::Implicit(x) => ("implicit", expr(sys, &s.exprs, x)),
+        Solved::Explicit(x) => ("explicit", expr(sys, &sys.exprs, x)),
+        Solved::Implicit(x) => ("implicit", expr(sys, &sys.exprs, x)),
     };
     json!({
         "position": *k,
@@ -427,10 +422,10 @@ pub fn json(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> serde_json
         .steps
         .iter()
         .map(|step| match step {
-            Step::Assign(a) => json!({"assign": assignment_json(sys, s, a, &mut k)}),
+            Step::Assign(a) => json!({"assign": assignment_json(sys, a, &mut k)}),
             Step::Block(b) => {
-                let inner: Vec<_> = b.inner.iter().map(|a| assignment_json(sys, s, a, &mut k)).collect();
-                let res: Vec<_> = b.residuals.iter().map(|a| assignment_json(sys, s, a, &mut k)).collect();
+                let inner: Vec<_> = b.inner.iter().map(|a| assignment_json(sys, a, &mut k)).collect();
+                let res: Vec<_> = b.residuals.iter().map(|a| assignment_json(sys, a, &mut k)).collect();
                 json!({"block": {
                     "index": b.index,
                     "description": block_header(b),
@@ -658,11 +653,11 @@ mod tests {
         assert!(errors.is_empty());
         let (circuit, errors) = crate::elab::elaborate(&ast);
         assert!(errors.is_empty());
-        let sys = crate::build::build(&circuit, Default::default()).system;
+        let mut sys = crate::build::build(&circuit, Default::default()).system;
         let Ok(causal) = crate::analysis::causalize(&sys, Default::default()) else {
             panic!("the circuit does not sort");
         };
-        let s = &crate::analysis::schedule(&sys, &causal);
+        let s = &crate::analysis::schedule(&mut sys, &causal);
         let sys = &sys;
         let rows: usize = s.steps.iter().map(numbered_rows).sum();
         let whole = text(sys, s);

@@ -8,7 +8,6 @@ use super::*;
 
 pub(super) struct Compiler<'a> {
     sys: &'a EquationSystem,
-    sched: &'a Schedule,
     n_regs: u32,
     init: Vec<f64>,
     memo: HashMap<ExprId, Reg>,
@@ -91,7 +90,7 @@ impl Compiler<'_> {
     /// The value of a constant or parameter expression (not of a
     /// parameter the simulator sets).
     fn constant(&self, e: ExprId) -> Option<f64> {
-        match self.sched.exprs.get(e) {
+        match self.sys.exprs.get(e) {
             Expr::Const(b) => Some(f64::from_bits(b)),
             // Sources' and switches' values change at run time.
             Expr::Param(p) => {
@@ -110,7 +109,7 @@ impl Compiler<'_> {
     /// Whether `e` already has its register.
     fn emitted(&self, e: ExprId) -> bool {
         self.memo.contains_key(&e)
-            || match self.sched.exprs.get(e) {
+            || match self.sys.exprs.get(e) {
                 Expr::Var(v) => self.var_reg[v.0 as usize] != NONE,
                 Expr::Param(p) => self.param_reg[p.0 as usize] != NONE,
                 _ => false,
@@ -139,7 +138,7 @@ impl Compiler<'_> {
                     continue;
                 }
                 stack.push((n, true));
-                let x = &self.sched.exprs;
+                let x = &self.sys.exprs;
                 let children = match x.get(n) {
                     Expr::Var(v) if self.var_reg[v.0 as usize] == NONE => {
                         [self.sys.vars[v].alias, None, None]
@@ -156,7 +155,7 @@ impl Compiler<'_> {
             }
         }
         let depth = depth + 1;
-        let x = &self.sched.exprs;
+        let x = &self.sys.exprs;
         let r = match x.get(e) {
             Expr::Const(b) => {
                 let r = self.const_reg(f64::from_bits(b));
@@ -672,7 +671,6 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
     let states: Vec<VarId> = sys.states().collect();
     let mut c = Compiler {
         sys,
-        sched,
         n_regs: 0,
         init: Vec::new(),
         memo: HashMap::new(),
@@ -722,7 +720,7 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
     let var_regs = c.var_reg.clone();
     // The output program gets its own registers for everything computed.
     c.memo
-        .retain(|&e, _| matches!(sched.exprs.get(e), Expr::Const(_)));
+        .retain(|&e, _| matches!(sys.exprs.get(e), Expr::Const(_)));
     for v in sys.vars.ids() {
         if !sys.vars[v].is_state() {
             c.var_reg[v.0 as usize] = NONE;

@@ -76,7 +76,7 @@ fn seed_a_sorts_as_in_seed_000() {
         .map(|a| match a.solved {
             Solved::Explicit(e) => {
                 let mut t = format!("{} := ", sys.vars[a.var].name);
-                kausal::ir::print::write_expr_in(sys, &s.schedule.exprs, e, &mut t);
+                kausal::ir::print::write_expr_in(sys, &sys.exprs, e, &mut t);
                 t
             }
             Solved::Implicit(_) => panic!("seed A is explicit"),

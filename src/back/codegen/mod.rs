@@ -698,7 +698,7 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
     let syn = lang.syntax();
     let g = Gen {
         sys,
-        x: &sched.exprs,
+        x: &sys.exprs,
         syn,
     };
     let states: Vec<_> = sys.states().collect();
