@@ -96,6 +96,7 @@ codes! {
     TOO_MANY_OUTPUT_POINTS = "K0222", "`.tran` asks for … output points, more than kausal writes (…).";
     UNSUPPORTED_MODEL = "K0223", "Model `…` is …, which kausal does not model.";
     BAD_DEVICE = "K0224", "`…`: ….";
+    NEGATIVE_CAPACITANCE = "K0287", "`…` has a negative capacitance: a mode through it can grow in time.";
     DUPLICATE_PORT = "K0288", "Port `…` is named twice in `.subckt …`: ngspice connects it to the first node.";
     SHORTED_ELEMENT = "K0289", "`…` has both terminals on node `…`: it carries no current and is left out.";
     UNKNOWN_MODEL_PARAM = "K0290", "Unknown parameter `…` on model `…`.";

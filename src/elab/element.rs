@@ -374,10 +374,17 @@ impl Elab {
             ElementLetter::R => ElementKind::Resistor {
                 r: self.nonzero(v, span, name, "resistance")? / m,
             },
-            ElementLetter::C => ElementKind::Capacitor {
-                c: self.nonzero(v, span, name, "capacitance")? * m,
-                ic,
-            },
+            ElementLetter::C => {
+                let c = self.nonzero(v, span, name, "capacitance")? * m;
+                if c < 0.0 {
+                    self.errors.push(ElabError::NegativeCapacitance {
+                        span,
+                        element: name.to_string(),
+                        value: c,
+                    });
+                }
+                ElementKind::Capacitor { c, ic }
+            }
             _ => ElementKind::Inductor {
                 l: self.nonzero(v, span, name, "inductance")? / m,
                 ic,

@@ -83,6 +83,14 @@ pub enum ElabError {
         subckt: String,
         first: Span,
     },
+    #[error(
+        "`{element}` has a negative capacitance ({value:e} F): a mode through it can grow in time"
+    )]
+    NegativeCapacitance {
+        span: Span,
+        element: String,
+        value: f64,
+    },
     #[error("element `{name}` is defined twice")]
     DuplicateElement {
         span: Span,
@@ -235,6 +243,7 @@ impl ElabError {
             | TooManyElements { span, .. }
             | PortMismatch { span, .. }
             | DuplicatePort { span, .. }
+            | NegativeCapacitance { span, .. }
             | DuplicateElement { span, .. }
             | SingleNode { span, .. }
             | UnknownControl { span, .. }
@@ -273,6 +282,7 @@ impl ElabError {
             | PwlParamOnCurrent { .. }
             | TransitTimeWithoutCapacitance { .. }
             | DuplicatePort { .. }
+            | NegativeCapacitance { .. }
             | ShortedElement { .. } => Severity::Warning,
             // An output vector naming nothing is left out, as ngspice leaves
             // it out (it warns and runs): Xyce's `v(*)`, `i(X1:L1)`.
@@ -299,6 +309,7 @@ impl ToDiagnostic for ElabError {
             DeepHierarchy { .. } => (codes::DEEP_HIERARCHY, "too deep", "flatten some levels of the hierarchy".into()),
             TooManyElements { .. } => (codes::TOO_MANY_ELEMENTS, "expands past the limit here", "each instance copies its subcircuit, so a tree of instances grows exponentially with its depth; reduce its fan-out or depth".into()),
             PortMismatch { expected, .. } => (codes::PORT_MISMATCH, "wrong node count", format!("connect exactly {expected} nodes")),
+            NegativeCapacitance { .. } => (codes::NEGATIVE_CAPACITANCE, "negative", "a macromodel's \"negative zero\" relies on the simulator to damp the mode it makes: ngspice's long steps do, and kausal's error control follows it as it grows (the smaller the resistance beside it, the faster); if the run stops in femtosecond steps, this is why".into()),
             DuplicatePort { .. } => (codes::DUPLICATE_PORT, "second time", "the node an instance connects here is left unconnected (it exists only where other elements use it); rename the port if both were meant".into()),
             DuplicateElement { .. } => (codes::DUPLICATE_ELEMENT, "second definition", "rename one of them".into()),
             SingleNode { .. } => (codes::SINGLE_NODE, "both terminals here", "an element must connect two different nodes".into()),
