@@ -71,6 +71,7 @@ codes! {
     SKIPPED_CONTROL = "K0191", "`.control` block skipped: kausal does not run ngspice scripts.";
     IGNORED_DIRECTIVE = "K0192", "`.…` is ignored by kausal.";
     IGNORED_OUTPUT = "K0193", "An output item kausal does not write (`vdb(…)`, `@r1[i]`, an expression) is left out.";
+    STRAY_MODEL_VALUE = "K0194", "A value with no parameter name in a `.model` card is ignored.";
     UNDEFINED_PARAM = "K0200", "Parameter `…` is not defined.";
     BAD_VALUE = "K0201", "Cannot evaluate `…`: ….";
     UNDEFINED_MODEL = "K0202", "Model `…` is not defined.";

@@ -121,6 +121,12 @@ pub enum ParseError {
     },
     #[error("`.func {name}`'s arguments are not separated by commas")]
     FuncArgsWithoutComma { span: Span, name: String },
+    #[error("`{text}` in the parameters of model `{model}` names no parameter and is ignored")]
+    StrayModelValue {
+        span: Span,
+        text: String,
+        model: String,
+    },
 }
 
 impl ParseError {
@@ -160,7 +166,8 @@ impl ParseError {
             | SkippedControl { span }
             | IgnoredDirective { span, .. }
             | IgnoredOutput { span, .. }
-            | FuncArgsWithoutComma { span, .. } => *span,
+            | FuncArgsWithoutComma { span, .. }
+            | StrayModelValue { span, .. } => *span,
         }
     }
 
@@ -170,7 +177,8 @@ impl ParseError {
             | ParseError::SkippedControl { .. }
             | ParseError::IgnoredDirective { .. }
             | ParseError::IgnoredOutput { .. }
-            | ParseError::FuncArgsWithoutComma { .. } => Severity::Warning,
+            | ParseError::FuncArgsWithoutComma { .. }
+            | ParseError::StrayModelValue { .. } => Severity::Warning,
             _ => Severity::Error,
         }
     }
@@ -215,6 +223,7 @@ impl ParseError {
             UnclosedLib { .. } => (codes::UNCLOSED_LIB, "opened here", "close the section with `.endl`".into()),
             Expected { .. } => (codes::EXPECTED, "here", "see the ngspice manual for the statement's syntax".into()),
             SkippedAnalysis { .. } => (codes::SKIPPED_ANALYSIS, "skipped", "only `.tran` analyses are run".into()),
+            StrayModelValue { .. } => (codes::STRAY_MODEL_VALUE, "no parameter", "ngspice ignores it too (a decimal comma, `M=0,2`, reads as `M=0` and a stray `2`); write `M=0.2` if that was meant".into()),
             IgnoredOutput { .. } => (codes::IGNORED_OUTPUT, "left out", "kausal writes node voltages `v(node)`, `v(node1,node2)` and currents `i(source)`; ngspice also skips what it cannot print".into()),
             SkippedControl { .. } => (codes::SKIPPED_CONTROL, "skipped", "use `.tran`, `.print` and `.options` instead of a control script".into()),
             IgnoredDirective { name, .. } => (codes::IGNORED_DIRECTIVE, "ignored", match name.as_str() {

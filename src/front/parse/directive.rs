@@ -126,6 +126,18 @@ impl<'a> Parser<'a> {
                 // `(… NE=2)` then `+ CJE=… TR=159N)`: the continuation's own
                 // closing parenthesis.
                 TokKind::RParen if closed => {}
+                // A value with no name before it (a decimal comma, `M=0,2`):
+                // ngspice warns and reads on.
+                _ if super::is_value_token(t)
+                    && t.kind == TokKind::Word
+                    && super::parse_number(t.text).is_some() =>
+                {
+                    self.errors.push(ParseError::StrayModelValue {
+                        span: t.span,
+                        text: t.text.to_string(),
+                        model: name.text.to_string(),
+                    });
+                }
                 // SPICE2's `BF 20 RB 100`: a name, then its value.
                 TokKind::Word if c.peek_at(1).is_some_and(super::is_value_token) => {
                     c.next();
