@@ -255,6 +255,27 @@ pub enum Arith {
 }
 
 impl ElementKind {
+    /// The expressions it holds: a B source's (or an intermediate's), a
+    /// device branch's current, charge and capacitance.
+    pub fn exprs_mut(&mut self) -> Vec<&mut BExpr> {
+        match self {
+            ElementKind::Behavioural { expr, .. } | ElementKind::Intermediate { expr, .. } => {
+                vec![&mut **expr]
+            }
+            ElementKind::DeviceBranch {
+                current,
+                charge,
+                capacitance,
+                ..
+            } => [current, charge, capacitance]
+                .into_iter()
+                .flatten()
+                .map(|x| &mut **x)
+                .collect(),
+            _ => Vec::new(),
+        }
+    }
+
     /// The V sources whose currents it reads (F, H, B).
     pub fn controls_mut(&mut self) -> &mut [ElemId] {
         match self {

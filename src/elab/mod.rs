@@ -886,32 +886,16 @@ impl Elab {
     fn drop_unused_nodes(&mut self) {
         let mut used = vec![false; self.circuit.nodes.len()];
         used[GROUND.0 as usize] = true;
-        let pot = |x: &BExpr, used: &mut [bool]| {
-            for n in &x.nodes {
-                if let BNode::Pot(id) = n {
-                    used[id.0 as usize] = true;
-                }
-            }
-        };
-        for e in self.circuit.elements.values() {
+        for e in self.circuit.elements.values_mut() {
             for n in &e.nodes {
                 used[n.0 as usize] = true;
             }
-            match &e.kind {
-                ElementKind::Behavioural { expr, .. } | ElementKind::Intermediate { expr, .. } => {
-                    pot(expr, &mut used)
-                }
-                ElementKind::DeviceBranch {
-                    current,
-                    charge,
-                    capacitance,
-                    ..
-                } => {
-                    for x in [current, charge, capacitance].into_iter().flatten() {
-                        pot(x, &mut used);
+            for x in e.kind.exprs_mut() {
+                for n in &x.nodes {
+                    if let BNode::Pot(id) = n {
+                        used[id.0 as usize] = true;
                     }
                 }
-                _ => {}
             }
         }
         if used.iter().all(|&u| u) {
@@ -930,23 +914,7 @@ impl Elab {
             for n in &mut e.nodes {
                 *n = map(*n).expect("an element's node is used");
             }
-            let exprs: Vec<&mut BExpr> = match &mut e.kind {
-                ElementKind::Behavioural { expr, .. } | ElementKind::Intermediate { expr, .. } => {
-                    vec![&mut **expr]
-                }
-                ElementKind::DeviceBranch {
-                    current,
-                    charge,
-                    capacitance,
-                    ..
-                } => [current, charge, capacitance]
-                    .into_iter()
-                    .flatten()
-                    .map(|x| &mut **x)
-                    .collect(),
-                _ => Vec::new(),
-            };
-            for x in exprs {
+            for x in e.kind.exprs_mut() {
                 for n in &mut x.nodes {
                     if let BNode::Pot(id) = n {
                         *id = map(*id).expect("a node an expression reads is used");
