@@ -78,6 +78,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     });
     let mut top = Scope::default();
     e.collect(&netlist.stmts, &mut top);
+    predefined_params(&netlist.stmts, &mut top);
     e.params(&netlist.stmts, &mut top);
     e.settings(&netlist.stmts, &top);
     let mut stack = Vec::new();
@@ -88,6 +89,36 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     e.dangling();
     (e.circuit, e.errors)
 }
+
+/// The parameters ngspice's PSpice mode defines ahead of the netlist's own
+/// (`inpcompat.c`): `temp` (°C), `vt` (the thermal voltage at it) and
+/// `gmin`. PSpice's libraries use them undefined (TI's TLC555 writes
+/// `N={VTOHP/(VT*LOG(1+IO/IS))}`); a `.param` of the same name replaces
+/// them. The temperature is a top-level `.options temp=` given as a
+/// number, else ngspice's 27 °C.
+fn predefined_params(stmts: &[Stmt<'_>], top: &mut Scope<'_, '_>) {
+    let temp = stmts
+        .iter()
+        .filter_map(|s| match s {
+            Stmt::Options(opts, _) => Some(opts),
+            _ => None,
+        })
+        .flatten()
+        .filter(|o| o.name.is("temp"))
+        .find_map(|o| match &o.value {
+            ast::OptValue::Value(Value::Num { value, .. }) => Some(*value),
+            _ => None,
+        })
+        .filter(|t| (-273.15..=1000.0).contains(t))
+        .unwrap_or(27.0);
+    top.params.insert("temp".into(), temp);
+    top.params
+        .insert("vt".into(), (temp + 273.15) * PSPICE_VT_PER_KELVIN);
+    top.params.insert("gmin".into(), 1e-12);
+}
+
+/// k/q in V/K as ngspice's PSpice mode writes it into `vt`.
+const PSPICE_VT_PER_KELVIN: f64 = 8.6173303e-5;
 
 /// Names visible while expanding one level of the hierarchy.
 #[derive(Default)]

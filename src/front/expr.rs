@@ -4,7 +4,7 @@ use nom::IResult;
 use nom::Parser;
 use nom::branch::alt;
 use nom::bytes::complete::{tag, take_while, take_while1};
-use nom::character::complete::{char, multispace0};
+use nom::character::complete::char;
 use nom::combinator::{opt, recognize, value};
 use nom::multi::separated_list0;
 use nom::number::complete::recognize_float;
@@ -155,10 +155,31 @@ pub fn parse_rkm(s: &str) -> Option<f64> {
     value.is_finite().then_some(value)
 }
 
+/// White space, also where the expression goes on over a `+` continuation
+/// line (the lexer hands over such an expression as written, with the line
+/// breaks, the `+` and any comment lines between).
+fn space(input: &str) -> IResult<&str, &str> {
+    let mut rest = input;
+    loop {
+        let t = rest.trim_start_matches(|c: char| c.is_whitespace() && c != '\n');
+        let Some(after) = t.strip_prefix('\n') else {
+            rest = t;
+            break;
+        };
+        let line = after.trim_start_matches([' ', '\t', '\r']);
+        rest = match line.strip_prefix('+') {
+            Some(r) => r,
+            None if line.starts_with('*') => &line[line.find('\n').unwrap_or(line.len())..],
+            None => line,
+        };
+    }
+    Ok((rest, &input[..input.len() - rest.len()]))
+}
+
 fn ws<'a, O>(
     p: impl Parser<&'a str, Output = O, Error = nom::error::Error<&'a str>>,
 ) -> impl Parser<&'a str, Output = O, Error = nom::error::Error<&'a str>> {
-    delimited(multispace0, p, multispace0)
+    delimited(space, p, space)
 }
 
 fn ident(input: &str) -> IResult<&str, &str> {
@@ -221,6 +242,9 @@ fn atom(input: &str) -> IResult<&str, PExpr> {
             ))
         },
         delimited(ws(char('(')), ternary, ws(char(')'))),
+        // Braces nested in an expression group as parentheses do
+        // (PSpice's `{a > {b}}`, which ngspice reads so).
+        delimited(ws(char('{')), ternary, ws(char('}'))),
     )))
     .parse(input)
 }
@@ -245,8 +269,9 @@ fn unary(input: &str) -> IResult<&str, PExpr> {
         },
         preceded(ws(char('+')), unary),
         |i| {
-            // `!` but not `!=`.
-            let (i, _) = ws(char('!')).parse(i)?;
+            // `!` but not `!=`; PSpice's `~` is `!` too (ngspice's PSpice
+            // mode reads it so).
+            let (i, _) = ws(alt((char('!'), char('~')))).parse(i)?;
             if i.starts_with('=') {
                 return Err(nom::Err::Error(nom::error::Error::new(
                     i,
@@ -331,7 +356,9 @@ fn comparison(input: &str) -> IResult<&str, PExpr> {
     }
 }
 
-/// A left-associative chain of `op` over `item`.
+/// A left-associative chain of `op` over `item`, written `token` or, as
+/// PSpice writes it and ngspice's PSpice mode reads it, its first half
+/// (`&` for `&&`, `|` for `||`).
 fn chain<'a>(
     input: &'a str,
     item: fn(&str) -> IResult<&str, PExpr>,
@@ -339,7 +366,7 @@ fn chain<'a>(
     op: BinOp,
 ) -> IResult<&'a str, PExpr> {
     let (mut i, mut acc) = item(input)?;
-    while let Ok((r, _)) = ws(tag(token)).parse(i) {
+    while let Ok((r, _)) = ws(alt((tag(token), tag(&token[..1])))).parse(i) {
         let (r, rhs) = item(r)?;
         acc = PExpr::Bin(op, Box::new(acc), Box::new(rhs));
         i = r;
@@ -405,7 +432,7 @@ pub fn too_complex(s: &str) -> Option<(usize, String)> {
 /// parsing stopped. The caller checks [`too_complex`] first.
 pub fn parse_expr(s: &str) -> Result<PExpr, usize> {
     match ternary(s) {
-        Ok((rest, e)) if rest.trim().is_empty() => Ok(e),
+        Ok((rest, e)) if space(rest).is_ok_and(|(r, _)| r.is_empty()) => Ok(e),
         Ok((rest, _)) => Err(s.len() - rest.len()),
         Err(nom::Err::Error(e) | nom::Err::Failure(e)) => Err(s.len() - e.input.len()),
         Err(nom::Err::Incomplete(_)) => Err(s.len()),
@@ -642,6 +669,22 @@ mod tests {
         for text in ["470R", "R47", "4k", "10uF", "4F7", "1mil5", "k7", "4x7"] {
             assert_eq!(parse_rkm(text), None, "{text}");
         }
+    }
+
+    /// PSpice's spellings, as ngspice's PSpice mode reads them: `&`, `|`
+    /// and `~` for `&&`, `||` and `!`, braces nested as parentheses, and
+    /// the line breaks of an expression continued over `+` lines (a
+    /// comment line between) as white space.
+    #[test]
+    fn pspice_spellings_read_as_ngspice_reads_them() {
+        let value = |s: &str| parse_expr(s).ok().and_then(|e| e.eval(&|_| None).ok());
+        assert_eq!(value("(1 > 0) & (2 > 3)"), Some(0.0));
+        assert_eq!(value("(1 > 0) | (2 > 3)"), Some(1.0));
+        assert_eq!(value("~(1) || 0"), Some(0.0));
+        assert_eq!(value("2 * {1 + {3}}"), Some(8.0));
+        assert_eq!(value("1 +\n+ 2 *\n* note\n+ 3 \n+ "), Some(7.0));
+        assert_eq!(value("1 2"), None);
+        assert_eq!(value("1\n 2"), None);
     }
 
     /// The most deeply recursive expressions within the bounds parse,

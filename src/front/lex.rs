@@ -81,8 +81,9 @@ pub fn lex_file<'a>(
     let mut title = None;
     let mut offset = 0usize;
     let mut first = true;
-    for raw in text.split_inclusive('\n') {
+    while offset < text.len() {
         let start = offset;
+        let raw = &text[start..line_end(text, start)];
         offset += raw.len();
         let line = raw.trim_end_matches(['\n', '\r']);
         if first && has_title {
@@ -108,7 +109,29 @@ pub fn lex_file<'a>(
         };
         let n_errors = errors.len();
         let before = tokens.len();
-        tokenize(body, file, body_start, errors, &mut tokens);
+        let (mut body, mut body_start) = (body, body_start);
+        // An expression left open at the end of the line goes on over the
+        // `+` lines after it (ngspice joins them before reading it): its
+        // token spans them, and the line ends after the one that closes it.
+        while let Some(open_at) = tokenize(body, file, body_start, errors, &mut tokens) {
+            let open = text.as_bytes()[open_at];
+            let close = if open == b'{' { b'}' } else { b'\'' };
+            let Some(close_at) = close_across(text, open_at, open, close) else {
+                errors.push(ParseError::Unterminated {
+                    span: Span::new(file, open_at, open_at + 1),
+                    close: close as char,
+                });
+                break;
+            };
+            tokens.push(Token {
+                kind: TokKind::Expr,
+                text: &text[open_at + 1..close_at],
+                span: Span::new(file, open_at, close_at + 1),
+            });
+            offset = line_end(text, close_at);
+            body = text[close_at + 1..offset].trim_end_matches(['\n', '\r']);
+            body_start = close_at + 1;
+        }
         let poisoned = errors.len() > n_errors;
         if continuation {
             // The previous logical line ends where this one's tokens begin,
@@ -144,15 +167,61 @@ fn is_word_end(c: char) -> bool {
     is_sep(c) || matches!(c, '(' | ')' | '=' | '{' | '}' | '\'' | ';')
 }
 
+/// The end of the physical line that holds byte `at`: past its `\n`, or the
+/// end of the text.
+fn line_end(text: &str, at: usize) -> usize {
+    text[at..].find('\n').map_or(text.len(), |k| at + k + 1)
+}
+
+/// Byte index of the delimiter closing the one at `text[open_at]`, over the
+/// physical lines after it while each is a `+` continuation (comment and
+/// blank lines between them skipped, as ngspice skips them); nesting counts
+/// for braces. The delimiters are ASCII, so bytes suffice.
+fn close_across(text: &str, open_at: usize, open: u8, close: u8) -> Option<usize> {
+    let b = text.as_bytes();
+    let mut depth = 1usize;
+    let mut i = open_at + 1;
+    while i < b.len() {
+        let c = b[i];
+        if c == b'\n' {
+            let mut j = i + 1;
+            loop {
+                while j < b.len() && matches!(b[j], b' ' | b'\t' | b'\r') {
+                    j += 1;
+                }
+                match b.get(j) {
+                    Some(b'+') => break,
+                    Some(b'*') | Some(b'\n') => j = line_end(text, j),
+                    _ => return None,
+                }
+            }
+            i = j + 1;
+            continue;
+        }
+        if c == close {
+            depth -= 1;
+            if depth == 0 {
+                return Some(i);
+            }
+        } else if c == open && open != close {
+            depth += 1;
+        }
+        i += 1;
+    }
+    None
+}
+
 /// Split one line body (after any `+`) into tokens appended to `toks`;
-/// `base` is its file offset.
+/// `base` is its file offset. An expression that the body does not close
+/// ends the tokens: its opening delimiter's file offset is returned, for
+/// the caller to look for its close on the continuation lines.
 pub fn tokenize<'a>(
     body: &'a str,
     file: FileId,
     base: usize,
     errors: &mut Vec<ParseError>,
     toks: &mut Vec<Token<'a>>,
-) {
+) -> Option<usize> {
     let mut rest = body;
     let at = |rest: &str| base + (body.len() - rest.len());
     loop {
@@ -180,13 +249,7 @@ pub fn tokenize<'a>(
                     });
                     rest = &rest[end + 1..];
                 }
-                None => {
-                    errors.push(ParseError::Unterminated {
-                        span: Span::new(file, start, start + 1),
-                        close,
-                    });
-                    break;
-                }
+                None => return Some(start),
             }
             continue;
         }
@@ -218,6 +281,7 @@ pub fn tokenize<'a>(
         });
         rest = r;
     }
+    None
 }
 
 /// Byte index of the delimiter closing the one at `s[0]`, counting nesting for braces.
@@ -285,5 +349,41 @@ mod tests {
                 (Word, "1")
             ]
         );
+    }
+
+    /// An expression left open at a line's end goes on over the `+` lines
+    /// after it (a comment line between is skipped), and the logical line
+    /// takes in what follows its close; where no `+` line follows, it is
+    /// unterminated.
+    #[test]
+    fn an_expression_goes_on_over_continuation_lines() {
+        let lex = |text: &str| {
+            let mut sources = SourceMap::default();
+            let file = sources.add("t.cir", "t.cir", text.to_string());
+            let mut errors = Vec::new();
+            let lexed = lex_file(&sources, file, true, &mut errors);
+            let lines: Vec<Vec<(TokKind, String)>> = lexed
+                .lines()
+                .iter()
+                .map(|l| {
+                    l.tokens
+                        .iter()
+                        .map(|t| (t.kind, t.text.to_string()))
+                        .collect()
+                })
+                .collect();
+            (lines, errors.len())
+        };
+        use TokKind::*;
+        let (lines, errors) = lex("t\nB1 a 0 V={ f(1,\n* note\n+ 2) } k=1\n+ m=2\nR1 a 0 1\n");
+        assert_eq!(errors, 0);
+        assert_eq!(lines.len(), 2);
+        assert_eq!(lines[0][5], (Expr, " f(1,\n* note\n+ 2) ".to_string()));
+        let words: Vec<&str> = lines[0][6..].iter().map(|(_, w)| w.as_str()).collect();
+        assert_eq!(words, ["k", "=", "1", "m", "=", "2"]);
+        assert_eq!(lines[1][0].1, "R1");
+        let (lines, errors) = lex("t\nB1 a 0 V={ f(1,\nR1 a 0 1\n");
+        assert_eq!(errors, 1, "unterminated");
+        assert_eq!(lines.last().unwrap()[0].1, "R1");
     }
 }

@@ -1469,3 +1469,61 @@ fn outputs_naming_nothing_are_left_out() {
     let w = sim::simulate(&s, &sim::Options::default()).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(w.names, ["v(b)"]);
 }
+
+/// PSpice's expression syntax, as ngspice's PSpice mode reads it (TI's
+/// TLC555 library writes all of it): a `{…}` expression continued over `+`
+/// lines with a comment line between, `&` and `|` for `&&` and `||`, `~`
+/// for `!`, braces nested as parentheses, and `vt`, the thermal voltage at
+/// 27 °C, predefined. Each was refused before (K0102, K0109, K0200).
+#[test]
+fn pspice_expressions_go_on_over_continuation_lines() {
+    let text = "pspice\nV1 a 0 2\nR1 a 0 1k\nB1 b 0 V={ IF( (V(a) > {1}) & (V(a) < 3) | ~(1),\n* a comment between\n+ 2*vt,\n+ 0) }\nR2 b 0 1k\n.tran 1u 10u\n.end\n";
+    let w = sim::simulate(&sort_text(text), &sim::Options::default()).unwrap();
+    let k = w.names.iter().position(|n| n == "v(b)").unwrap();
+    let vt = 300.15 * 8.6173303e-5;
+    assert!(
+        (w.data[k][0] - 2.0 * vt).abs() < 1e-12,
+        "v(b) = {}",
+        w.data[k][0]
+    );
+    let text = "own vt\n.param vt=1\nV1 b 0 {vt}\nR1 b 0 1k\n.tran 1u 10u\n.end\n";
+    let w = sim::simulate(&sort_text(text), &sim::Options::default()).unwrap();
+    let k = w.names.iter().position(|n| n == "v(b)").unwrap();
+    assert_eq!(w.data[k][0], 1.0, "a .param vt replaces the predefined one");
+}
+
+/// PSpice's VSWITCH: with VON and VOFF, a resistance that goes from ROFF
+/// to RON smoothly as the control goes from VOFF to VON (ngspice's
+/// `pswitch`, logarithmic: the geometric mean halfway); with VT and VH,
+/// ngspice's hysteretic SW. Refused before (K0203).
+#[test]
+fn a_vswitch_moves_its_resistance_with_its_control() {
+    let r_at = |vc: f64, model: &str| {
+        let text = format!(
+            "vswitch\nV2 a 0 1\nS1 a 0 c 0 swm\nV1 c 0 {vc}\n.model swm vswitch({model})\n.tran 1u 10u\n.end\n"
+        );
+        let w = sim::simulate(&sort_text(&text), &sim::Options::default()).unwrap();
+        let k = w.names.iter().position(|n| n == "i(v2)").unwrap();
+        -1.0 / w.data[k][0]
+    };
+    let smooth = "von=1 voff=0 ron=10 roff=1meg";
+    for (vc, r) in [
+        (-1.0, 1e6),
+        (0.0, 1e6),
+        (0.5, 1e7f64.sqrt()),
+        (1.0, 10.0),
+        (3.0, 10.0),
+    ] {
+        let got = r_at(vc, smooth);
+        assert!((got / r - 1.0).abs() < 1e-9, "at {vc} V: {got} Ω, not {r}");
+    }
+    // Monotone between, in the order VOFF → VON whichever is larger.
+    let (a, b) = (r_at(0.3, smooth), r_at(0.7, smooth));
+    assert!(1e6 > a && a > 1e7f64.sqrt() && 1e7f64.sqrt() > b && b > 10.0);
+    let reversed = "von=0 voff=1 ron=10 roff=1meg";
+    assert!((r_at(0.0, reversed) / 10.0 - 1.0).abs() < 1e-9);
+    assert!((r_at(0.7, reversed) / a - 1.0).abs() < 1e-9);
+    let hysteretic = "vt=0.5 vh=0.1 ron=10 roff=1meg";
+    assert!((r_at(1.0, hysteretic) / 10.0 - 1.0).abs() < 1e-9);
+    assert!((r_at(0.5, hysteretic) / 1e6 - 1.0).abs() < 1e-9);
+}
