@@ -309,7 +309,13 @@ impl Lower<'_, '_, '_> {
             }
             "if" => self.select(a[0], a[1], a[2]),
             "limit" => {
-                let (x, lo, hi) = (a[0], a[1], a[2]);
+                // A clamp between the two bounds in either order, as
+                // ngspice's PSpice mode defines it (TI's TLC555 writes
+                // `LIMIT(x, upper, 0)`); Xyce's agrees where lo ≤ hi.
+                let (x, a1, a2) = (a[0], a[1], a[2]);
+                let swap = self.cmp(Cmp::Gt, a1, a2)?;
+                let lo = self.select(swap, a2, a1)?;
+                let hi = self.select(swap, a1, a2)?;
                 let c_hi = self.cmp(Cmp::Gt, x, hi)?;
                 let above = self.select(c_hi, hi, x)?;
                 let c_lo = self.cmp(Cmp::Lt, x, lo)?;

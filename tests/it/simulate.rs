@@ -1486,6 +1486,16 @@ fn pspice_expressions_go_on_over_continuation_lines() {
         "v(b) = {}",
         w.data[k][0]
     );
+    // LIMIT clamps between its bounds in either order (the TLC555's bias
+    // current is `LIMIT(x, upper, 0)`; read as lo = upper, hi = 0 it was 0).
+    for (x, want) in [(3.0, 2.0), (-1.0, 0.0), (1.5, 1.5)] {
+        let text = format!(
+            "limit\nV1 a 0 {x}\nR1 a 0 1k\nB1 b 0 V={{limit(v(a), 2, 0) + limit(v(a), 0, 2)}}\nR2 b 0 1k\n.tran 1u 10u\n.end\n"
+        );
+        let w = sim::simulate(&sort_text(&text), &sim::Options::default()).unwrap();
+        let k = w.names.iter().position(|n| n == "v(b)").unwrap();
+        assert_eq!(w.data[k][0], 2.0 * want, "limit of {x}");
+    }
     let text = "own vt\n.param vt=1\nV1 b 0 {vt}\nR1 b 0 1k\n.tran 1u 10u\n.end\n";
     let w = sim::simulate(&sort_text(text), &sim::Options::default()).unwrap();
     let k = w.names.iter().position(|n| n == "v(b)").unwrap();
