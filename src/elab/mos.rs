@@ -1,5 +1,6 @@
 //! M: ngspice's MOSFET levels 1 (Shichman–Hodges), 2 (Grove–Frohman,
-//! `mos/level2.rs`) and 3 (the semi-empirical short-channel model), with
+//! `mos/level2.rs`), 3 (the semi-empirical short-channel model) and 6
+//! (Sakurai–Newton's n-th power law), with
 //! Meyer's gate capacitances and the bulk junctions, at the circuit's
 //! temperature (`Thermal`: ngspice's `mos1temp.c`), elaborated into branches
 //! named by the device as a BJT is (`bjt.rs`):
@@ -98,6 +99,16 @@ pub(super) struct MosModel {
     ucrit: f64,
     uexp: f64,
     neff: f64,
+    // Level 6 (Sakurai–Newton): vdsat = KV·vgon^NV, idsat = KC·W/L·vgon^NC,
+    // the threshold's GAMMA1 and SIGMA terms, λ = LAMBDA0 − LAMBDA1·vbs.
+    kv: f64,
+    nv: f64,
+    kc: Option<f64>,
+    nc: f64,
+    gamma1: f64,
+    sigma: f64,
+    lambda0: Option<f64>,
+    lambda1: f64,
 }
 
 impl MosModel {
@@ -148,6 +159,14 @@ impl MosModel {
             ucrit: 1e4,
             uexp: 0.0,
             neff: 1.0,
+            kv: 2.0,
+            nv: 0.5,
+            kc: None,
+            nc: 1.0,
+            gamma1: 0.0,
+            sigma: 0.0,
+            lambda0: None,
+            lambda1: 0.0,
         }
     }
 }
@@ -203,6 +222,14 @@ const MOS3_PARAMS: &[&str] = &[
     "uo", "u0", "fc", "xj", "vmax", "delta", "theta", "eta", "kappa", "wd", "xl", "xw", "delvto",
     "delvt0", "tnom", "nmos", "pmos",
 ];
+/// Level 6's: level 1's (KC in place of KP) and Sakurai and Newton's. NVTH
+/// and PS are read by ngspice's `mos6` but used by none of its equations.
+const MOS6_PARAMS: &[&str] = &[
+    "level", "vto", "vt0", "kv", "nv", "kc", "nc", "nvth", "ps", "gamma", "gamma1", "sigma", "phi",
+    "lambda", "lambda0", "lambda1", "rd", "rs", "rsh", "cbd", "cbs", "is", "js", "pb", "cgso",
+    "cgdo", "cgbo", "cj", "mj", "cjsw", "mjsw", "tox", "nsub", "nss", "tpg", "ld", "uo", "u0",
+    "fc", "tnom", "nmos", "pmos",
+];
 /// Parameters that do not change the transient result (noise, and
 /// ngspice's flags).
 const MOS_IGNORED: &[&str] = &["kf", "af", "nlev", "gdsnoi", "version"];
@@ -226,7 +253,7 @@ fn level_family(level: f64) -> &'static str {
 }
 
 impl Elab {
-    /// The MOS model `model` (an NMOS or PMOS card of level 1, 2 or 3).
+    /// The MOS model `model` (an NMOS or PMOS card of level 1, 2, 3 or 6).
     fn mos_model(
         &mut self,
         model: &ast::Name<'_>,
@@ -252,14 +279,14 @@ impl Elab {
                 ok = false;
                 continue;
             };
-            if v == 1.0 || v == 2.0 || v == 3.0 {
+            if v == 1.0 || v == 2.0 || v == 3.0 || v == 6.0 {
                 m.level = v as u8;
             } else {
                 self.errors.push(ElabError::UnsupportedModel {
                     span: p.value.span(),
                     model: def.name.text.to_string(),
                     what: format!("a level-{v} MOSFET ({})", level_family(v)),
-                    help: "kausal models ngspice's MOS levels 1, 2 and 3; BSIM and the other compact models would come as compiled (OSDI) devices, see ARCHITECTURE.md",
+                    help: "kausal models ngspice's MOS levels 1, 2, 3 and 6; BSIM and the other compact models would come as compiled (OSDI) devices, see ARCHITECTURE.md",
                 });
                 ok = false;
             }
@@ -268,7 +295,7 @@ impl Elab {
             self.mos_cache.insert(cache_key, None);
             return None;
         }
-        if m.level >= 2 {
+        if m.level == 2 || m.level == 3 {
             m.tox = Some(1e-7);
             m.mjsw = 0.33;
         }
@@ -278,6 +305,7 @@ impl Elab {
                 continue;
             }
             let (known, ignored) = match m.level {
+                6 => (MOS6_PARAMS, MOS_IGNORED),
                 3 => (MOS3_PARAMS, MOS_IGNORED),
                 2 => (MOS2_PARAMS, MOS2_IGNORED),
                 _ => (MOS1_PARAMS, MOS_IGNORED),
@@ -332,6 +360,14 @@ impl Elab {
                 "ucrit" => m.ucrit = v,
                 "uexp" => m.uexp = v,
                 "neff" => m.neff = v,
+                "kv" => m.kv = v,
+                "nv" => m.nv = v,
+                "kc" => m.kc = Some(v),
+                "nc" => m.nc = v,
+                "gamma1" => m.gamma1 = v,
+                "sigma" => m.sigma = v,
+                "lambda0" => m.lambda0 = Some(v),
+                "lambda1" => m.lambda1 = v,
                 _ => {}
             }
         }
@@ -487,8 +523,16 @@ impl Elab {
             });
             return None;
         }
+        if md.level == 6 {
+            // `mos6temp.c`: KC in KP's place, 0.5·UO·Cox where not given.
+            kp = match md.kc {
+                Some(kc) => kc,
+                None if cox > 0.0 => 0.5 * u0 * cox * 1e-4,
+                None => 5e-5,
+            };
+        }
         if cox > 0.0 {
-            if md.kp.is_none() {
+            if md.kp.is_none() && md.level != 6 {
                 kp = u0 * cox * 1e-4;
             }
             if let Some(nsub) = md.nsub {
@@ -631,6 +675,7 @@ impl Elab {
         };
         let f = dev.frame(&mut def, [gate, dp, sp, b]);
         let ch = match md.level {
+            6 => dev.level6(&mut def, &f),
             3 => dev.level3(&mut def, &f),
             2 => dev.level2(&mut def, &f),
             _ => dev.level1(&mut def, &f),
@@ -941,6 +986,80 @@ impl Device<'_> {
         let zero = x.num(0.0);
         let c = x.push(BNode::Cmp(Cmp::Le, vgst, zero));
         x.push(BNode::Select(c, zero, on));
+        let id = def("id", x);
+        Channel { id, von, vdsat }
+    }
+
+    /// Sakurai and Newton's n-th power law (ngspice's `mos6load.c`): the
+    /// threshold `vbi + γ√(φ − vbs) − γ1·vbs − σ·vds`; above it, with
+    /// `vgon = vgs − von`, `vdsat = KV·vgon^NV` and the saturation current
+    /// `β·vgon^NC·(1 + λ·vds)`, λ = LAMBDA0 − LAMBDA1·vbs, times
+    /// `(2 − vds/vdsat)·vds/vdsat` below vdsat; zero below threshold.
+    fn level6(&self, def: &mut Def<'_>, f: &Frame) -> Channel {
+        let (dv, md) = (self.dv, self.md);
+        let mut x = Ex::default();
+        let vb = x.volt(f.vb);
+        let sarg = sqrt_phi_minus(&mut x, dv.phi, vb);
+        let vbi = x.num(dv.vbi);
+        let gamma = x.num(dv.gamma);
+        let t = x.arith(Arith::Mul, gamma, sarg);
+        let von = x.arith(Arith::Add, vbi, t);
+        let g1 = x.num(md.gamma1);
+        let t = x.arith(Arith::Mul, g1, vb);
+        let von = x.arith(Arith::Sub, von, t);
+        let vd = x.volt(f.vd);
+        let sigma = x.num(md.sigma);
+        let t = x.arith(Arith::Mul, sigma, vd);
+        x.arith(Arith::Sub, von, t);
+        let von = def("von", x);
+
+        // vgon held at 1 V where it is not positive, so that no power of
+        // zero (whose slope is infinite for NV < 1) enters the tangents of
+        // a choice that gives 0 there.
+        let vgon = |x: &mut Ex| {
+            let (vg, von) = (x.volt(f.vg), x.volt(von));
+            let v = x.arith(Arith::Sub, vg, von);
+            let zero = x.num(0.0);
+            let off = x.push(BNode::Cmp(Cmp::Le, v, zero));
+            let one = x.num(1.0);
+            (x.push(BNode::Select(off, one, v)), off)
+        };
+        let mut x = Ex::default();
+        let (v, off) = vgon(&mut x);
+        let (kv, nv) = (x.num(md.kv), x.num(md.nv));
+        let t = x.arith(Arith::Pow, v, nv);
+        let on = x.arith(Arith::Mul, kv, t);
+        let zero = x.num(0.0);
+        x.push(BNode::Select(off, zero, on));
+        let vdsat = def("vdsat", x);
+
+        let mut x = Ex::default();
+        let (v, off) = vgon(&mut x);
+        let nc = x.num(md.nc);
+        let t = x.arith(Arith::Pow, v, nc);
+        let beta = x.num(self.beta);
+        let idsat = x.arith(Arith::Mul, beta, t);
+        let vb = x.volt(f.vb);
+        let (l0, l1) = (x.num(md.lambda0.unwrap_or(md.lambda)), x.num(md.lambda1));
+        let t = x.arith(Arith::Mul, l1, vb);
+        let lambda = x.arith(Arith::Sub, l0, t);
+        let vd = x.volt(f.vd);
+        let t = x.arith(Arith::Mul, lambda, vd);
+        let one = x.num(1.0);
+        let t = x.arith(Arith::Add, one, t);
+        let sat = x.arith(Arith::Mul, idsat, t);
+        let vdsat_ = x.volt(vdsat);
+        let below = x.push(BNode::Cmp(Cmp::Gt, vdsat_, vd));
+        // Below vdsat: (2 − r)·r with r = vds/vdsat (vdsat > vds ≥ 0 there).
+        let safe = x.push(BNode::Select(below, vdsat_, one));
+        let r = x.arith(Arith::Div, vd, safe);
+        let two = x.num(2.0);
+        let t = x.arith(Arith::Sub, two, r);
+        let t = x.arith(Arith::Mul, t, r);
+        let lin = x.arith(Arith::Mul, sat, t);
+        let on = x.push(BNode::Select(below, lin, sat));
+        let zero = x.num(0.0);
+        x.push(BNode::Select(off, zero, on));
         let id = def("id", x);
         Channel { id, von, vdsat }
     }

@@ -1537,3 +1537,40 @@ fn a_vswitch_moves_its_resistance_with_its_control() {
     assert!((r_at(1.0, hysteretic) / 10.0 - 1.0).abs() < 1e-9);
     assert!((r_at(0.5, hysteretic) / 1e6 - 1.0).abs() < 1e-9);
 }
+
+/// ngspice's level-6 MOSFET (Sakurai–Newton, `mos6load.c`), at the
+/// operating point against its equations worked by hand: above threshold
+/// `von = VTO − σ·vds`, `vgon = vgs − von`, `vdsat = KV·vgon^NV`, the
+/// saturation current `KC·W/L·vgon^NC·(1 + λ·vds)`, times `(2 − r)·r`,
+/// `r = vds/vdsat`, below vdsat. Refused before (K0223).
+#[test]
+fn a_level_6_mosfet_follows_the_nth_power_law() {
+    let id_at = |vgs: f64, vds: f64| {
+        let text = format!(
+            "mos6\nVG g 0 {vgs}\nVD d 0 {vds}\nM1 d g 0 0 nm L=2u W=4u\n.model nm nmos level=6 vto=1 kc=1e-4 nc=1.5 kv=2 nv=0.5 lambda0=0.01 sigma=0.05\n.tran 1n 10n\n.end\n"
+        );
+        let w = sim::simulate(&sort_text(&text), &sim::Options::default()).unwrap();
+        let k = w.names.iter().position(|n| n == "i(vd)").unwrap();
+        -w.data[k][0]
+    };
+    let hand = |vgs: f64, vds: f64| {
+        let vgon: f64 = vgs - (1.0 - 0.05 * vds);
+        if vgon <= 0.0 {
+            return 0.0;
+        }
+        let (vdsat, sat) = (
+            2.0 * vgon.sqrt(),
+            1e-4 * 2.0 * vgon.powf(1.5) * (1.0 + 0.01 * vds),
+        );
+        let r = vds / vdsat;
+        if r < 1.0 { sat * (2.0 - r) * r } else { sat }
+    };
+    for (vgs, vds) in [(3.0, 5.0), (3.0, 1.0), (2.0, 0.2), (0.5, 1.0)] {
+        let (got, want) = (id_at(vgs, vds), hand(vgs, vds));
+        assert!(
+            // The drain junction's GMIN (1e-12 S) leaks a few picoamperes.
+            (got - want).abs() <= 1e-9 * want.abs() + 1e-11,
+            "vgs {vgs}, vds {vds}: {got} A, not {want}"
+        );
+    }
+}
