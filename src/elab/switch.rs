@@ -178,7 +178,8 @@ impl Elab {
     /// `ln r = ½·ln(RON·ROFF) + ln(RON/ROFF)·(3m/2 − 2m³)`, a cubic in `m`
     /// whose slope vanishes at both ends; RON at least 1 mΩ, ROFF at most
     /// 1 TΩ, VON and VOFF moved 1 mV apart where they are closer than
-    /// 1e-12 V. It is elaborated as a B source's current `v(n+, n-)/r`.
+    /// 1e-12 V. It is elaborated as a B source's current `v(n+, n-)/r`,
+    /// and a 1 TΩ resistor across the control nodes, as `pswitch` has.
     fn smooth_switch(
         &mut self,
         el: &ast::Element<'_>,
@@ -274,6 +275,16 @@ impl Elab {
                 nodes: nodes[..2].to_vec(),
                 span: el.span,
             });
+            // `pswitch`'s control input is a 1 TΩ resistance (`r_cntl_in`):
+            // picoamperes that a supply's current shows.
+            if nodes[2] != nodes[3] {
+                self.circuit.elements.push(Element {
+                    name: format!("{name}:ctrl"),
+                    kind: ElementKind::Resistor { r: 1e12 },
+                    nodes: nodes[2..4].to_vec(),
+                    span: el.span,
+                });
+            }
         }
     }
 }

@@ -37,6 +37,130 @@ pub(super) fn element_of_vars(sorted: &Sorted) -> HashMap<VarId, crate::elab::El
     owner
 }
 
+/// The capacitor voltages just after t = 0 of a `uic` start where voltage
+/// sources and capacitors share a node. ngspice starts a `uic` run from a
+/// node vector of zeros (but the `.ic` nodes), the supplies' nodes too,
+/// and each capacitor from its `ic=` or that vector; at its first time
+/// point the sources have their values, and the charge they move through
+/// the capacitors is conserved at every other node: a node between a
+/// 0.1 pF capacitor to ground and one to a 3 V supply starts at 1.5 V,
+/// where starting each capacitor at its own initial voltage would put it
+/// at 3 V. Solved as that impulse: the network of the linear capacitors
+/// and the independent voltage sources (nodal, the capacitances as
+/// conductances, each capacitor's initial charge a current), where one of
+/// its connected parts holds a source and two capacitors; elsewhere every
+/// capacitor keeps its initial voltage, as it would here. Junction and
+/// gate charges, controlled sources and inductors are not in it (an
+/// inductor passes no impulse; the others keep kausal's start).
+fn uic_redistribution(
+    c: &crate::elab::Circuit,
+    initial: &dyn Fn(crate::elab::NodeId) -> f64,
+) -> HashMap<crate::elab::ElemId, f64> {
+    let n_nodes = c.nodes.len();
+    let mut caps = Vec::new();
+    let mut sources = Vec::new();
+    for (id, el) in c.elements.iter() {
+        match &el.kind {
+            &ElementKind::Capacitor { c: cap, ic } if cap.is_finite() && cap != 0.0 => {
+                let v0 = ic.unwrap_or_else(|| initial(el.nodes[0]) - initial(el.nodes[1]));
+                caps.push((id, el.nodes[0].0 as usize, el.nodes[1].0 as usize, cap, v0));
+            }
+            ElementKind::VSource { wave } => {
+                sources.push((
+                    el.nodes[0].0 as usize,
+                    el.nodes[1].0 as usize,
+                    wave.eval(0.0, 0),
+                ));
+            }
+            _ => {}
+        }
+    }
+    let mut parts = crate::numeric::UnionFind::new(n_nodes);
+    for &(_, a, b, ..) in &caps {
+        parts.union(a, b);
+    }
+    for &(a, b, _) in &sources {
+        parts.union(a, b);
+    }
+    let mut n_caps = vec![0usize; n_nodes];
+    let mut has_source = vec![false; n_nodes];
+    for &(_, a, ..) in &caps {
+        n_caps[parts.find(a)] += 1;
+    }
+    for &(a, ..) in &sources {
+        has_source[parts.find(a)] = true;
+    }
+    let live: Vec<bool> = (0..n_nodes)
+        .map(|k| {
+            let r = parts.find(k);
+            has_source[r] && n_caps[r] >= 2
+        })
+        .collect();
+    let mut out = HashMap::new();
+    if !live.iter().any(|&l| l) {
+        return out;
+    }
+    // Unknowns: the live nodes but ground, then one current per source.
+    let mut index = vec![usize::MAX; n_nodes];
+    let mut n = 0;
+    for k in 1..n_nodes {
+        if live[k] {
+            index[k] = n;
+            n += 1;
+        }
+    }
+    let live_sources: Vec<_> = sources.iter().filter(|s| live[s.0]).collect();
+    let order = n + live_sources.len();
+    let at = |k: usize| (k != 0).then(|| index[k]);
+    let mut entries = Vec::new();
+    let mut rhs = vec![0.0; order];
+    let scale = caps.iter().map(|c| c.3.abs()).fold(0.0, f64::max);
+    for &(_, a, b, cap, v0) in caps.iter().filter(|c| live[c.1]) {
+        let (ia, ib) = (at(a), at(b));
+        if let Some(i) = ia {
+            entries.push((i, i, cap));
+            rhs[i] += cap * v0;
+        }
+        if let Some(j) = ib {
+            entries.push((j, j, cap));
+            rhs[j] -= cap * v0;
+        }
+        if let (Some(i), Some(j)) = (ia, ib) {
+            entries.push((i, j, -cap));
+            entries.push((j, i, -cap));
+        }
+    }
+    // A part that floats (sources and capacitors, no ground) has no
+    // potential of its own: a conductance 1e-12 of the largest
+    // capacitance's to ground fixes one without moving any difference.
+    for i in 0..n {
+        entries.push((i, i, 1e-12 * scale));
+    }
+    for (k, &&(a, b, v)) in live_sources.iter().enumerate() {
+        let row = n + k;
+        if let Some(i) = at(a) {
+            entries.push((i, row, 1.0));
+            entries.push((row, i, 1.0));
+        }
+        if let Some(j) = at(b) {
+            entries.push((j, row, -1.0));
+            entries.push((row, j, -1.0));
+        }
+        rhs[row] = v;
+    }
+    let Some(lu) = crate::numeric::TripletLu::new(order, entries) else {
+        return out;
+    };
+    let Some(x) = crate::numeric::Factored::Sparse(lu).solve(&rhs) else {
+        return out;
+    };
+    let volt = |k: usize| at(k).map_or(0.0, |i| x[i]);
+    for &(id, a, b, ..) in caps.iter().filter(|c| live[c.1]) {
+        out.insert(id, volt(a) - volt(b));
+    }
+    out
+}
+
 /// The initial states: `uic` (element `ic=` and `.ic` values), the DC
 /// operating point with the `.ic` nodes held (see [`ic`]), or the DC
 /// operating point (capacitors open, inductors shorted: `f(0, y) = 0`).
@@ -84,10 +208,15 @@ where
                 .map_or(0.0, |i| i.value)
         };
         let owner = element_of_vars(sorted);
+        let redistributed = uic_redistribution(c, &ic_node);
         for (k, &s) in tape.states.iter().enumerate() {
             let Some(&e) = owner.get(&s) else {
                 continue;
             };
+            if let Some(&v) = redistributed.get(&e) {
+                y[k] = v;
+                continue;
+            }
             let el = &c.elements[e];
             match el.kind {
                 ElementKind::Capacitor { ic: Some(v), .. }
