@@ -81,6 +81,8 @@ pub fn lex_file<'a>(
     let mut title = None;
     let mut offset = 0usize;
     let mut first = true;
+    // Where the last failed search for an expression's close stopped.
+    let mut searched_to = 0usize;
     while offset < text.len() {
         let start = offset;
         let raw = &text[start..line_end(text, start)];
@@ -116,7 +118,18 @@ pub fn lex_file<'a>(
         while let Some(open_at) = tokenize(body, file, body_start, errors, &mut tokens) {
             let open = text.as_bytes()[open_at];
             let close = if open == b'{' { b'}' } else { b'\'' };
-            let Some(close_at) = close_across(text, open_at, open, close) else {
+            // Past a failed search, an expression opened within the text
+            // it covered is not searched again: the logical line is an
+            // error already, and searching from every `{` of a long run of
+            // `+` lines would be quadratic.
+            let found = if open_at < searched_to {
+                None
+            } else {
+                close_across(text, open_at, open, close)
+                    .map_err(|end| searched_to = end)
+                    .ok()
+            };
+            let Some(close_at) = found else {
                 errors.push(ParseError::Unterminated {
                     span: Span::new(file, open_at, open_at + 1),
                     close: close as char,
@@ -176,8 +189,9 @@ fn line_end(text: &str, at: usize) -> usize {
 /// Byte index of the delimiter closing the one at `text[open_at]`, over the
 /// physical lines after it while each is a `+` continuation (comment and
 /// blank lines between them skipped, as ngspice skips them); nesting counts
-/// for braces. The delimiters are ASCII, so bytes suffice.
-fn close_across(text: &str, open_at: usize, open: u8, close: u8) -> Option<usize> {
+/// for braces. Where there is none, the offset the search stopped at. The
+/// delimiters are ASCII, so bytes suffice.
+fn close_across(text: &str, open_at: usize, open: u8, close: u8) -> Result<usize, usize> {
     let b = text.as_bytes();
     let mut depth = 1usize;
     let mut i = open_at + 1;
@@ -192,7 +206,7 @@ fn close_across(text: &str, open_at: usize, open: u8, close: u8) -> Option<usize
                 match b.get(j) {
                     Some(b'+') => break,
                     Some(b'*') | Some(b'\n') => j = line_end(text, j),
-                    _ => return None,
+                    _ => return Err(j),
                 }
             }
             i = j + 1;
@@ -201,14 +215,14 @@ fn close_across(text: &str, open_at: usize, open: u8, close: u8) -> Option<usize
         if c == close {
             depth -= 1;
             if depth == 0 {
-                return Some(i);
+                return Ok(i);
             }
         } else if c == open && open != close {
             depth += 1;
         }
         i += 1;
     }
-    None
+    Err(b.len())
 }
 
 /// Split one line body (after any `+`) into tokens appended to `toks`;
