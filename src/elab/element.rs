@@ -538,6 +538,7 @@ impl Elab {
             TranFnKind::Sin => (2, 6),
             TranFnKind::Exp => (2, 6),
             TranFnKind::Pwl => (2, usize::MAX),
+            TranFnKind::Sffm => (2, 5),
         };
         if args.len() < min || args.len() > max {
             let want = if max == usize::MAX {
@@ -545,7 +546,14 @@ impl Elab {
             } else {
                 format!("{min} to {max}")
             };
-            let problem = format!("takes {want} values, found {}", args.len());
+            let mut problem = format!("takes {want} values, found {}", args.len());
+            if f.kind == TranFnKind::Sffm && args.len() > max {
+                // ngspice-39 reads a sixth and seventh as phases, later
+                // versions a delay and phases: SPICE3's five mean the same.
+                problem.push_str(
+                    " (after SPICE3's five, ngspice's versions differ: phases in ngspice-39, a delay and phases later)",
+                );
+            }
             return self.bad_source_args(f, element, problem);
         }
         // Optional argument k, with 0 or absence meaning `default`.
@@ -586,6 +594,15 @@ impl Elab {
                 }
             }
             TranFnKind::Pwl => return self.pwl(f, &args, element, scope),
+            // ngspice-39's defaults (`vsrcload.c`): FC and FS 1/TSTOP where
+            // zero or absent (later versions default them otherwise).
+            TranFnKind::Sffm => Waveform::Sffm {
+                vo: args[0],
+                va: args[1],
+                fc: arg(2, 1.0 / tstop),
+                mdi: args.get(3).copied().unwrap_or(0.0),
+                fs: arg(4, 1.0 / tstop),
+            },
         })
     }
 

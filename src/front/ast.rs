@@ -60,6 +60,8 @@ pub enum TranFnKind {
     Sin,
     Exp,
     Pwl,
+    /// SPICE3's single-frequency FM source, `SFFM(VO VA FC MDI FS)`.
+    Sffm,
 }
 
 impl TranFnKind {
@@ -69,6 +71,7 @@ impl TranFnKind {
             TranFnKind::Sin => "SIN",
             TranFnKind::Exp => "EXP",
             TranFnKind::Pwl => "PWL",
+            TranFnKind::Sffm => "SFFM",
         }
     }
 }

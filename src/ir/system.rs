@@ -199,6 +199,14 @@ pub enum Waveform {
         td2: f64,
         tau2: f64,
     },
+    /// `vo + va·sin(2π·fc·t + mdi·sin(2π·fs·t))`.
+    Sffm {
+        vo: f64,
+        va: f64,
+        fc: f64,
+        mdi: f64,
+        fs: f64,
+    },
     Pwl {
         points: Vec<(f64, f64)>,
         /// `r=`: past the last point the sequence from this time point on
@@ -213,6 +221,47 @@ pub enum Waveform {
 
 fn is_zero(x: &f64) -> bool {
     *x == 0.0
+}
+
+/// The `order`-th time derivative of `sin(2π·fc·t + mdi·sin(2π·fs·t))`,
+/// from the Taylor coefficients of both sines at `t` (for `y = sin φ`,
+/// `z = cos φ`: `k·y_k = Σ j·φ_j·z_(k−j)`, `k·z_k = −Σ j·φ_j·y_(k−j)`),
+/// times `order!`.
+pub fn sffm_derivative(t: f64, order: u8, fc: f64, mdi: f64, fs: f64) -> f64 {
+    use std::f64::consts::PI;
+    let n = order as usize + 1;
+    let (wc, ws) = (2.0 * PI * fc, 2.0 * PI * fs);
+    // The inner sine's coefficients: its argument is ws·(t + s).
+    let (mut si, mut ci) = (vec![0.0; n], vec![0.0; n]);
+    (si[0], ci[0]) = (ws * t).sin_cos();
+    for k in 1..n {
+        si[k] = ws * ci[k - 1] / k as f64;
+        ci[k] = -ws * si[k - 1] / k as f64;
+    }
+    // The phase φ = wc·(t + s) + mdi·sin(ws·(t + s)).
+    let phi: Vec<f64> = (0..n)
+        .map(|k| {
+            mdi * si[k]
+                + match k {
+                    0 => wc * t,
+                    1 => wc,
+                    _ => 0.0,
+                }
+        })
+        .collect();
+    let (mut y, mut z) = (vec![0.0; n], vec![0.0; n]);
+    (y[0], z[0]) = phi[0].sin_cos();
+    for k in 1..n {
+        let (mut sy, mut sz) = (0.0, 0.0);
+        for j in 1..=k {
+            sy += j as f64 * phi[j] * z[k - j];
+            sz -= j as f64 * phi[j] * y[k - j];
+        }
+        y[k] = sy / k as f64;
+        z[k] = sz / k as f64;
+    }
+    let factorial: f64 = (1..n).map(|k| k as f64).product();
+    y[n - 1] * factorial
 }
 
 impl Waveform {
@@ -303,6 +352,16 @@ impl Waveform {
                 let d = va * env * (cr * sn + ci * cs);
                 if order == 0 { vo + d } else { d }
             }
+            Waveform::Sffm {
+                vo,
+                va,
+                fc,
+                mdi,
+                fs,
+            } => {
+                let d = va * sffm_derivative(t, order, fc, mdi, fs);
+                if order == 0 { vo + d } else { d }
+            }
             Waveform::Exp {
                 v1,
                 v2,
@@ -363,7 +422,7 @@ impl Waveform {
     pub fn breakpoints(&self, t_end: f64) -> Vec<f64> {
         let mut out = Vec::new();
         match *self {
-            Waveform::Dc { .. } | Waveform::Sin { .. } => {}
+            Waveform::Dc { .. } | Waveform::Sin { .. } | Waveform::Sffm { .. } => {}
             Waveform::Pulse {
                 td,
                 tr,
@@ -798,6 +857,33 @@ mod tests {
         for t in [0.3, 0.7] {
             let fd = (e.eval(t + h, 0) - e.eval(t - h, 0)) / (2.0 * h);
             assert!((fd - e.eval(t, 1)).abs() < 1e-6);
+        }
+    }
+
+    /// SFFM's value is SPICE3's formula, and each derivative order (from
+    /// Taylor coefficients) is the finite difference of the one below.
+    #[test]
+    fn sffm_derivatives_match_finite_differences() {
+        let w = Waveform::Sffm {
+            vo: 0.5,
+            va: 2.0,
+            fc: 3.0,
+            mdi: 1.7,
+            fs: 0.8,
+        };
+        let t = 0.37;
+        let tau = 2.0 * std::f64::consts::PI;
+        let exact = 0.5 + 2.0 * (tau * 3.0 * t + 1.7 * (tau * 0.8 * t).sin()).sin();
+        assert!((w.eval(t, 0) - exact).abs() < 1e-12);
+        let h = 1e-6;
+        for order in 0..5u8 {
+            let fd = (w.eval(t + h, order) - w.eval(t - h, order)) / (2.0 * h);
+            let d = w.eval(t, order + 1);
+            assert!(
+                (fd - d).abs() < 1e-6 * d.abs().max(1.0),
+                "order {}: {fd} vs {d}",
+                order + 1
+            );
         }
     }
 }

@@ -364,6 +364,13 @@ fn sine_step_cap(sys: &EquationSystem) -> Option<f64> {
             crate::ir::Waveform::Sin { va, freq, .. } if va != 0.0 && freq > 0.0 => {
                 Some(0.25 / freq)
             }
+            // SFFM's fastest: its instantaneous frequency fc + mdi·fs.
+            crate::ir::Waveform::Sffm {
+                va, fc, mdi, fs, ..
+            } if va != 0.0 => {
+                let f = fc.abs() + (mdi * fs).abs();
+                (f > 0.0).then(|| 0.25 / f)
+            }
             _ => None,
         })
         .min_by(f64::total_cmp)

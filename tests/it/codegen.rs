@@ -93,6 +93,8 @@ fn generated_rust_and_c_agree_with_the_evaluator() {
         "pwl_source",
         // Repeated and delayed: the time folding in the generated code.
         "pwl_repeat_rc",
+        // SFFM, differentiated by index reduction (a capacitor across it).
+        "sffm_source",
         "transformer_k",
         "sallen_key_lowpass",
         // B sources: comparisons and choices, and a torn nonlinear loop.

@@ -479,6 +479,13 @@ impl Gen<'_> {
                 td2,
                 tau2,
             } => args("expo", &[v1, v2, td1, tau1, td2, tau2]),
+            &Waveform::Sffm {
+                vo,
+                va,
+                fc,
+                mdi,
+                fs,
+            } => args("sffm", &[vo, va, fc, mdi, fs]),
             Waveform::Pwl {
                 points,
                 repeat,

@@ -1,5 +1,5 @@
 /* The runtime of generated C source: the source waveforms (pulse, sine,
-   expo, pwl, with their time derivatives), ngspice's level-1 diode, a dense
+   sffm, expo, pwl, with their time derivatives), ngspice's level-1 diode, a dense
    solve, the damped Newton of algebraic loops and the implicit tangents of
    their unknowns.
 
@@ -40,6 +40,27 @@ static inline double sine(double t, int o, double vo, double va, double freq, do
     double s = t - td, w = 2.0 * M_PI * freq, cr = 1.0, ci = 0.0;
     for (int k = 0; k < o; k++) { double nr = -cr * theta - ci * w, ni = cr * w - ci * theta; cr = nr; ci = ni; }
     double d = va * exp(-theta * s) * (cr * sin(w * s + ph) + ci * cos(w * s + ph));
+    return o == 0 ? vo + d : d;
+}
+
+/* SFFM: the Taylor coefficients of sin(wc t + mdi sin(ws t)) up to order o
+   (at most 31; a higher order gives NaN). */
+static inline double sffm(double t, int o, double vo, double va, double fc, double mdi, double fs) {
+    if (o > 31) return NAN;
+    int n = o + 1;
+    double wc = 2.0 * M_PI * fc, ws = 2.0 * M_PI * fs, si[32], ci[32], phi[32], y[32], z[32];
+    si[0] = sin(ws * t); ci[0] = cos(ws * t);
+    for (int k = 1; k < n; k++) { si[k] = ws * ci[k - 1] / k; ci[k] = -ws * si[k - 1] / k; }
+    for (int k = 0; k < n; k++) phi[k] = mdi * si[k] + (k == 0 ? wc * t : (k == 1 ? wc : 0.0));
+    y[0] = sin(phi[0]); z[0] = cos(phi[0]);
+    for (int k = 1; k < n; k++) {
+        double sy = 0.0, sz = 0.0;
+        for (int j = 1; j <= k; j++) { sy += j * phi[j] * z[k - j]; sz -= j * phi[j] * y[k - j]; }
+        y[k] = sy / k; z[k] = sz / k;
+    }
+    double f = 1.0;
+    for (int k = 2; k < n; k++) f *= k;
+    double d = va * y[n - 1] * f;
     return o == 0 ? vo + d : d;
 }
 

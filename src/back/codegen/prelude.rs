@@ -1,5 +1,5 @@
 //! The runtime of generated Rust source: the source waveforms (`pulse`,
-//! `sine`, `expo`, `pwl`, with their time derivatives), ngspice's level-1
+//! `sine`, `sffm`, `expo`, `pwl`, with their time derivatives), ngspice's level-1
 //! diode, a dense solve, the damped Newton of algebraic loops and the
 //! implicit tangents of their unknowns.
 //!
@@ -33,6 +33,24 @@ fn sine(t: f64, o: u8, vo: f64, va: f64, freq: f64, td: f64, theta: f64, phase: 
     let (mut cr, mut ci) = (1.0, 0.0);
     for _ in 0..o { let nr = -cr * theta - ci * w; let ni = cr * w - ci * theta; cr = nr; ci = ni; }
     let d = va * (-theta * s).exp() * (cr * (w * s + ph).sin() + ci * (w * s + ph).cos());
+    if o == 0 { vo + d } else { d }
+}
+
+fn sffm(t: f64, o: u8, vo: f64, va: f64, fc: f64, mdi: f64, fs: f64) -> f64 {
+    // Taylor coefficients of sin(wc·t + mdi·sin(ws·t)) up to order o.
+    let (n, wc, ws) = (o as usize + 1, 2.0 * std::f64::consts::PI * fc, 2.0 * std::f64::consts::PI * fs);
+    let (mut si, mut ci, mut phi) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    (si[0], ci[0]) = (ws * t).sin_cos();
+    for k in 1..n { si[k] = ws * ci[k - 1] / k as f64; ci[k] = -ws * si[k - 1] / k as f64; }
+    for k in 0..n { phi[k] = mdi * si[k] + if k == 0 { wc * t } else if k == 1 { wc } else { 0.0 }; }
+    let (mut y, mut z) = (vec![0.0; n], vec![0.0; n]);
+    (y[0], z[0]) = phi[0].sin_cos();
+    for k in 1..n {
+        let (mut sy, mut sz) = (0.0, 0.0);
+        for j in 1..=k { sy += j as f64 * phi[j] * z[k - j]; sz -= j as f64 * phi[j] * y[k - j]; }
+        y[k] = sy / k as f64; z[k] = sz / k as f64;
+    }
+    let d = va * y[n - 1] * (1..n).map(|k| k as f64).product::<f64>();
     if o == 0 { vo + d } else { d }
 }
 

@@ -713,7 +713,8 @@ fn behavioural<'a>(
     })
 }
 
-/// The transient function a word names (`PULSE`, `SIN`, `EXP`, `PWL`).
+/// The transient function a word names (`PULSE`, `SIN`, `EXP`, `PWL`,
+/// `SFFM`).
 fn tran_kind(t: &Token<'_>) -> Option<TranFnKind> {
     if t.is_word("pulse") {
         Some(TranFnKind::Pulse)
@@ -723,6 +724,8 @@ fn tran_kind(t: &Token<'_>) -> Option<TranFnKind> {
         Some(TranFnKind::Exp)
     } else if t.is_word("pwl") {
         Some(TranFnKind::Pwl)
+    } else if t.is_word("sffm") {
+        Some(TranFnKind::Sffm)
     } else {
         None
     }
@@ -803,11 +806,9 @@ impl<'a> Parser<'a> {
                 });
                 continue;
             }
-            if [
-                "sffm", "am", "trnoise", "trrandom", "pat", "distof1", "distof2",
-            ]
-            .iter()
-            .any(|w| t.is_word(w))
+            if ["am", "trnoise", "trrandom", "pat", "distof1", "distof2"]
+                .iter()
+                .any(|w| t.is_word(w))
             {
                 self.errors.push(ParseError::UnsupportedSource {
                     span: t.span,
