@@ -49,9 +49,10 @@ pub(super) fn element_of_vars(sorted: &Sorted) -> HashMap<VarId, crate::elab::El
 /// and the independent voltage sources (nodal, the capacitances as
 /// conductances, each capacitor's initial charge a current), where one of
 /// its connected parts holds a source and two capacitors; elsewhere every
-/// capacitor keeps its initial voltage, as it would here. Junction and
-/// gate charges, controlled sources and inductors are not in it (an
-/// inductor passes no impulse; the others keep kausal's start).
+/// capacitor keeps its initial voltage, as it would here. A part where a
+/// junction or gate charge or a controlled voltage source meets one of its
+/// nodes (but ground) keeps kausal's start: they would share the impulse,
+/// and the network does not hold them. Inductors pass no impulse.
 fn uic_redistribution(
     c: &crate::elab::Circuit,
     initial: &dyn Fn(crate::elab::NodeId) -> f64,
@@ -75,6 +76,23 @@ fn uic_redistribution(
             _ => {}
         }
     }
+    // Nodes where something outside this network takes part in the
+    // impulse: a device's charge or capacitance, a controlled voltage
+    // source. A part holding one keeps kausal's start.
+    let mut outside = vec![false; n_nodes];
+    for el in c.elements.values() {
+        let takes_part = match &el.kind {
+            ElementKind::DeviceBranch { .. } | ElementKind::Diode { .. } => true,
+            ElementKind::Vcvs { .. } | ElementKind::Ccvs { .. } => true,
+            ElementKind::Behavioural { current, .. } => !current,
+            _ => false,
+        };
+        if takes_part {
+            for n in el.nodes.iter().take(2).filter(|n| n.0 != 0) {
+                outside[n.0 as usize] = true;
+            }
+        }
+    }
     let mut parts = crate::numeric::UnionFind::new(n_nodes);
     for &(_, a, b, ..) in &caps {
         parts.union(a, b);
@@ -84,16 +102,22 @@ fn uic_redistribution(
     }
     let mut n_caps = vec![0usize; n_nodes];
     let mut has_source = vec![false; n_nodes];
+    let mut has_outside = vec![false; n_nodes];
     for &(_, a, ..) in &caps {
         n_caps[parts.find(a)] += 1;
     }
     for &(a, ..) in &sources {
         has_source[parts.find(a)] = true;
     }
+    for k in 0..n_nodes {
+        if outside[k] {
+            has_outside[parts.find(k)] = true;
+        }
+    }
     let live: Vec<bool> = (0..n_nodes)
         .map(|k| {
             let r = parts.find(k);
-            has_source[r] && n_caps[r] >= 2
+            has_source[r] && n_caps[r] >= 2 && !has_outside[r]
         })
         .collect();
     let mut out = HashMap::new();
