@@ -369,7 +369,8 @@ where
         });
     }
     Ok(Start {
-        y: r.map_err(|e| name_dc_failure(c, e))?.y,
+        y: r.map_err(|e| name_state(sorted, &tape.states, name_dc_failure(c, e)))?
+            .y,
         warnings,
         row: None,
     })
@@ -1275,7 +1276,11 @@ pub(super) fn dc_newton(
                 *rough = Some((full, y.clone()));
             }
             return Err(SimError::DcFailed {
-                reason: DcFailure::Stalled { residual: norm },
+                reason: DcFailure::Stalled {
+                    residual: norm,
+                    state: largest(&f),
+                    at: None,
+                },
             });
         }
         std::mem::swap(&mut y, &mut trial);
@@ -1283,6 +1288,63 @@ pub(super) fn dc_newton(
         norm = f.iter().map(|x| x.abs()).fold(0.0, f64::max);
     }
     Err(SimError::DcFailed {
-        reason: DcFailure::NoConvergence { residual: norm },
+        reason: DcFailure::NoConvergence {
+            residual: norm,
+            state: largest(&f),
+            at: None,
+        },
     })
+}
+
+/// The index of the largest residual.
+fn largest(f: &[f64]) -> Option<usize> {
+    (0..f.len()).max_by(|&a, &b| f[a].abs().total_cmp(&f[b].abs()))
+}
+
+/// A failed Newton on the states with the element whose state has the
+/// largest residual named (its branch, or the state's own name where no
+/// element owns it).
+fn name_state(sorted: &Sorted, states: &[VarId], e: SimError) -> SimError {
+    let SimError::DcFailed { reason } = e else {
+        return e;
+    };
+    let name = |k: Option<usize>| {
+        let s = *states.get(k?)?;
+        let c = &sorted.elaborated.circuit;
+        let var = &sorted.system().vars[s].name;
+        // A junction's charge `q_D1` is no branch variable: its element by
+        // the name after the prefix.
+        let by_name = || {
+            let base = var.split_once('_')?.1;
+            c.elements
+                .values()
+                .find(|e| e.name.eq_ignore_ascii_case(base))
+                .map(|e| e.name.clone())
+        };
+        Some(match element_of_vars(sorted).get(&s) {
+            Some(&el) => format!("`{}`", c.elements[el].name),
+            None => match by_name() {
+                Some(n) => format!("`{n}`"),
+                None => format!("the state `{var}`"),
+            },
+        })
+    };
+    let reason = match reason {
+        DcFailure::Stalled {
+            residual, state, ..
+        } => DcFailure::Stalled {
+            residual,
+            state,
+            at: name(state),
+        },
+        DcFailure::NoConvergence {
+            residual, state, ..
+        } => DcFailure::NoConvergence {
+            residual,
+            state,
+            at: name(state),
+        },
+        other => other,
+    };
+    SimError::DcFailed { reason }
 }

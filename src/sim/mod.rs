@@ -315,11 +315,21 @@ fn held_text(newton: Option<(usize, usize)>) -> String {
 /// Why no DC operating point was found.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum DcFailure {
-    /// No damped Newton step improves the point.
-    #[error("Newton stalled (residual {residual:.3e})")]
-    Stalled { residual: f64 },
-    #[error("Newton did not converge (residual {residual:.3e})")]
-    NoConvergence { residual: f64 },
+    /// No damped Newton step improves the point. `state`: the index of the
+    /// state whose residual is largest there; `at`: what owns it, named
+    /// once known.
+    #[error("Newton stalled (residual {residual:.3e}{})", at_text(at))]
+    Stalled {
+        residual: f64,
+        state: Option<usize>,
+        at: Option<String>,
+    },
+    #[error("Newton did not converge (residual {residual:.3e}{})", at_text(at))]
+    NoConvergence {
+        residual: f64,
+        state: Option<usize>,
+        at: Option<String>,
+    },
     /// The DC Jacobian is singular where these islands of nodes (named,
     /// with the elements that touch them) have no DC path to ground.
     #[error(
@@ -344,6 +354,12 @@ pub enum DcFailure {
 /// "`path`: " before a write error that names its file.
 fn path_prefix(path: Option<&std::path::Path>) -> String {
     path.map_or_else(String::new, |p| format!("`{}`: ", p.display()))
+}
+
+/// Where a failed Newton's residual is largest, as words after it.
+fn at_text(at: &Option<String>) -> String {
+    at.as_ref()
+        .map_or_else(String::new, |e| format!(", largest at {e}"))
 }
 
 /// The first three islands of [`DcFailure::NoDcPath`] as a sentence.

@@ -1574,3 +1574,25 @@ fn a_level_6_mosfet_follows_the_nth_power_law() {
         );
     }
 }
+
+/// An operating point that Newton, continuation and stepping cannot find
+/// names where the residual was largest when it gave up, as every
+/// unsolvable circuit's diagnostic names its elements (a fuzz finding: a
+/// 1.26e20 Ω collector load leaves the base-collector junction's charge
+/// with no solution Newton reaches). Named nothing before.
+#[test]
+fn a_failed_operating_point_names_where_newton_is_worst() {
+    let text = "hi\nvcc vcc 0 dc 9\nib b 0 sin(50u 300u 2meg)\nrc vcc c 1.26e20\nrf c b 47k\nq1 c b 0 npnhi\n.model npnhi npn is=5e-14 bf=120 br=0.5 ikf=0.1 ikr=10 ise=2e-11 isc=1e-15 rb=22 rc=2 vaf=80 var=50\n+ tf=2e-10 tr=5e-5 cje=8p cjc=6p cjs=2e-15 mjs=0.5 vjs=0.75 vtf=500\n.tran 2n 2u\n.end\n";
+    let err = sim::simulate(&sort_text(text), &sim::Options::default()).unwrap_err();
+    let SimError::DcFailed { reason } = &err else {
+        panic!("{err}");
+    };
+    assert!(
+        matches!(
+            reason,
+            DcFailure::NoConvergence { at: Some(_), .. } | DcFailure::Stalled { at: Some(_), .. }
+        ),
+        "{err}"
+    );
+    assert!(err.to_string().contains("largest at `q1:"), "{err}");
+}
