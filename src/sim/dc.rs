@@ -295,7 +295,7 @@ where
     }
     let ptc = Continuation::of(c);
     let fets = fets(sorted, tape);
-    let work = DcWork::from_now(tape, opts.dc_work.unwrap_or(DC_MAX_WORK));
+    let work = DcWork::from_now(tape, opts.dc_work.unwrap_or(DC_MAX_WORK), opts.dc_deadline);
     // Without `.nodeset`, Newton starts where ngspice's does: every diode at
     // its critical voltage. Where the circuit has several operating points
     // (a negative resistance that a diode clamps), that is the one ngspice
@@ -352,6 +352,8 @@ where
                 .saturating_sub(tape.work())
                 .max(work.limit / 4),
         ),
+        // The image shares the wall-clock limit; at least a quarter of it.
+        dc_deadline: Some(work.wall.max(std::time::Instant::now() + DC_MAX_TIME / 4)),
         ..opts.clone()
     };
     if !held_start
@@ -692,19 +694,31 @@ where
 /// corpus (the 32-bit adder fadd32's) takes 9.5·10^9.
 pub const DC_MAX_WORK: u64 = 12_000_000_000;
 
+/// The operating point's wall-clock limit beside [`DC_MAX_WORK`]: an
+/// instruction of junction functions costs far more than one of
+/// arithmetic, and a bridge rectifier driven at 1.8e19 V (a fuzz finding)
+/// ran 2.5·10^7 instructions a second, which would have made the work
+/// limit eight minutes.
+pub const DC_MAX_TIME: std::time::Duration = std::time::Duration::from_secs(90);
+
 /// The operating point's work limit: `limit` instructions, spent when the
-/// tape's count reaches `deadline`.
+/// tape's count reaches `deadline`, or the time `wall`, whichever comes
+/// first.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct DcWork {
     pub deadline: u64,
     pub limit: u64,
+    pub wall: std::time::Instant,
 }
 
 impl DcWork {
-    pub(super) fn from_now(tape: &Tape, limit: u64) -> DcWork {
+    /// From now: `limit` instructions, until `wall` (else [`DC_MAX_TIME`]
+    /// from now).
+    pub(super) fn from_now(tape: &Tape, limit: u64, wall: Option<std::time::Instant>) -> DcWork {
         DcWork {
             deadline: tape.work().saturating_add(limit),
             limit,
+            wall: wall.unwrap_or_else(|| std::time::Instant::now() + DC_MAX_TIME),
         }
     }
 }
@@ -738,6 +752,11 @@ where
     };
     let resid = |y: &[f64], f: &mut Vec<f64>| -> Result<f64, SimError> {
         if tape.over_budget() {
+            return Err(out_of_work());
+        }
+        if std::time::Instant::now() > work.wall {
+            // Spent: every block and stage after this sees the budget gone.
+            tape.limit_work(0);
             return Err(out_of_work());
         }
         ode.eval(t0, y, f)

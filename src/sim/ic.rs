@@ -259,16 +259,15 @@ pub(super) fn held_operating_point(
     let atol = atols(sys, &dc_states, opts, &dc.elaborated.circuit);
     let ptc = Continuation::of(&dc.elaborated.circuit);
     let fets = super::dc::fets(&dc, &tape);
-    let work = opts.dc_work.unwrap_or(super::dc::DC_MAX_WORK);
     let ImagePoint {
         y,
         values,
         named,
         rough,
     } = if dc_states.len() > DENSE_STATES {
-        solve::<FaerSparseMat<f64>>(sys, tape, &atol, true, ptc, &fets, work)
+        solve::<FaerSparseMat<f64>>(sys, tape, &atol, true, ptc, &fets, opts)
     } else {
-        solve::<NalgebraMat<f64>>(sys, tape, &atol, false, ptc, &fets, work)
+        solve::<NalgebraMat<f64>>(sys, tape, &atol, false, ptc, &fets, opts)
     }
     .map_err(Unheld::Sim)?;
     let y = from
@@ -307,7 +306,7 @@ fn solve<M: Matrix<T = f64>>(
     sparse: bool,
     ptc: Continuation,
     fets: &[super::dc::Fet],
-    work: u64,
+    opts: &Options,
 ) -> Result<ImagePoint, SimError>
 where
     M::V: HostVec,
@@ -322,7 +321,11 @@ where
             atol,
             ptc,
             fets,
-            super::dc::DcWork::from_now(&ode.tape, work),
+            super::dc::DcWork::from_now(
+                &ode.tape,
+                opts.dc_work.unwrap_or(super::dc::DC_MAX_WORK),
+                opts.dc_deadline,
+            ),
         )?;
         let (y, rough) = (y.y, y.rough);
         let mut out = vec![0.0; tape.out_regs.len()];

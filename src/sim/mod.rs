@@ -138,6 +138,9 @@ pub struct Options {
     /// The operating point's work limit in tape instructions (default
     /// 1.2·10^10, about a minute and a half).
     pub dc_work: Option<u64>,
+    /// The time the operating point must end by (default 90 s from its
+    /// start).
+    pub dc_deadline: Option<std::time::Instant>,
 }
 
 /// Solver statistics of a run.
@@ -342,8 +345,9 @@ pub enum DcFailure {
     /// Newton, continuation, GMIN and source stepping ran out of the
     /// operating point's work limit.
     #[error(
-        "Newton, continuation, GMIN and source stepping found none within {:.1e} tape instructions (the operating point's work limit)",
-        *work as f64
+        "Newton, continuation, GMIN and source stepping found none within the operating point's work limit ({:.1e} tape instructions or {} s, whichever came first)",
+        *work as f64,
+        dc::DC_MAX_TIME.as_secs()
     )]
     WorkLimit { work: u64 },
     /// Newton at the full sources was skipped (a test's switch).

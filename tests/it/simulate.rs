@@ -998,6 +998,24 @@ fn an_operating_point_that_runs_out_of_work_says_so() {
         }) => {}
         other => panic!("expected the DC work limit, got {other:?}"),
     }
+    // The wall-clock limit beside it (an instruction of junction functions
+    // costs far more than one of arithmetic): a deadline already past ends
+    // the solve the same way (here the operating point `.ic` holds, which
+    // has no fallback; the DC image after a failed solve on the states has
+    // a quarter of the limit of its own).
+    let s = sort_text(
+        "held\nV1 a 0 1\nR1 a b 1k\nD1 b 0 dm\nC1 b 0 1n\n.model dm D\n.ic v(b)=0.5\n.tran 1n 10n\n.end\n",
+    );
+    let opts = sim::Options {
+        dc_deadline: Some(std::time::Instant::now()),
+        ..Default::default()
+    };
+    match sim::simulate(&s, &opts) {
+        Err(SimError::DcFailed {
+            reason: DcFailure::WorkLimit { .. },
+        }) => {}
+        other => panic!("expected the DC time limit, got {other:?}"),
+    }
 }
 
 /// What is stored follows ngspice: `.print` selects nothing (every node

@@ -114,6 +114,7 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
         tmax: args.tmax,
         step: args.step,
         dc_work: None,
+        dc_deadline: None,
     };
     // The tape compiler reads the schedule, not the causalization: drop it
     // first (the schedule goes once the tape exists).
