@@ -269,6 +269,12 @@ impl Waveform {
     /// waveforms take the right-hand derivative at their corners.
     pub fn eval(&self, t: f64, order: u8) -> f64 {
         use std::f64::consts::PI;
+        // No time: no value (an integrator's first step from a state whose
+        // derivatives overflow is NaN, and a PWL's segment search has none
+        // to find).
+        if t.is_nan() {
+            return f64::NAN;
+        }
         match *self {
             Waveform::Dc { value } => {
                 if order == 0 {
@@ -857,6 +863,21 @@ mod tests {
         for t in [0.3, 0.7] {
             let fd = (e.eval(t + h, 0) - e.eval(t - h, 0)) / (2.0 * h);
             assert!((fd - e.eval(t, 1)).abs() < 1e-6);
+        }
+    }
+
+    /// A time that is not a number gives no value, not a panic: a PWL's
+    /// segment search found none before it (a fuzz finding, where an
+    /// integrator's first step from overflowing derivatives was NaN).
+    #[test]
+    fn no_time_is_no_value() {
+        let w = Waveform::Pwl {
+            points: vec![(0.0, 1.0), (1.0, 2.0)],
+            repeat: None,
+            delay: 0.0,
+        };
+        for order in 0..2 {
+            assert!(w.eval(f64::NAN, order).is_nan());
         }
     }
 

@@ -73,6 +73,7 @@ static inline double expo(double t, int o, double v1, double v2, double td1, dou
 
 static inline double pwl(double t, int o, const double *ts, const double *ys, int n) {
     if (n == 0) return 0.0;
+    if (isnan(t)) return NAN;
     if (t < ts[0]) return o == 0 ? ys[0] : 0.0;
     int k = 0;
     while (k < n && ts[k] <= t) k++;

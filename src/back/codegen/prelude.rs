@@ -65,6 +65,7 @@ fn expo(t: f64, o: u8, v1: f64, v2: f64, td1: f64, tau1: f64, td2: f64, tau2: f6
 
 fn pwl(t: f64, o: u8, pts: &[(f64, f64)]) -> f64 {
     if pts.is_empty() { return 0.0; }
+    if t.is_nan() { return f64::NAN; }
     if t < pts[0].0 { return if o == 0 { pts[0].1 } else { 0.0 }; }
     let k = pts.partition_point(|q| q.0 <= t);
     if k >= pts.len() { return if o == 0 { pts[pts.len() - 1].1 } else { 0.0 }; }
