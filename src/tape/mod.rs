@@ -158,12 +158,23 @@ impl TapeBlock {
     }
 }
 
+/// `t = …`, or what a time that is no number means: an integrator's first
+/// step from derivatives that overflow (a source of 1e308 V) has a NaN size.
+fn at_time(t: f64) -> String {
+    if t.is_nan() {
+        "the first step, whose time is no number (the derivatives at the start overflow)".into()
+    } else {
+        format!("t = {t:e}")
+    }
+}
+
 /// Why an evaluation failed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum EvalError {
     #[error(
-        "Newton did not converge in algebraic loop {block} through {} (residual {residual:.3e} at t = {t:e})",
-        crate::back::listing::shortened(elements, crate::back::listing::ELEMENTS_SHOWN)
+        "Newton did not converge in algebraic loop {block} through {} (residual {residual:.3e} at {})",
+        crate::back::listing::shortened(elements, crate::back::listing::ELEMENTS_SHOWN),
+        at_time(*t)
     )]
     NoConvergence {
         block: usize,
@@ -172,8 +183,9 @@ pub enum EvalError {
         t: f64,
     },
     #[error(
-        "singular Jacobian in algebraic loop {block} through {} at t = {t:e}",
-        crate::back::listing::shortened(elements, crate::back::listing::ELEMENTS_SHOWN)
+        "singular Jacobian in algebraic loop {block} through {} at {}",
+        crate::back::listing::shortened(elements, crate::back::listing::ELEMENTS_SHOWN),
+        at_time(*t)
     )]
     Singular {
         block: usize,
