@@ -939,17 +939,22 @@ impl Device<'_> {
         Frame { vds, vg, vb, vd }
     }
 
+    /// Level 1's threshold, `vbi + γ·√(φ − vbs)` (ngspice's linear
+    /// continuation of the root above vbs = 0), which level 6 extends.
+    fn body_threshold(&self, x: &mut Ex, f: &Frame) -> u32 {
+        let vb = x.volt(f.vb);
+        let sarg = sqrt_phi_minus(x, self.dv.phi, vb);
+        let vbi = x.num(self.dv.vbi);
+        let gamma = x.num(self.dv.gamma);
+        let t = x.arith(Arith::Mul, gamma, sarg);
+        x.arith(Arith::Add, vbi, t)
+    }
+
     /// Shichman–Hodges: `β(1 + λ vds)` times `vgst²/2` in saturation,
     /// `vds (vgst − vds/2)` below it; zero below threshold.
     fn level1(&self, def: &mut Def<'_>, f: &Frame) -> Channel {
-        let dv = self.dv;
         let mut x = Ex::default();
-        let vb = x.volt(f.vb);
-        let sarg = sqrt_phi_minus(&mut x, dv.phi, vb);
-        let vbi = x.num(dv.vbi);
-        let gamma = x.num(dv.gamma);
-        let t = x.arith(Arith::Mul, gamma, sarg);
-        x.arith(Arith::Add, vbi, t);
+        self.body_threshold(&mut x, f);
         let von = def("von", x);
 
         let vgst = |x: &mut Ex| {
@@ -996,14 +1001,10 @@ impl Device<'_> {
     /// `β·vgon^NC·(1 + λ·vds)`, λ = LAMBDA0 − LAMBDA1·vbs, times
     /// `(2 − vds/vdsat)·vds/vdsat` below vdsat; zero below threshold.
     fn level6(&self, def: &mut Def<'_>, f: &Frame) -> Channel {
-        let (dv, md) = (self.dv, self.md);
+        let md = self.md;
         let mut x = Ex::default();
+        let von = self.body_threshold(&mut x, f);
         let vb = x.volt(f.vb);
-        let sarg = sqrt_phi_minus(&mut x, dv.phi, vb);
-        let vbi = x.num(dv.vbi);
-        let gamma = x.num(dv.gamma);
-        let t = x.arith(Arith::Mul, gamma, sarg);
-        let von = x.arith(Arith::Add, vbi, t);
         let g1 = x.num(md.gamma1);
         let t = x.arith(Arith::Mul, g1, vb);
         let von = x.arith(Arith::Sub, von, t);
