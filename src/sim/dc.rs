@@ -370,8 +370,16 @@ where
             row: None,
         });
     }
+    let weakest = |y: &[f64]| {
+        tape.in_mode(Mode::Dc, || {
+            ode.set_floor_factor(DC_FLOOR_FACTOR);
+            let k = weakest_state(ode, t0, y, atol);
+            ode.set_floor_factor(1.0);
+            k
+        })
+    };
     Ok(Start {
-        y: r.map_err(|e| name_state(sorted, &tape.states, name_dc_failure(c, e)))?
+        y: r.map_err(|e| name_state(sorted, &tape.states, name_dc_failure(c, e), &weakest))?
             .y,
         warnings,
         row: None,
@@ -541,7 +549,7 @@ pub(super) fn floating_islands(c: &Circuit) -> Vec<(Vec<crate::elab::NodeId>, Ve
 /// A singular DC Jacobian explained by the nodes that have no DC path.
 pub(super) fn name_dc_failure(c: &Circuit, e: SimError) -> SimError {
     match &e {
-        SimError::DcSingular => {
+        SimError::DcSingular { .. } => {
             let islands = floating_islands(c);
             if islands.is_empty() {
                 return e;
@@ -853,7 +861,10 @@ where
         }
         limited
     };
-    let singular = || SimError::DcSingular;
+    let singular = || SimError::DcSingular {
+        point: None,
+        at: None,
+    };
     let mut jacobian: Box<JacobianAt<'_>> = if n > DENSE_STATES {
         // The coloured sparse Jacobian.
         use diffsol::NonLinearOpJacobian;
@@ -1246,14 +1257,20 @@ pub(super) fn dc_newton(
     if norm == 0.0 {
         return Ok(y);
     }
-    let singular = || SimError::DcSingular;
+    let singular = |y: &[f64]| SimError::DcSingular {
+        point: Some(std::rc::Rc::new(y.to_vec())),
+        at: None,
+    };
     // Corrections measured against |y| + 1e7 atol: 1e-10 of it converges.
     let scaled = |d: &[f64], y: &[f64]| newton::scaled_norm(d, |k| y[k].abs() + 1e7 * atol[k]);
     let mut trial = vec![0.0; n];
     let mut ft = vec![0.0; n];
     for _ in 0..200 {
-        let jac = jacobian(&y, 0.0)?;
-        let mut step = jac.solve(&f).ok_or_else(singular)?;
+        let jac = match jacobian(&y, 0.0) {
+            Err(SimError::DcSingular { .. }) => return Err(singular(&y)),
+            other => other?,
+        };
+        let mut step = jac.solve(&f).ok_or_else(|| singular(&y))?;
         let full = scaled(&step, &y);
         if full <= 1e-10 || norm <= 1e-15 {
             for k in 0..n {
@@ -1315,6 +1332,41 @@ pub(super) fn dc_newton(
     })
 }
 
+/// Up to this many states a singular DC Jacobian's diagnostic names the
+/// state it depends least on (one evaluation of `f` per state).
+const WEAKEST_STATES: usize = 500;
+
+/// The state the DC Jacobian at `y` depends least on: the smallest of its
+/// columns' largest entries in units of the tolerances, by finite
+/// differences. Evaluated once the operating point has failed for good
+/// (the evaluations move the blocks' warm starts), small circuits only.
+fn weakest_state<M>(ode: &CircuitOde<M>, t0: f64, y: &[f64], atol: &[f64]) -> Option<usize>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+{
+    let n = y.len();
+    if n > WEAKEST_STATES || atol.len() != n {
+        return None;
+    }
+    let (mut f, mut ft, mut trial) = (vec![0.0; n], vec![0.0; n], y.to_vec());
+    ode.eval(t0, y, &mut f).ok()?;
+    let mut best: Option<(usize, f64)> = None;
+    for k in 0..n {
+        let h = 1e-7 * (y[k].abs() + 1e7 * atol[k]);
+        trial[k] = y[k] + h;
+        ode.eval(t0, &trial, &mut ft).ok()?;
+        trial[k] = y[k];
+        let col = (0..n)
+            .map(|j| (ft[j] - f[j]).abs() / h * atol[k] / atol[j])
+            .fold(0.0, f64::max);
+        if col.is_finite() && best.is_none_or(|(_, b)| col < b) {
+            best = Some((k, col));
+        }
+    }
+    best.map(|(k, _)| k)
+}
+
 /// The index of the largest residual.
 fn largest(f: &[f64]) -> Option<usize> {
     (0..f.len()).max_by(|&a, &b| f[a].abs().total_cmp(&f[b].abs()))
@@ -1323,10 +1375,12 @@ fn largest(f: &[f64]) -> Option<usize> {
 /// A failed Newton on the states with the element whose state has the
 /// largest residual named (its branch, or the state's own name where no
 /// element owns it).
-fn name_state(sorted: &Sorted, states: &[VarId], e: SimError) -> SimError {
-    let SimError::DcFailed { reason } = e else {
-        return e;
-    };
+fn name_state(
+    sorted: &Sorted,
+    states: &[VarId],
+    e: SimError,
+    weakest: &dyn Fn(&[f64]) -> Option<usize>,
+) -> SimError {
     let name = |k: Option<usize>| {
         let s = *states.get(k?)?;
         let c = &sorted.elaborated.circuit;
@@ -1347,6 +1401,17 @@ fn name_state(sorted: &Sorted, states: &[VarId], e: SimError) -> SimError {
                 None => format!("the state `{var}`"),
             },
         })
+    };
+    let reason = match e {
+        SimError::DcSingular {
+            point: Some(y),
+            at: None,
+        } => {
+            let at = name(weakest(&y));
+            return SimError::DcSingular { point: Some(y), at };
+        }
+        SimError::DcFailed { reason } => reason,
+        other => return other,
     };
     let reason = match reason {
         DcFailure::Stalled {

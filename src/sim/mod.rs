@@ -237,11 +237,17 @@ pub enum SimError {
     #[error("no DC operating point: {reason}")]
     DcFailed { reason: DcFailure },
     #[error(
-        "no DC operating point: the DC Jacobian is singular where Newton stopped, though every node has a DC path to ground: a conductance vanishes there (junctions or transistors cut off, a switch open) or controlled sources cancel each other"
+        "no DC operating point: the DC Jacobian is singular where Newton stopped{}, though every node has a DC path to ground: a conductance vanishes there (junctions or transistors cut off, a switch open) or controlled sources cancel each other",
+        weakest_text(at)
     )]
     /// Only where no node lacks a DC path: those are named by
-    /// [`DcFailure::NoDcPath`] instead.
-    DcSingular,
+    /// [`DcFailure::NoDcPath`] instead. `point`: the states where Newton
+    /// stopped; `at`: the element whose state the Jacobian depends least on
+    /// there, named once the operating point has failed for good.
+    DcSingular {
+        point: Option<std::rc::Rc<Vec<f64>>>,
+        at: Option<String>,
+    },
     #[error("cannot write the waveforms: {}{source}", path_prefix(path.as_deref()))]
     Write {
         /// The file, when the error is the writer's own (not the sink's).
@@ -360,6 +366,12 @@ fn path_prefix(path: Option<&std::path::Path>) -> String {
     path.map_or_else(String::new, |p| format!("`{}`: ", p.display()))
 }
 
+/// The element a singular DC Jacobian depends least on, as words after it.
+fn weakest_text(at: &Option<String>) -> String {
+    at.as_ref()
+        .map_or_else(String::new, |e| format!(" (it depends least on {e})"))
+}
+
 /// Where a failed Newton's residual is largest, as words after it.
 fn at_text(at: &Option<String>) -> String {
     at.as_ref()
@@ -421,7 +433,7 @@ impl crate::diag::ToDiagnostic for SimError {
                 codes::DC_FAILED,
                 "give initial conditions and use `.tran ... uic`",
             ),
-            SimError::DcSingular => (
+            SimError::DcSingular { .. } => (
                 codes::DC_FAILED,
                 "give a `.nodeset` near the operating point, or initial conditions with `.tran ... uic`",
             ),

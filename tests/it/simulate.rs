@@ -1614,3 +1614,18 @@ fn a_failed_operating_point_names_where_newton_is_worst() {
     );
     assert!(err.to_string().contains("largest at `q1:"), "{err}");
 }
+
+/// A DC Jacobian singular where Newton stopped, though every node has a DC
+/// path, names the element whose state it depends least on (a fuzz
+/// finding: a 4.5e37 H inductor coupled at k ≈ 1 to a 1 mH one). Named
+/// nothing before.
+#[test]
+fn a_singular_operating_point_names_what_it_depends_least_on() {
+    let text = "doubler\nK69 Lk1 Lk2 0.99999999\nLk2 in 0 1m\nLk1 x 0 4.468e37\nRx x 0 1\nV1 in 0 SIN(0 5 1k)\nC1 in a 1u\nD1 0 a dm\nD2 a out dm\nC2 out 0 1u\nRl out 0 100k\n.model dm D(IS=2.52n N=1.752 RS=0.568 CJO=4p VJ=0.75 M=0.4 TT=20n)\n.tran 10u 20m\n.end\n";
+    let err = sim::simulate(&sort_text(text), &sim::Options::default()).unwrap_err();
+    assert!(
+        matches!(err, SimError::DcSingular { at: Some(_), .. }),
+        "{err}"
+    );
+    assert!(err.to_string().contains("depends least on `Lk"), "{err}");
+}
