@@ -542,7 +542,8 @@ fn run_one(name: &str, text: &str, max_steps: usize, max_rows: usize) -> Outcome
                         .elements
                         .iter()
                         .any(|(_, el)| msg.contains(&el.name));
-                    let located = msg.contains("t = ") || names;
+                    // A time, an element, or a place in the netlist.
+                    let located = msg.contains("t = ") || names || !d.labels.is_empty();
                     let code = if msg.contains("fuzz: row cap") {
                         format!("{} (row cap)", d.code)
                     } else {
@@ -562,7 +563,8 @@ struct Tally {
     done: u64,
     accepted: u64,
     refused: BTreeMap<String, u64>,
-    /// Code: (runs, runs whose message names neither a time nor an element).
+    /// Code: (runs, runs whose diagnostic names neither a time nor an element
+    /// nor points into the netlist).
     sims: BTreeMap<String, (u64, u64)>,
     unlocated: BTreeMap<String, u64>,
     panics: BTreeMap<String, u64>,
@@ -583,7 +585,7 @@ impl Tally {
         for (c, n) in &self.refused {
             println!("  {c} {n}");
         }
-        println!("simulations (code: runs, without time or element)");
+        println!("simulations (code: runs, without time, element or place)");
         for (c, (n, u)) in &self.sims {
             println!("  {c} {n} {u}");
         }

@@ -614,7 +614,9 @@ pub fn bench_circuit(
         .circuit
         .tran
         .as_ref()
-        .ok_or(sim::SimError::NoTran)?;
+        .ok_or(sim::SimError::NoTran {
+            title: sorted.elaborated.circuit.title_span,
+        })?;
     let (tstop, cap) = (tran.tstop, StepCap::of(tran));
     let probes: Vec<String> = sim::outputs(&sorted, &[])?
         .into_iter()

@@ -402,6 +402,8 @@ pub enum Output {
 #[derive(Clone, Debug, Default)]
 pub struct Circuit {
     pub title: String,
+    /// The netlist's title line (see [`crate::front::ast::Netlist::title_span`]).
+    pub title_span: Span,
     /// `nodes[GROUND]` is ground.
     pub nodes: IdVec<NodeId, Node>,
     pub elements: IdVec<ElemId, Element>,

@@ -47,6 +47,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     let mut e = Elab {
         circuit: Circuit {
             title: netlist.title.to_string(),
+            title_span: netlist.title_span,
             elements: crate::ir::IdVec::with_capacity(n),
             nodes: crate::ir::IdVec::with_capacity(n),
             ..Circuit::default()

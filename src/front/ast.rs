@@ -386,5 +386,8 @@ pub struct FuncDef<'a> {
 #[derive(Clone, Debug, Default)]
 pub struct Netlist<'a> {
     pub title: &'a str,
+    /// The title line: where a diagnostic about the netlist as a whole
+    /// points.
+    pub title_span: Span,
     pub stmts: Vec<Stmt<'a>>,
 }

@@ -47,7 +47,7 @@ impl<'a> Parser<'a> {
 
     pub fn parse_root(&mut self, root: FileId) -> Netlist<'a> {
         let lexed = lex_file(self.sources, root, true, &mut self.errors);
-        let Some((title, _)) = lexed.title else {
+        let Some((title, title_span)) = lexed.title else {
             let len = self.sources.file(root).text.len();
             self.errors.push(ParseError::Empty {
                 span: Span::new(root, 0, len.min(1)),
@@ -60,7 +60,11 @@ impl<'a> Parser<'a> {
         if let BlockEnd::Ends(span) = end {
             self.errors.push(ParseError::StrayEnds { span });
         }
-        Netlist { title, stmts }
+        Netlist {
+            title,
+            title_span,
+            stmts,
+        }
     }
 
     /// Parse lines from `*idx` until EOF, `.end`, or (inside a subcircuit)

@@ -191,7 +191,7 @@ pub struct Waveforms {
 #[derive(Clone, Debug, thiserror::Error)]
 pub enum SimError {
     #[error("the netlist has no `.tran` line")]
-    NoTran,
+    NoTran { title: crate::diag::Span },
     #[error("unknown output vector `{0}`: write v(node), v(node1,node2) or i(element)")]
     UnknownProbe(String),
     #[error("{error}")]
@@ -405,7 +405,7 @@ fn islands_text(islands: &[(Vec<String>, Vec<String>)]) -> String {
 impl crate::diag::ToDiagnostic for SimError {
     fn to_diagnostic(&self) -> crate::diag::Diagnostic {
         let (code, help) = match self {
-            SimError::NoTran => (codes::NO_TRAN, "add `.tran TSTEP TSTOP`"),
+            SimError::NoTran { .. } => (codes::NO_TRAN, "add `.tran TSTEP TSTOP`"),
             SimError::UnknownProbe(_) => (
                 codes::UNKNOWN_PROBE,
                 "see `kausal equations` for the circuit's nodes and elements",
@@ -460,7 +460,11 @@ impl crate::diag::ToDiagnostic for SimError {
                 "give the comparison hysteresis (an S switch with VH, or a threshold that moves with the output), or a continuous law (tanh) in place of the jump",
             ),
         };
-        crate::diag::Diagnostic::error(code, self.to_string()).with_help(help)
+        let d = crate::diag::Diagnostic::error(code, self.to_string()).with_help(help);
+        match self {
+            SimError::NoTran { title } => d.with_label(*title, "this netlist"),
+            _ => d,
+        }
     }
 }
 
@@ -507,7 +511,9 @@ pub struct Prepared {
 pub fn prepare(sorted: &Sorted, opts: &Options) -> Result<Prepared, SimError> {
     let start = Instant::now();
     let c = &sorted.elaborated.circuit;
-    let tran = c.tran.clone().ok_or(SimError::NoTran)?;
+    let tran = c.tran.clone().ok_or(SimError::NoTran {
+        title: c.title_span,
+    })?;
     // A tolerance out of range stalls the error control or voids it.
     if let Some(r) = opts.rtol
         && !(r > 0.0 && r < 1.0)

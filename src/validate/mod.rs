@@ -698,7 +698,9 @@ fn kausal_reference(
         .circuit
         .tran
         .as_ref()
-        .ok_or(SimError::NoTran)?
+        .ok_or(SimError::NoTran {
+            title: sorted.elaborated.circuit.title_span,
+        })?
         .tstop;
     let (atol_v, _) = sim::atol_pair(&opts.sim, &sorted.elaborated.circuit);
     let rtol = sim::run_rtol(&opts.sim, &sorted.elaborated.circuit) * FALLBACK_TIGHTER;
@@ -796,7 +798,9 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
         .circuit
         .tran
         .clone()
-        .ok_or(SimError::NoTran)?;
+        .ok_or(SimError::NoTran {
+            title: sorted.elaborated.circuit.title_span,
+        })?;
     let delta = 1e-9 * tran.tstop;
     // The reference's point at each corner it stepped on (to within delta:
     // ngspice's time can be the corner plus an ulp, 1.3800000000000001e-7

@@ -1629,3 +1629,20 @@ fn a_singular_operating_point_names_what_it_depends_least_on() {
     );
     assert!(err.to_string().contains("depends least on `Lk"), "{err}");
 }
+
+/// A netlist without `.tran` is pointed at: its title line carries the
+/// diagnostic's label (K0400 had no location before).
+#[test]
+fn a_netlist_without_tran_is_pointed_at() {
+    use kausal::diag::ToDiagnostic;
+    let err = sim::simulate(
+        &sort_text("no tran here\nR1 a 0 1k\nV1 a 0 1\n.end\n"),
+        &sim::Options::default(),
+    )
+    .unwrap_err();
+    let SimError::NoTran { title } = err else {
+        panic!("{err}");
+    };
+    assert_eq!((title.start, title.end), (0, 12));
+    assert_eq!(err.to_diagnostic().labels.len(), 1);
+}
