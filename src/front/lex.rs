@@ -117,7 +117,7 @@ pub fn lex_file<'a>(
         // token spans them, and the line ends after the one that closes it.
         while let Some(open_at) = tokenize(body, file, body_start, errors, &mut tokens) {
             let open = text.as_bytes()[open_at];
-            let close = if open == b'{' { b'}' } else { b'\'' };
+            let close = closing(open);
             // Past a failed search, an expression opened within the text
             // it covered is not searched again: the logical line is an
             // error already, and searching from every `{` of a long run of
@@ -178,6 +178,11 @@ fn is_sep(c: char) -> bool {
 
 fn is_word_end(c: char) -> bool {
     is_sep(c) || matches!(c, '(' | ')' | '=' | '{' | '}' | '\'' | ';')
+}
+
+/// The delimiter that closes an expression opened by `open` (`{` or `'`).
+fn closing(open: u8) -> u8 {
+    if open == b'{' { b'}' } else { b'\'' }
 }
 
 /// The end of the physical line that holds byte `at`: past its `\n`, or the
@@ -251,9 +256,11 @@ pub fn tokenize<'a>(
             break;
         }
         if c == '{' || c == '\'' {
-            let close = if c == '{' { '}' } else { '\'' };
+            let close = closing(c as u8);
             let start = at(rest);
-            match find_close(rest, c, close) {
+            // Within the line (it holds no line break): the search over
+            // continuation lines is the caller's.
+            match close_across(rest, 0, c as u8, close).ok() {
                 Some(end) => {
                     let inner = &rest[1..end];
                     toks.push(Token {
@@ -294,26 +301,6 @@ pub fn tokenize<'a>(
             span: Span::new(file, start, start + len),
         });
         rest = r;
-    }
-    None
-}
-
-/// Byte index of the delimiter closing the one at `s[0]`, counting nesting for braces.
-fn find_close(s: &str, open: char, close: char) -> Option<usize> {
-    let mut depth = 0usize;
-    for (i, c) in s.char_indices() {
-        if i == 0 {
-            depth = 1;
-            continue;
-        }
-        if c == close {
-            depth -= 1;
-            if depth == 0 {
-                return Some(i);
-            }
-        } else if c == open && open != close {
-            depth += 1;
-        }
     }
     None
 }

@@ -223,33 +223,39 @@ fn is_zero(x: &f64) -> bool {
     *x == 0.0
 }
 
+/// The highest derivative order [`sffm_derivative`] gives (index reduction
+/// asks for a few at most); above it, NaN.
+pub const SFFM_MAX_ORDER: u8 = 15;
+
 /// The `order`-th time derivative of `sin(2π·fc·t + mdi·sin(2π·fs·t))`,
 /// from the Taylor coefficients of both sines at `t` (for `y = sin φ`,
 /// `z = cos φ`: `k·y_k = Σ j·φ_j·z_(k−j)`, `k·z_k = −Σ j·φ_j·y_(k−j)`),
-/// times `order!`.
+/// times `order!`. On the stack: the tape evaluates it in every `f`.
 pub fn sffm_derivative(t: f64, order: u8, fc: f64, mdi: f64, fs: f64) -> f64 {
     use std::f64::consts::PI;
+    const N: usize = SFFM_MAX_ORDER as usize + 1;
+    if order > SFFM_MAX_ORDER {
+        return f64::NAN;
+    }
     let n = order as usize + 1;
     let (wc, ws) = (2.0 * PI * fc, 2.0 * PI * fs);
-    // The inner sine's coefficients: its argument is ws·(t + s).
-    let (mut si, mut ci) = (vec![0.0; n], vec![0.0; n]);
+    // The inner sine's coefficients (its argument is ws·(t + s)), and the
+    // phase φ = wc·(t + s) + mdi·sin(ws·(t + s)).
+    let (mut si, mut ci, mut phi) = ([0.0; N], [0.0; N], [0.0; N]);
     (si[0], ci[0]) = (ws * t).sin_cos();
     for k in 1..n {
         si[k] = ws * ci[k - 1] / k as f64;
         ci[k] = -ws * si[k - 1] / k as f64;
     }
-    // The phase φ = wc·(t + s) + mdi·sin(ws·(t + s)).
-    let phi: Vec<f64> = (0..n)
-        .map(|k| {
-            mdi * si[k]
-                + match k {
-                    0 => wc * t,
-                    1 => wc,
-                    _ => 0.0,
-                }
-        })
-        .collect();
-    let (mut y, mut z) = (vec![0.0; n], vec![0.0; n]);
+    for k in 0..n {
+        phi[k] = mdi * si[k]
+            + match k {
+                0 => wc * t,
+                1 => wc,
+                _ => 0.0,
+            };
+    }
+    let (mut y, mut z) = ([0.0; N], [0.0; N]);
     (y[0], z[0]) = phi[0].sin_cos();
     for k in 1..n {
         let (mut sy, mut sz) = (0.0, 0.0);

@@ -37,13 +37,15 @@ fn sine(t: f64, o: u8, vo: f64, va: f64, freq: f64, td: f64, theta: f64, phase: 
 }
 
 fn sffm(t: f64, o: u8, vo: f64, va: f64, fc: f64, mdi: f64, fs: f64) -> f64 {
-    // Taylor coefficients of sin(wc·t + mdi·sin(ws·t)) up to order o.
+    // Taylor coefficients of sin(wc·t + mdi·sin(ws·t)) up to order o (at
+    // most 31; a higher order gives NaN), on the stack.
+    if o > 31 { return f64::NAN; }
     let (n, wc, ws) = (o as usize + 1, 2.0 * std::f64::consts::PI * fc, 2.0 * std::f64::consts::PI * fs);
-    let (mut si, mut ci, mut phi) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    let (mut si, mut ci, mut phi) = ([0.0; 32], [0.0; 32], [0.0; 32]);
     (si[0], ci[0]) = (ws * t).sin_cos();
     for k in 1..n { si[k] = ws * ci[k - 1] / k as f64; ci[k] = -ws * si[k - 1] / k as f64; }
     for k in 0..n { phi[k] = mdi * si[k] + if k == 0 { wc * t } else if k == 1 { wc } else { 0.0 }; }
-    let (mut y, mut z) = (vec![0.0; n], vec![0.0; n]);
+    let (mut y, mut z) = ([0.0; 32], [0.0; 32]);
     (y[0], z[0]) = phi[0].sin_cos();
     for k in 1..n {
         let (mut sy, mut sz) = (0.0, 0.0);
