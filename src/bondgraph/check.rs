@@ -502,6 +502,7 @@ fn loop_formulation(sorted: &Sorted) -> Option<Sorted> {
         build: crate::build::Options {
             kvl: crate::build::Kvl::Loops,
             alias: false,
+            algebraic_charges: false,
         },
         ..Default::default()
     };

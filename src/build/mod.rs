@@ -40,6 +40,11 @@ pub struct Options {
     pub kvl: Kvl,
     /// Eliminate `x = y`, `x = -y` and `x = known` equations.
     pub alias: bool,
+    /// Junction and device charges are algebraic, `q = Q(u)`, and carry no
+    /// current (`i = I`): the circuit at DC, whose unknowns are then its
+    /// node voltages and branch currents alone (the operating point's
+    /// image, see `sim::ic`).
+    pub algebraic_charges: bool,
 }
 
 /// The variables of one element.
@@ -101,6 +106,7 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
         intermediates: HashMap::new(),
         charges: HashMap::new(),
         floor: None,
+        algebraic_charges: opts.algebraic_charges,
     };
     let elem_vars = b.element_vars();
     let node_pot = match opts.kvl {
@@ -145,6 +151,8 @@ struct Builder<'c> {
     charges: HashMap<ElemId, VarId>,
     /// The factor on capacitance floors, once a floor asks for it.
     floor: Option<crate::ir::ParamId>,
+    /// See [`Options::algebraic_charges`].
+    algebraic_charges: bool,
 }
 
 impl Builder<'_> {
@@ -563,11 +571,13 @@ impl Builder<'_> {
             let name = joined(&["q_", &self.c.elements[id].name]);
             let qv = self.sys.add_var(name, VarKind::Charge, origin.clone());
             self.charges.insert(id, qv);
-            let der = self.sys.add_state(qv);
             let law = self.behavioural(id, q, controls, vars, pots);
-            let x = &mut self.sys.exprs;
-            let (qx, dq) = (x.var(qv), x.var(der));
-            rhs = x.add(rhs, dq);
+            if !self.algebraic_charges {
+                let der = self.sys.add_state(qv);
+                let dq = self.sys.exprs.var(der);
+                rhs = self.sys.exprs.add(rhs, dq);
+            }
+            let qx = self.sys.exprs.var(qv);
             self.sys.add_eq(qx, law, origin.clone());
         }
         if let Some(c) = capacitance {
@@ -659,7 +669,17 @@ impl Builder<'_> {
             .exprs
             .intern(Expr::Device(f(DiodePart::Current, 0), ujx));
         let i = self.sys.exprs.var(ev.i);
-        if charge {
+        if charge && self.algebraic_charges {
+            let q = self
+                .sys
+                .add_var(format!("q_{name}"), VarKind::Charge, origin.clone());
+            self.charges.insert(id, q);
+            let x = &mut self.sys.exprs;
+            let qx = x.var(q);
+            let law = x.intern(Expr::Device(f(DiodePart::Charge, 0), ujx));
+            self.sys.add_eq(i, current, origin.clone());
+            self.sys.add_eq(qx, law, origin);
+        } else if charge {
             let q = self
                 .sys
                 .add_var(format!("q_{name}"), VarKind::Charge, origin.clone());

@@ -205,7 +205,27 @@ where
     let uic = c.tran.as_ref().is_some_and(|t| t.uic);
     let mut warnings = Vec::new();
     if !uic && !c.ics.is_empty() {
-        match ic::held_operating_point(sorted, &tape.states, outputs, opts, &c.ics, ".ic") {
+        let held = |algebraic| {
+            ic::held_operating_point(
+                sorted,
+                &tape.states,
+                outputs,
+                opts,
+                &c.ics,
+                ".ic",
+                algebraic,
+            )
+        };
+        // Where the image with charge states finds no held point, the
+        // image with algebraic charges is tried (see below).
+        let found = match held(false) {
+            Err(ic::Unheld::Sim(e)) if algebraic_image() => match held(true) {
+                Ok(h) if !h.rough => Ok(h),
+                _ => Err(ic::Unheld::Sim(e)),
+            },
+            found => found,
+        };
+        match found {
             Ok(held) => {
                 let sys = sorted.system();
                 ode.seed_tears(|v| held.named.get(&sys.vars[v].name).copied());
@@ -286,8 +306,15 @@ where
     // where it cannot be had, the guess is zero as without.
     let mut held_start = false;
     if !c.nodesets.is_empty()
-        && let Ok(held) =
-            ic::held_operating_point(sorted, &tape.states, outputs, opts, &c.nodesets, ".nodeset")
+        && let Ok(held) = ic::held_operating_point(
+            sorted,
+            &tape.states,
+            outputs,
+            opts,
+            &c.nodesets,
+            ".nodeset",
+            false,
+        )
     {
         y = held.y;
         warnings.extend(held.warnings);
@@ -307,17 +334,85 @@ where
             dc_point::<M>(ode, t0, start, atol, ptc, fets, work)
         })
     };
-    let r = match diode_start {
+    // The DC image (see [`ic`]): capacitors open, inductors shorted, with
+    // what is left of the DC work limit, and at least a quarter of it, and
+    // the wall-clock limit, at least a quarter of it: a failing operating
+    // point ends within 1.25 times either.
+    let image = |algebraic: bool| {
+        let image_opts = Options {
+            dc_work: Some(
+                work.deadline
+                    .saturating_sub(tape.work())
+                    .max(work.limit / 4),
+            ),
+            dc_deadline: Some(work.wall.max(std::time::Instant::now() + DC_MAX_TIME / 4)),
+            ..opts.clone()
+        };
+        ic::held_operating_point(
+            sorted,
+            &tape.states,
+            outputs,
+            &image_opts,
+            &[],
+            ".op",
+            algebraic,
+        )
+    };
+    // The circuit's loops start from the image's solution.
+    let from_image = |h: ic::Held| {
+        let sys = sorted.system();
+        ode.reset_tears();
+        ode.seed_tears(|v| h.named.get(&sys.vars[v].name).copied());
+        h.y
+    };
+    let start = |y| Start {
+        y,
+        warnings: Vec::new(),
+        row: None,
+    };
+    let first = match diode_start.clone() {
         _ if image_only() => Err(SimError::DcFailed {
             reason: DcFailure::NotTried,
         }),
-        Some(start) => solve(start).or_else(|_| {
-            // The blocks start from their first guesses again, not
-            // where the failed solve left them.
+        Some(start) => solve(start),
+        None => solve(y.clone()),
+    };
+    if let Ok(Found { y, rough: false }) = first {
+        return Ok(Start {
+            warnings,
+            ..start(y)
+        });
+    }
+    // Where Newton on the states finds no operating point, or only stalls
+    // near one, the image with algebraic charges is solved next. Its
+    // unknowns are the node voltages and branch currents of its algebraic
+    // loops alone, as ngspice's are, where Newton on the states reaches
+    // them through capacitor voltages and junction charges (a charge's
+    // rate is ill-conditioned where its junction is off): a bipolar op-amp
+    // whose states' Newton, continuation, GMIN and source stepping fail
+    // after seconds converges there by source stepping in milliseconds.
+    let algebraic = if held_start || !algebraic_image() {
+        None
+    } else {
+        image(true).ok()
+    };
+    let algebraic = match algebraic {
+        Some(h) if !h.rough => {
+            return Ok(Start {
+                warnings,
+                ..start(from_image(h))
+            });
+        }
+        other => other,
+    };
+    let r = match first {
+        // The blocks start from their first guesses again, not where the
+        // failed solve left them.
+        Err(_) if diode_start.is_some() && !image_only() => {
             ode.reset_tears();
             solve(y)
-        }),
-        None => solve(y),
+        }
+        r => r,
     };
     // Where no operating point is found from zero, the transistors are
     // started conducting, as ngspice starts them (each base-emitter
@@ -333,41 +428,28 @@ where
     };
     if let Ok(Found { y, rough: false }) = r {
         return Ok(Start {
-            y,
             warnings,
-            row: None,
+            ..start(y)
         });
     }
-    // Where Newton on the states found no operating point, or only stalled
-    // near one, the DC image is solved instead: capacitors open, inductors
-    // shorted, its node voltages the unknowns of its algebraic loops rather
-    // than reached through capacitor voltages and junction charges (see
-    // [`ic`]). The circuit's loops start from the image's solution. Where
-    // Newton stalls near a point in both, the states' point is kept. The
-    // image has what is left of the DC work limit, and at least a quarter of
-    // it: a failing operating point ends within 1.25 times the limit.
-    let image_opts = Options {
-        dc_work: Some(
-            work.deadline
-                .saturating_sub(tape.work())
-                .max(work.limit / 4),
-        ),
-        // The image shares the wall-clock limit; at least a quarter of it.
-        dc_deadline: Some(work.wall.max(std::time::Instant::now() + DC_MAX_TIME / 4)),
-        ..opts.clone()
-    };
+    // Then the image with charge states (the junction charges its own
+    // states). Where Newton stalls near a point in all of them, the
+    // states' point is kept, else the algebraic image's.
     if !held_start
-        && let Ok(h) =
-            ic::held_operating_point(sorted, &tape.states, outputs, &image_opts, &[], ".op")
-        && !(h.rough && r.is_ok())
+        && let Ok(h) = image(false)
+        && !(h.rough && (r.is_ok() || algebraic.is_some()))
     {
-        let sys = sorted.system();
-        ode.reset_tears();
-        ode.seed_tears(|v| h.named.get(&sys.vars[v].name).copied());
         return Ok(Start {
-            y: h.y,
             warnings,
-            row: None,
+            ..start(from_image(h))
+        });
+    }
+    if r.is_err()
+        && let Some(h) = algebraic
+    {
+        return Ok(Start {
+            warnings,
+            ..start(from_image(h))
         });
     }
     let weakest = |y: &[f64]| {
@@ -758,6 +840,7 @@ where
     let out_of_work = || SimError::DcFailed {
         reason: DcFailure::WorkLimit { work: work.limit },
     };
+    let outs = std::cell::RefCell::new(vec![0.0; if n == 0 { tape.out_regs.len() } else { 0 }]);
     let resid = |y: &[f64], f: &mut Vec<f64>| -> Result<f64, SimError> {
         if tape.over_budget() {
             return Err(out_of_work());
@@ -769,6 +852,14 @@ where
         }
         ode.eval(t0, y, f)
             .map_err(|error| SimError::Eval { error })?;
+        if n == 0 {
+            // No states (the DC image with algebraic charges): its
+            // algebraic loops, which only the outputs read, are the
+            // operating point, solved here so that every stage below
+            // (GMIN and source stepping) solves them from the last.
+            ode.outputs(t0, y, &mut outs.borrow_mut())
+                .map_err(|error| SimError::Eval { error })?;
+        }
         Ok(f.iter().map(|x| x.abs()).fold(0.0, f64::max))
     };
     // The junction of each charge state (one pass over the tape, not a
@@ -927,7 +1018,7 @@ where
     // their values at t0, integrated towards its equilibrium. Not where a
     // node has no DC path: it has no operating point, and the integration
     // would only pick one of many.
-    if ptc == Continuation::Allowed {
+    if ptc == Continuation::Allowed && n > 0 {
         // Its work is bounded in instructions run, PTC_WORK evaluations of f
         // at its start: a step whose blocks take long Newton solves at far
         // points gives up rather than run on.
@@ -1227,6 +1318,18 @@ fn image_only() -> bool {
 #[cfg(test)]
 fn image_only() -> bool {
     tests::IMAGE_ONLY.with(|c| c.get())
+}
+
+/// Whether the operating point tries the DC image with algebraic charges
+/// (tests compare it with the image with charge states).
+#[cfg(not(test))]
+fn algebraic_image() -> bool {
+    true
+}
+
+#[cfg(test)]
+fn algebraic_image() -> bool {
+    !tests::CHARGED_IMAGE.with(|c| c.get())
 }
 
 /// The factored DC Jacobian at a point.

@@ -1225,7 +1225,7 @@ pub(super) fn algebraic(
     let mut warnings = Vec::new();
     let mut held = None;
     if !tran.uic && !c.ics.is_empty() && switches.is_empty() {
-        match ic::held_operating_point(sorted, &[], outputs, opts, &c.ics, ".ic") {
+        match ic::held_operating_point(sorted, &[], outputs, opts, &c.ics, ".ic", false) {
             Ok(h) => {
                 held = Some(h.row);
                 warnings = h.warnings;

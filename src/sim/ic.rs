@@ -160,6 +160,7 @@ pub(super) fn held_operating_point(
     opts: &Options,
     ics: &[NodeIc],
     directive: &str,
+    algebraic: bool,
 ) -> Result<Held, Unheld> {
     let c = &sorted.elaborated.circuit;
     let hold = holdable(c, ics);
@@ -185,7 +186,13 @@ pub(super) fn held_operating_point(
         circuit: image,
         warnings: Vec::new(),
     };
-    let built = crate::build::build(&el.circuit, Default::default());
+    let built = crate::build::build(
+        &el.circuit,
+        crate::build::Options {
+            algebraic_charges: algebraic,
+            ..Default::default()
+        },
+    );
     let dc = crate::pipeline::sort_built(el, built, &SortOptions::default()).map_err(|f| {
         Unheld::Structure(
             f.errors()
@@ -215,10 +222,25 @@ pub(super) fn held_operating_point(
         .enumerate()
         .map(|(k, &d)| (sys.vars[d].name.as_str(), k))
         .collect();
+    // With algebraic charges, each charge is a variable of the image.
+    let image_charge: std::collections::HashMap<&str, VarId> = dc
+        .built
+        .charges
+        .values()
+        .map(|&q| (sys.vars[q].name.as_str(), q))
+        .collect();
     let mut refs = Vec::new();
     let mut from = Vec::with_capacity(states.len());
     for &s in states {
         let var = &sorted.system().vars[s];
+        if var.kind == VarKind::Charge && algebraic {
+            let q = *image_charge
+                .get(var.name.as_str())
+                .ok_or_else(|| unmapped(s))?;
+            from.push(Read::Output(refs.len()));
+            refs.push(tape::OutputRef::Var(q));
+            continue;
+        }
         if var.kind == VarKind::Charge {
             let k = *image_state
                 .get(var.name.as_str())

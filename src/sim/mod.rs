@@ -654,14 +654,16 @@ mod tests {
     thread_local! {
         pub(super) static SOURCES_ONLY: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
         pub(super) static IMAGE_ONLY: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+        pub(super) static CHARGED_IMAGE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
     }
 
     /// The DC image (capacitors open, inductors shorted, its node voltages
     /// the unknowns of its loops) finds the operating point that Newton on
     /// the states finds, on a bipolar differential pair with junction
     /// charges and a CMOS stage whose gate capacitances and junctions form a
-    /// loop; and the transient runs from it as from the states' point
-    /// (fails when the image is not tried).
+    /// loop, with its charges algebraic and with them its states; and the
+    /// transient runs from it as from the states' point (fails when the
+    /// image is not tried).
     #[test]
     fn the_dc_image_finds_the_states_operating_point() {
         let circuits = [
@@ -684,14 +686,82 @@ mod tests {
                     .ok()
                     .expect("sorts");
             let states = simulate(&sorted, &Options::default()).expect("from the states' point");
-            IMAGE_ONLY.with(|c| c.set(true));
-            let image = simulate(&sorted, &Options::default());
-            IMAGE_ONLY.with(|c| c.set(false));
-            let image = image.expect("from the image's point");
+            for charged in [false, true] {
+                IMAGE_ONLY.with(|c| c.set(true));
+                CHARGED_IMAGE.with(|c| c.set(charged));
+                let image = simulate(&sorted, &Options::default());
+                IMAGE_ONLY.with(|c| c.set(false));
+                CHARGED_IMAGE.with(|c| c.set(false));
+                let image = image.expect("from the image's point");
+                same_start(&states, &image, 1e-7);
+            }
+        }
+    }
+
+    /// A bipolar op-amp (a textbook µA741 as a follower) whose states'
+    /// Newton, continuation, GMIN and source stepping find no operating
+    /// point: the image with algebraic charges finds ngspice's (its `.op`)
+    /// within a work limit of 10^7 instructions, where the image with
+    /// charge states needs more.
+    #[test]
+    fn an_op_amp_finds_its_operating_point_with_algebraic_charges() {
+        let text = std::fs::read_to_string(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("netlists/ua741_follower.cir"),
+        )
+        .unwrap();
+        let sorted = crate::pipeline::sort_text("ua741.cir", text, &Default::default())
+            .ok()
+            .expect("sorts");
+        let at = |w: &Waveforms, name: &str| {
+            w.data[w.names.iter().position(|n| n == name).expect(name)][0]
+        };
+        // ngspice-39's `.op` of the same netlist.
+        let ngspice = [
+            ("v(out)", 3.272006e-4),
+            ("v(n5)", -13.9319),
+            ("v(n15)", -1.22422),
+        ];
+        for charged in [false, true] {
+            CHARGED_IMAGE.with(|c| c.set(charged));
+            let opts = Options {
+                dc_work: Some(30_000_000),
+                ..Default::default()
+            };
+            let run = simulate(&sorted, &opts);
+            CHARGED_IMAGE.with(|c| c.set(false));
+            match (charged, run) {
+                (false, Ok(w)) => {
+                    for (name, v) in ngspice {
+                        assert!(
+                            (at(&w, name) - v).abs() <= 1e-5 * v.abs().max(1e-3),
+                            "{name}: {} against ngspice's {v}",
+                            at(&w, name)
+                        );
+                    }
+                }
+                (false, Err(e)) => panic!("no operating point with algebraic charges: {e}"),
+                (true, run) => assert!(
+                    matches!(
+                        run,
+                        Err(SimError::DcFailed {
+                            reason: DcFailure::WorkLimit { .. }
+                        })
+                    ),
+                    "the charge states' image within the limit"
+                ),
+            }
+        }
+    }
+
+    /// `a` and `b` start within `rel` of each signal's scale and end within
+    /// 1e-3 of it.
+    fn same_start(a: &Waveforms, b: &Waveforms, rel: f64) {
+        {
+            let (states, image) = (a, b);
             for (name, (a, b)) in states.names.iter().zip(states.data.iter().zip(&image.data)) {
                 let scale = a.iter().fold(1e-3f64, |m, x| m.max(x.abs()));
                 assert!(
-                    (a[0] - b[0]).abs() <= 1e-7 * scale,
+                    (a[0] - b[0]).abs() <= rel * scale,
                     "{name} at t = 0: {} from the states, {} from the image",
                     a[0],
                     b[0]

@@ -31,7 +31,14 @@ fn every_formulation_verifies() {
         let el = pipeline::elaborate_file(&path, &FsLoader).ok().unwrap();
         for kvl in [Kvl::Nodes, Kvl::Loops] {
             for alias in [false, true] {
-                let built = kausal::build::build(&el.circuit, Options { kvl, alias });
+                let built = kausal::build::build(
+                    &el.circuit,
+                    Options {
+                        kvl,
+                        alias,
+                        ..Default::default()
+                    },
+                );
                 assert_eq!(ir::verify(&built.system), vec![], "{}", path.display());
                 assert_eq!(
                     built.system.eqs.len(),
@@ -53,6 +60,7 @@ fn seed_a_in_loop_form_has_the_seeds_seven_equations() {
         Options {
             kvl: Kvl::Loops,
             alias: true,
+            ..Default::default()
         },
     )
     .ok()

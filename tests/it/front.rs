@@ -221,8 +221,14 @@ fn run_all(name: &str, text: String) {
     let result = kausal::pipeline::elaborate_text(name, path, text, &FsLoader);
     if let Ok(el) = result {
         for kvl in [kausal::build::Kvl::Nodes, kausal::build::Kvl::Loops] {
-            let built =
-                kausal::build::build(&el.circuit, kausal::build::Options { kvl, alias: true });
+            let built = kausal::build::build(
+                &el.circuit,
+                kausal::build::Options {
+                    kvl,
+                    alias: true,
+                    ..Default::default()
+                },
+            );
             assert!(kausal::ir::verify(&built.system).is_empty());
         }
         // The bond graph draws whatever elaborates.

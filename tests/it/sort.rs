@@ -65,6 +65,7 @@ fn seed_a_sorts_as_in_seed_000() {
         Options {
             kvl: Kvl::Loops,
             alias: true,
+            ..Default::default()
         },
     );
     let sys = s.system();
@@ -159,6 +160,7 @@ fn seed_c_tears_i1_as_in_seed_001() {
         Options {
             kvl: Kvl::Loops,
             alias: true,
+            ..Default::default()
         },
     );
     let sys = s.system();
@@ -293,7 +295,11 @@ fn check_equations(sys: &EquationSystem, s: &Schedule, seed: u64) -> Result<(), 
 fn every_fixture_sorts_or_explains_why_not() {
     for path in netlists() {
         for (kvl, alias, suffix) in [(Kvl::Nodes, false, ""), (Kvl::Loops, true, "")] {
-            let opts = Options { kvl, alias };
+            let opts = Options {
+                kvl,
+                alias,
+                ..Default::default()
+            };
             let text = match pipeline::sort(&path, &FsLoader, &sort_opts(opts)) {
                 Ok(s) => {
                     let sys = s.system();
@@ -401,11 +407,22 @@ fn random_circuit_checks(text: &str, kvl: Kvl, alias: bool) -> Result<(), String
             return Err(format!("generated circuit does not elaborate: {errors:?}"));
         }
     };
-    let built = kausal::build::build(&el.circuit, Options { kvl, alias });
+    let built = kausal::build::build(
+        &el.circuit,
+        Options {
+            kvl,
+            alias,
+            ..Default::default()
+        },
+    );
     // Capacitor loops are reduced (Pantelides); unfixable faults are the
     // diagnostics' business, not a sorting failure.
     let opts = pipeline::SortOptions {
-        build: Options { kvl, alias },
+        build: Options {
+            kvl,
+            alias,
+            ..Default::default()
+        },
         ..Default::default()
     };
     let sorted = match pipeline::sort_built(el, built, &opts) {

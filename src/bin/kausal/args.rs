@@ -108,6 +108,7 @@ impl BuildArgs {
         build::Options {
             kvl: self.kvl.into(),
             alias: self.alias,
+            algebraic_charges: false,
         }
     }
 }
