@@ -119,12 +119,37 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 /// renamed over its path by [`AtomicFile::commit`]; dropped uncommitted (an
 /// error on the way), it leaves nothing behind and the old file untouched.
 /// Interrupted (Ctrl-C, SIGTERM, SIGHUP), the process removes it too: see
-/// [`remove_pending_on_interrupt`].
+/// [`remove_pending_on_interrupt`]. A path that names something other than
+/// a regular file (`/dev/null`, `/dev/stdout`, a FIFO) is written directly:
+/// a rename would replace the device or pipe with a regular file. A
+/// symbolic link to a regular file is kept: the file it points to is
+/// replaced.
 pub struct AtomicFile {
     /// `None` only while [`AtomicFile::commit`] consumes it.
-    tmp: Option<std::io::BufWriter<tempfile::NamedTempFile>>,
+    tmp: Option<std::io::BufWriter<Sink>>,
     tmp_path: std::path::PathBuf,
     path: std::path::PathBuf,
+}
+
+/// Where an [`AtomicFile`] writes.
+enum Sink {
+    Temporary(tempfile::NamedTempFile),
+    Direct(std::fs::File),
+}
+
+impl Write for Sink {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        match self {
+            Sink::Temporary(f) => f.write(buf),
+            Sink::Direct(f) => f.write(buf),
+        }
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        match self {
+            Sink::Temporary(f) => f.flush(),
+            Sink::Direct(f) => f.flush(),
+        }
+    }
 }
 
 /// The temporary files of the [`AtomicFile`]s not yet committed or dropped.
@@ -319,6 +344,28 @@ fn high_water_mark(pid: u32) -> Option<u64> {
 
 impl AtomicFile {
     pub fn create(path: &Path) -> std::io::Result<AtomicFile> {
+        match std::fs::metadata(path) {
+            Ok(m) if !m.is_file() && !m.is_dir() => {
+                let f = std::fs::OpenOptions::new().write(true).open(path)?;
+                return Ok(AtomicFile {
+                    tmp: Some(std::io::BufWriter::with_capacity(1 << 16, Sink::Direct(f))),
+                    tmp_path: std::path::PathBuf::new(),
+                    path: path.to_path_buf(),
+                });
+            }
+            _ => {}
+        }
+        let linked;
+        let path = match std::fs::symlink_metadata(path) {
+            Ok(m) if m.file_type().is_symlink() => match std::fs::canonicalize(path) {
+                Ok(p) => {
+                    linked = p;
+                    &linked
+                }
+                Err(_) => path,
+            },
+            _ => path,
+        };
         let dir = match path.parent() {
             Some(d) if !d.as_os_str().is_empty() => d,
             _ => Path::new("."),
@@ -338,7 +385,10 @@ impl AtomicFile {
         )?;
         let tmp_path = tmp.path().to_path_buf();
         Ok(AtomicFile {
-            tmp: Some(std::io::BufWriter::with_capacity(1 << 16, tmp)),
+            tmp: Some(std::io::BufWriter::with_capacity(
+                1 << 16,
+                Sink::Temporary(tmp),
+            )),
             tmp_path,
             path: path.to_path_buf(),
         })
@@ -352,12 +402,16 @@ impl AtomicFile {
     /// Flush and rename over the path.
     pub fn commit(mut self) -> std::io::Result<()> {
         let tmp = self.tmp.take().expect("committed once (commit takes self)");
-        let tmp = tmp.into_inner().map_err(|e| e.into_error())?;
-        tmp.persist(&self.path).map_err(|e| e.error)?;
+        match tmp.into_inner().map_err(|e| e.into_error())? {
+            Sink::Temporary(tmp) => {
+                tmp.persist(&self.path).map_err(|e| e.error)?;
+            }
+            Sink::Direct(_) => {}
+        }
         Ok(())
     }
 
-    fn writer(&mut self) -> &mut std::io::BufWriter<tempfile::NamedTempFile> {
+    fn writer(&mut self) -> &mut std::io::BufWriter<Sink> {
         self.tmp
             .as_mut()
             .expect("an AtomicFile is written only before its commit")
@@ -387,6 +441,42 @@ impl Write for AtomicFile {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A symbolic link stays a link to the rewritten file, and a FIFO stays
+    /// a FIFO, its reader getting the bytes (a rename over `/dev/null`
+    /// replaced the device with a regular file).
+    #[cfg(unix)]
+    #[test]
+    fn links_and_pipes_are_written_through() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("target.csv");
+        let link = dir.path().join("link.csv");
+        std::fs::write(&target, b"old").unwrap();
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        write_atomic(&link, b"new").unwrap();
+        assert!(
+            std::fs::symlink_metadata(&link)
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+        assert_eq!(std::fs::read(&target).unwrap(), b"new");
+        let fifo = dir.path().join("pipe");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if !made.is_ok_and(|s| s.success()) {
+            return;
+        }
+        let reader = {
+            let fifo = fifo.clone();
+            std::thread::spawn(move || std::fs::read(fifo).unwrap())
+        };
+        write_atomic(&fifo, b"through").unwrap();
+        // Checked before the join: a FIFO renamed away leaves its reader
+        // waiting.
+        use std::os::unix::fs::FileTypeExt;
+        assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo());
+        assert_eq!(reader.join().unwrap(), b"through");
+    }
 
     /// The written file replaces the old one whole and gets the permissions
     /// `File::create` would give it.
