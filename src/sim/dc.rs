@@ -329,11 +329,13 @@ where
     // finds; where none is found from there, the solve starts again from 0 V.
     let diode_start = if held_start { None } else { diodes_on(c, tape) };
     let fets = &fets;
-    let solve = |start: Vec<f64>| {
+    let solve_with = |start: Vec<f64>, stepping: bool| {
+        let work = DcWork { stepping, ..work };
         tape.in_mode(Mode::Dc, move || {
             dc_point::<M>(ode, t0, start, atol, ptc, fets, work)
         })
     };
+    let solve = |start: Vec<f64>| solve_with(start, true);
     // The DC image (see [`ic`]): capacitors open, inductors shorted, with
     // what is left of the DC work limit, and at least a quarter of it, and
     // the wall-clock limit, at least a quarter of it: a failing operating
@@ -374,8 +376,8 @@ where
         _ if image_only() => Err(SimError::DcFailed {
             reason: DcFailure::NotTried,
         }),
-        Some(start) => solve(start),
-        None => solve(y.clone()),
+        Some(start) => solve_with(start, false),
+        None => solve_with(y.clone(), false),
     };
     if let Ok(Found { y, rough: false }) = first {
         return Ok(Start {
@@ -383,8 +385,9 @@ where
             ..start(y)
         });
     }
-    // Where Newton on the states finds no operating point, or only stalls
-    // near one, the image with algebraic charges is solved next. Its
+    // The first attempt is Newton alone. Where it finds no operating point
+    // on the states, or only stalls near one, the image with algebraic
+    // charges is solved next. Its
     // unknowns are the node voltages and branch currents of its algebraic
     // loops alone, as ngspice's are, where Newton on the states reaches
     // them through capacitor voltages and junction charges (a charge's
@@ -405,14 +408,25 @@ where
         }
         other => other,
     };
+    // Then Newton with continuation, GMIN and source stepping, from the
+    // same start and (with diodes) from zero, the blocks from their first
+    // guesses again, not where the failed solve left them.
     let r = match first {
-        // The blocks start from their first guesses again, not where the
-        // failed solve left them.
-        Err(_) if diode_start.is_some() && !image_only() => {
+        r if image_only() => r,
+        _ => {
             ode.reset_tears();
-            solve(y)
+            let again = match diode_start.clone() {
+                Some(start) => solve(start),
+                None => solve(y.clone()),
+            };
+            match again {
+                Err(_) if diode_start.is_some() => {
+                    ode.reset_tears();
+                    solve(y)
+                }
+                r => r,
+            }
         }
-        r => r,
     };
     // Where no operating point is found from zero, the transistors are
     // started conducting, as ngspice starts them (each base-emitter
@@ -799,6 +813,9 @@ pub(super) struct DcWork {
     pub deadline: u64,
     pub limit: u64,
     pub wall: std::time::Instant,
+    /// Continuation, GMIN and source stepping after a failed Newton (else
+    /// Newton alone).
+    pub stepping: bool,
 }
 
 impl DcWork {
@@ -809,6 +826,7 @@ impl DcWork {
             deadline: tape.work().saturating_add(limit),
             limit,
             wall: wall.unwrap_or_else(|| std::time::Instant::now() + DC_MAX_TIME),
+            stepping: true,
         }
     }
 }
@@ -1014,6 +1032,12 @@ where
     let Err(error) = first else {
         return first.map(Found::exact);
     };
+    if !work.stepping {
+        return match rough {
+            Some((_, y)) => Ok(Found { y, rough: true }),
+            None => Err(error),
+        };
+    }
     // Pseudo-transient continuation: the circuit itself, its sources held at
     // their values at t0, integrated towards its equilibrium. Not where a
     // node has no DC path: it has no operating point, and the integration
