@@ -387,13 +387,13 @@ where
     }
     // The first attempt is Newton alone. Where it finds no operating point
     // on the states, or only stalls near one, the image with algebraic
-    // charges is solved next. Its
-    // unknowns are the node voltages and branch currents of its algebraic
-    // loops alone, as ngspice's are, where Newton on the states reaches
-    // them through capacitor voltages and junction charges (a charge's
-    // rate is ill-conditioned where its junction is off): a bipolar op-amp
-    // whose states' Newton, continuation, GMIN and source stepping fail
-    // after seconds converges there by source stepping in milliseconds.
+    // charges is solved next. Its unknowns are the node voltages and branch
+    // currents of its algebraic loops alone, as ngspice's are, where Newton
+    // on the states reaches them through capacitor voltages and junction
+    // charges (a charge's rate is ill-conditioned where its junction is
+    // off): a bipolar op-amp whose states' Newton, continuation, GMIN and
+    // source stepping fail after seconds converges there by source stepping
+    // in milliseconds.
     let algebraic = if held_start || !algebraic_image() {
         None
     } else {

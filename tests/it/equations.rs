@@ -29,23 +29,32 @@ fn equations_of_every_netlist() {
 fn every_formulation_verifies() {
     for path in netlists() {
         let el = pipeline::elaborate_file(&path, &FsLoader).ok().unwrap();
+        // Every formulation, and the DC image's algebraic charges (no
+        // charge is then a state).
         for kvl in [Kvl::Nodes, Kvl::Loops] {
-            for alias in [false, true] {
-                let built = kausal::build::build(
-                    &el.circuit,
-                    Options {
-                        kvl,
-                        alias,
-                        ..Default::default()
-                    },
-                );
+            for (alias, algebraic_charges) in [(false, false), (true, false), (false, true)] {
+                let opts = Options {
+                    kvl,
+                    alias,
+                    algebraic_charges,
+                };
+                let built = kausal::build::build(&el.circuit, opts);
                 assert_eq!(ir::verify(&built.system), vec![], "{}", path.display());
                 assert_eq!(
                     built.system.eqs.len(),
                     built.system.n_unknowns(),
-                    "{} {kvl:?} alias={alias}: equations and unknowns differ",
+                    "{} {opts:?}: equations and unknowns differ",
                     path.display()
                 );
+                if algebraic_charges {
+                    let sys = &built.system;
+                    assert!(
+                        sys.states()
+                            .all(|s| sys.vars[s].kind != ir::VarKind::Charge),
+                        "{}: a charge state with algebraic charges",
+                        path.display()
+                    );
+                }
             }
         }
     }
