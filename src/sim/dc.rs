@@ -216,12 +216,14 @@ where
                 algebraic,
             )
         };
-        // Where the image with charge states finds no held point, the
-        // image with algebraic charges is tried (see below).
+        // Where the image with charge states finds no held point, or cannot
+        // be mapped onto the circuit's states (a junction charge that is no
+        // state of the image), the image with algebraic charges is tried
+        // (see below): it maps every charge by name.
         let found = match held(false) {
-            Err(ic::Unheld::Sim(e)) if algebraic_image() => match held(true) {
+            Err(e) if algebraic_image() => match held(true) {
                 Ok(h) if !h.rough => Ok(h),
-                _ => Err(ic::Unheld::Sim(e)),
+                _ => Err(e),
             },
             found => found,
         };

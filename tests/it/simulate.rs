@@ -1668,3 +1668,36 @@ fn a_netlist_without_tran_is_pointed_at() {
     assert_eq!((title.start, title.end), (0, 12));
     assert_eq!(err.to_diagnostic().labels.len(), 1);
 }
+
+/// `.ic` on a bipolar circuit whose DC image with charge states cannot
+/// hold it (a diode-connected transistor's junction charge is no state of
+/// that image, so it cannot be mapped back) is held on the image with
+/// algebraic charges, which maps every charge by name: the µA741 follower
+/// with its input stage's `n5` held 32 mV off its own operating point
+/// starts where ngspice's `.ic` puts it. Before, K0408 dropped the `.ic`
+/// and the output started at 0.3 mV instead of 6.37 V.
+#[test]
+fn an_ic_on_a_bipolar_op_amp_is_held() {
+    let text = std::fs::read_to_string(crate::root().join("netlists/ua741_follower.cir"))
+        .unwrap()
+        .replace(".tran 10u 3m", ".ic v(n5)=-13.9\n.tran 10u 3m");
+    let w = sim::simulate(&sort_text(&text), &sim::Options::default()).expect("runs");
+    assert!(
+        w.warnings
+            .iter()
+            .all(|d| d.code != kausal::diag::codes::IC_NOT_HELD),
+        "the .ic was dropped"
+    );
+    let at0 = |name: &str| w.data[w.names.iter().position(|n| n == name).unwrap()][0];
+    assert!(
+        (at0("v(n5)") + 13.9).abs() < 1e-9,
+        "v(n5) = {}",
+        at0("v(n5)")
+    );
+    // ngspice-39 at t = 0 (its `.ic` holds the node through 1e10 S).
+    assert!(
+        (at0("v(out)") - 6.367537).abs() < 1e-3,
+        "v(out) = {}",
+        at0("v(out)")
+    );
+}
