@@ -204,30 +204,33 @@ where
     let n = tape.states.len();
     let uic = c.tran.as_ref().is_some_and(|t| t.uic);
     let mut warnings = Vec::new();
-    if !uic && !c.ics.is_empty() {
-        let held = |algebraic| {
+    // The operating point with `ics` held, on the DC image with charge
+    // states; where that finds none, or cannot be mapped onto the circuit's
+    // states (a junction charge that is no state of the image), on the
+    // image with algebraic charges, which maps every charge by name (see
+    // below).
+    let held_point = |ics: &[crate::elab::NodeIc], directive: &str| {
+        let on = |algebraic| {
             ic::held_operating_point(
                 sorted,
                 &tape.states,
                 outputs,
                 opts,
-                &c.ics,
-                ".ic",
+                ics,
+                directive,
                 algebraic,
             )
         };
-        // Where the image with charge states finds no held point, or cannot
-        // be mapped onto the circuit's states (a junction charge that is no
-        // state of the image), the image with algebraic charges is tried
-        // (see below): it maps every charge by name.
-        let found = match held(false) {
-            Err(e) if algebraic_image() => match held(true) {
+        match on(false) {
+            Err(e) if algebraic_image() => match on(true) {
                 Ok(h) if !h.rough => Ok(h),
                 _ => Err(e),
             },
             found => found,
-        };
-        match found {
+        }
+    };
+    if !uic && !c.ics.is_empty() {
+        match held_point(&c.ics, ".ic") {
             Ok(held) => {
                 let sys = sorted.system();
                 ode.seed_tears(|v| held.named.get(&sys.vars[v].name).copied());
@@ -308,15 +311,7 @@ where
     // where it cannot be had, the guess is zero as without.
     let mut held_start = false;
     if !c.nodesets.is_empty()
-        && let Ok(held) = ic::held_operating_point(
-            sorted,
-            &tape.states,
-            outputs,
-            opts,
-            &c.nodesets,
-            ".nodeset",
-            false,
-        )
+        && let Ok(held) = held_point(&c.nodesets, ".nodeset")
     {
         y = held.y;
         warnings.extend(held.warnings);
