@@ -609,14 +609,7 @@ pub fn bench_circuit(
     let (sorted, front, sort) = sorted_from(path)?;
     let text = std::fs::read_to_string(path).unwrap_or_default();
     let energy = energy_terms(&text);
-    let tran = sorted
-        .elaborated
-        .circuit
-        .tran
-        .as_ref()
-        .ok_or(sim::SimError::NoTran {
-            title: sorted.elaborated.circuit.title_span,
-        })?;
+    let tran = sim::tran_of(&sorted.elaborated.circuit)?;
     let (tstop, cap) = (tran.tstop, StepCap::of(tran));
     let probes: Vec<String> = sim::outputs(&sorted, &[])?
         .into_iter()

@@ -669,26 +669,22 @@ impl Builder<'_> {
             .exprs
             .intern(Expr::Device(f(DiodePart::Current, 0), ujx));
         let i = self.sys.exprs.var(ev.i);
-        if charge && self.algebraic_charges {
+        if charge {
             let q = self
                 .sys
                 .add_var(format!("q_{name}"), VarKind::Charge, origin.clone());
             self.charges.insert(id, q);
+            // At DC (algebraic charges) the charge carries no current.
+            let rhs = if self.algebraic_charges {
+                current
+            } else {
+                let der = self.sys.add_state(q);
+                let dq = self.sys.exprs.var(der);
+                self.sys.exprs.add(current, dq)
+            };
             let x = &mut self.sys.exprs;
             let qx = x.var(q);
             let law = x.intern(Expr::Device(f(DiodePart::Charge, 0), ujx));
-            self.sys.add_eq(i, current, origin.clone());
-            self.sys.add_eq(qx, law, origin);
-        } else if charge {
-            let q = self
-                .sys
-                .add_var(format!("q_{name}"), VarKind::Charge, origin.clone());
-            self.charges.insert(id, q);
-            let der = self.sys.add_state(q);
-            let x = &mut self.sys.exprs;
-            let (qx, dq) = (x.var(q), x.var(der));
-            let law = x.intern(Expr::Device(f(DiodePart::Charge, 0), ujx));
-            let rhs = x.add(current, dq);
             self.sys.add_eq(i, rhs, origin.clone());
             self.sys.add_eq(qx, law, origin);
         } else {

@@ -364,9 +364,9 @@ where
         ode.seed_tears(|v| h.named.get(&sys.vars[v].name).copied());
         h.y
     };
-    let start = |y| Start {
+    let start = |y, warnings| Start {
         y,
-        warnings: Vec::new(),
+        warnings,
         row: None,
     };
     let first = match diode_start.clone() {
@@ -377,10 +377,7 @@ where
         None => solve_with(y.clone(), false),
     };
     if let Ok(Found { y, rough: false }) = first {
-        return Ok(Start {
-            warnings,
-            ..start(y)
-        });
+        return Ok(start(y, warnings));
     }
     // The first attempt is Newton alone. Where it finds no operating point
     // on the states, or only stalls near one, the image with algebraic
@@ -398,10 +395,7 @@ where
     };
     let algebraic = match algebraic {
         Some(h) if !h.rough => {
-            return Ok(Start {
-                warnings,
-                ..start(from_image(h))
-            });
+            return Ok(start(from_image(h), warnings));
         }
         other => other,
     };
@@ -438,10 +432,7 @@ where
         ok => ok,
     };
     if let Ok(Found { y, rough: false }) = r {
-        return Ok(Start {
-            warnings,
-            ..start(y)
-        });
+        return Ok(start(y, warnings));
     }
     // Then the image with charge states (the junction charges its own
     // states). Where Newton stalls near a point in all of them, the
@@ -450,18 +441,12 @@ where
         && let Ok(h) = image(false)
         && !(h.rough && (r.is_ok() || algebraic.is_some()))
     {
-        return Ok(Start {
-            warnings,
-            ..start(from_image(h))
-        });
+        return Ok(start(from_image(h), warnings));
     }
     if r.is_err()
         && let Some(h) = algebraic
     {
-        return Ok(Start {
-            warnings,
-            ..start(from_image(h))
-        });
+        return Ok(start(from_image(h), warnings));
     }
     let weakest = |y: &[f64]| {
         tape.in_mode(Mode::Dc, || {

@@ -507,13 +507,18 @@ pub struct Prepared {
     tape: Rc<Tape>,
 }
 
+/// The circuit's `.tran` card; K0400, pointing at the title line, without.
+pub fn tran_of(c: &crate::elab::Circuit) -> Result<&crate::elab::Tran, SimError> {
+    c.tran.as_ref().ok_or(SimError::NoTran {
+        title: c.title_span,
+    })
+}
+
 /// Check `opts` against the circuit and compile its tape.
 pub fn prepare(sorted: &Sorted, opts: &Options) -> Result<Prepared, SimError> {
     let start = Instant::now();
     let c = &sorted.elaborated.circuit;
-    let tran = c.tran.clone().ok_or(SimError::NoTran {
-        title: c.title_span,
-    })?;
+    let tran = tran_of(c)?.clone();
     // A tolerance out of range stalls the error control or voids it.
     if let Some(r) = opts.rtol
         && !(r > 0.0 && r < 1.0)

@@ -693,15 +693,7 @@ fn kausal_reference(
     d: &RawData,
     why: &ValidateError,
 ) -> Result<(RawData, Fallback), ValidateError> {
-    let tstop = sorted
-        .elaborated
-        .circuit
-        .tran
-        .as_ref()
-        .ok_or(SimError::NoTran {
-            title: sorted.elaborated.circuit.title_span,
-        })?
-        .tstop;
+    let tstop = sim::tran_of(&sorted.elaborated.circuit)?.tstop;
     let (atol_v, _) = sim::atol_pair(&opts.sim, &sorted.elaborated.circuit);
     let rtol = sim::run_rtol(&opts.sim, &sorted.elaborated.circuit) * FALLBACK_TIGHTER;
     let atol = atol_v * FALLBACK_TIGHTER;
@@ -793,14 +785,7 @@ pub fn validate(path: &Path, sorted: &Sorted, opts: &Options) -> Result<Report, 
     // corner the reference steps on: a signal that jumps there (an inductor
     // voltage under a current ramp) is compared with either one-sided value.
     let sys = sorted.system();
-    let tran = sorted
-        .elaborated
-        .circuit
-        .tran
-        .clone()
-        .ok_or(SimError::NoTran {
-            title: sorted.elaborated.circuit.title_span,
-        })?;
+    let tran = sim::tran_of(&sorted.elaborated.circuit)?.clone();
     let delta = 1e-9 * tran.tstop;
     // The reference's point at each corner it stepped on (to within delta:
     // ngspice's time can be the corner plus an ulp, 1.3800000000000001e-7
