@@ -321,6 +321,7 @@ pub fn extra_solvers(text: &str) -> Vec<Method> {
                         Method::Esdirk34,
                         Method::Tsit5,
                         Method::Circuit,
+                        Method::Gear2,
                     ]
                     .into_iter()
                     .find(|&m| method_name(m).eq_ignore_ascii_case(name))
@@ -331,11 +332,11 @@ pub fn extra_solvers(text: &str) -> Vec<Method> {
 }
 
 /// The chosen solvers, then those the netlist asks for besides; `circuit`
-/// only where it runs (at most [`sim::DENSE_STATES`] states).
+/// and `gear2` only where they run (at most [`sim::DENSE_STATES`] states).
 fn methods_for(opts: &Options, text: &str, states: usize) -> Vec<Method> {
     let mut methods = opts.methods.clone();
     if states > sim::DENSE_STATES {
-        methods.retain(|&m| m != Method::Circuit);
+        methods.retain(|&m| !matches!(m, Method::Circuit | Method::Gear2));
     }
     for m in extra_solvers(text) {
         if !methods.contains(&m) {

@@ -94,7 +94,7 @@ impl Method {
     /// restart: the order each method starts at.
     fn start_order(self) -> usize {
         match self {
-            Method::Bdf | Method::Circuit | Method::Euler => 1,
+            Method::Bdf | Method::Circuit | Method::Gear2 | Method::Euler => 1,
             Method::TrBdf2 | Method::Rk2 => 2,
             Method::Esdirk34 => 3,
             Method::Tsit5 | Method::Rk4 => 4,
@@ -246,7 +246,7 @@ where
             };
             super::fixed::drive(&problem.eqn, run, rec, &mut stats)?
         }
-        Method::Circuit => {
+        Method::Circuit | Method::Gear2 => {
             let setup = circuit::Setup {
                 rtol,
                 atol: atol_own,
@@ -254,6 +254,7 @@ where
                 y0: problem.eqn.y0.borrow().clone(),
                 h0: problem.h0,
                 h_cap: tmax.unwrap_or(f64::INFINITY),
+                bdf2: method == Method::Gear2,
             };
             circuit::drive(&problem.eqn, setup, rec, &stops, &mut stats)?
         }
@@ -325,7 +326,7 @@ where
             drive(&stops, s, |p, st| p.tsit45_solver(st), rec, &mut stats)?.recorder()
         }
     };
-    if method != Method::Circuit && !method.is_fixed_step() {
+    if !matches!(method, Method::Circuit | Method::Gear2) && !method.is_fixed_step() {
         let counts: EvalCounts = problem.eqn.counts();
         stats.rhs_evals = counts.rhs;
         stats.jac_mul_evals = counts.jac_mul;

@@ -88,6 +88,7 @@ fn bridge_rectifiers_run_at_every_tolerance() {
             Method::TrBdf2,
             Method::Esdirk34,
             Method::Circuit,
+            Method::Gear2,
         ] {
             for rtol in [1e-2, 1e-3, 1e-4, 1e-5] {
                 let w = sim(&s, method, rtol);
@@ -145,18 +146,39 @@ fn circuit_integrator_on_the_bridges() {
 fn circuit_integrator_takes_one_step_per_capped_interval() {
     for (name, tmax) in [("sin_rectifier.cir", 1e-6), ("rectifier_big_cap.cir", 1e-4)] {
         let s = sorted(name);
-        let o = sim::Options {
-            method: Some(Method::Circuit),
-            rtol: Some(1e-3),
-            tmax: Some(tmax),
-            ..Default::default()
-        };
-        let w = sim::simulate(&s, &o).expect("simulates");
-        let intervals = w.time.len() - 1;
+        let mut evals = [0; 2];
+        for (k, method) in [Method::Circuit, Method::Gear2].into_iter().enumerate() {
+            let o = sim::Options {
+                method: Some(method),
+                rtol: Some(1e-3),
+                tmax: Some(tmax),
+                ..Default::default()
+            };
+            let w = sim::simulate(&s, &o).expect("simulates");
+            let intervals = w.time.len() - 1;
+            // gear2 takes up to a fifth more: at a diode's turn-on its
+            // predictor spans the whole step, Newton fails there more
+            // often than on TR-BDF2's two stages, and a step cut by four
+            // regrows by two per step.
+            let most = if method == Method::Gear2 { 125 } else { 105 };
+            assert!(
+                w.stats.steps >= intervals && w.stats.steps * 100 <= intervals * most,
+                "{name} {method:?}: {} steps for {intervals} intervals of TMAX",
+                w.stats.steps
+            );
+            evals[k] = w.stats.rhs_evals;
+        }
+        // gear2's steps are one implicit stage where TR-BDF2's are two:
+        // fewer evaluations of f, about half on `sin_rectifier` (5,283
+        // against 10,227), a fifth fewer on `rectifier_big_cap` (4,571
+        // against 5,873: its stages need two Newton iterates on average,
+        // TR-BDF2's 1.45, as the whole step's predictor misses more across
+        // a conducting junction than its second stage's).
         assert!(
-            w.stats.steps >= intervals && w.stats.steps * 100 <= intervals * 105,
-            "{name}: {} steps for {intervals} intervals of TMAX",
-            w.stats.steps
+            evals[1] * 10 <= evals[0] * 8,
+            "{name}: gear2 evaluated f {} times, circuit {}",
+            evals[1],
+            evals[0]
         );
     }
 }
@@ -175,22 +197,24 @@ fn circuit_integrator_error_shrinks_on_a_floating_bridge() {
     )
     .unwrap_or_else(|_| panic!("diode_bridge.cir sorts"));
     let reference = sim(&s, Method::Bdf, 1e-9);
-    let errs: Vec<f64> = [1e-3, 1e-5, 1e-7]
-        .iter()
-        .map(|&rtol| {
-            let w = sim(&s, Method::Circuit, rtol);
-            assert_eq!(w.time, reference.time);
-            w.data
-                .iter()
-                .zip(&reference.data)
-                .map(|(a, b)| max_diff(a, b))
-                .fold(0.0, f64::max)
-        })
-        .collect();
-    assert!(
-        errs[1] < errs[0] && errs[2] * 20.0 <= errs[0] && errs[2] <= 1e-4,
-        "errors {errs:?} at rtol 1e-3, 1e-5, 1e-7"
-    );
+    for method in [Method::Circuit, Method::Gear2] {
+        let errs: Vec<f64> = [1e-3, 1e-5, 1e-7]
+            .iter()
+            .map(|&rtol| {
+                let w = sim(&s, method, rtol);
+                assert_eq!(w.time, reference.time);
+                w.data
+                    .iter()
+                    .zip(&reference.data)
+                    .map(|(a, b)| max_diff(a, b))
+                    .fold(0.0, f64::max)
+            })
+            .collect();
+        assert!(
+            errs[1] < errs[0] && errs[2] * 20.0 <= errs[0] && errs[2] <= 1e-4,
+            "{method:?}: errors {errs:?} at rtol 1e-3, 1e-5, 1e-7"
+        );
+    }
 }
 
 /// A clamp's nA reverse current behind a 7 Ω series resistance, where a
