@@ -118,6 +118,9 @@ const FOLLOW_FLOOR: f64 = 1e-2;
 /// junction moves at all (an LU of a few states costs less than an
 /// evaluation).
 const EXACT_FOLLOW_STATES: usize = 16;
+/// The most a step may grow under `--method gear2`: variable-step BDF2 is
+/// zero-stable for step ratios below `1 + √2`.
+const BDF2_GROWTH: f64 = 2.0;
 /// Steps a Jacobian is kept at most.
 const JACOBIAN_AGE: usize = 20;
 
@@ -529,7 +532,8 @@ where
             let dd1 = (self.stage.f[i] - self.gamma.f[i]) / (h - s);
             self.stage.delta[i] = 2.0 * ERROR_CONSTANT * h * h * (dd1 - dd0);
         }
-        self.conclude(h, 4.0)
+        // Under gear2 the BDF2 step after it grows by no more than its own.
+        self.conclude(h, if self.bdf2 { BDF2_GROWTH } else { 4.0 })
     }
 
     /// One variable-step BDF2 step of `h` through the previous point `tp`:
@@ -540,8 +544,7 @@ where
     /// costs half as much. Its local error is
     /// `(1+ω)² / (6ω(1+2ω)) h³ y'''` (2/9 h³ y''' at equal steps, 5.5 times
     /// TR-BDF2's), with `y'''` from the divided differences of `f` over the
-    /// three points. The step grows by at most 2 (variable-step BDF2 is
-    /// zero-stable below `ω = 1 + √2`).
+    /// three points. The step grows by at most [`BDF2_GROWTH`].
     fn attempt_bdf2(&mut self, h: f64, tp: f64) -> Attempt {
         let n = self.n;
         let hp = self.t - tp;
@@ -567,7 +570,7 @@ where
             let dd1 = (self.stage.f[i] - self.f[i]) / h;
             self.stage.delta[i] = k * 2.0 * (dd1 - dd0) / (h + hp);
         }
-        self.conclude(h, 2.0)
+        self.conclude(h, BDF2_GROWTH)
     }
 
     /// The error test of a step of `h` whose end is `stage.x` (with `f`
