@@ -240,7 +240,9 @@ where
                     row: Some(held.row),
                 });
             }
-            Err(ic::Unheld::Sim(e)) => return Err(name_dc_failure(c, e)),
+            Err(ic::Unheld::Sim(e)) => {
+                return Err(ic::held_failure(c, &c.ics, ".ic", name_dc_failure(c, e)));
+            }
             Err(ic::Unheld::Structure(why)) => warnings.push(ic::unheld_warning(c, &why)),
         }
     }

@@ -1231,7 +1231,7 @@ pub(super) fn algebraic(
                 held = Some(h.row);
                 warnings = h.warnings;
             }
-            Err(ic::Unheld::Sim(e)) => return Err(e),
+            Err(ic::Unheld::Sim(e)) => return Err(ic::held_failure(c, &c.ics, ".ic", e)),
             Err(ic::Unheld::Structure(why)) => warnings.push(ic::unheld_warning(c, &why)),
         }
     }

@@ -153,6 +153,33 @@ fn dc_image(
 /// (its `.ic` or `.nodeset` values, as `directive` names them): the values
 /// of `states` (the states of the sorted system, in order) and of
 /// `outputs` there.
+/// A failed operating point with the nodes of `held` held at their values:
+/// its diagnostic points at their lines (the values are part of the
+/// problem, and a wild one, `.ic v(g)=6.69e31`, is its likeliest cause).
+/// Errors that are not the operating point's own pass unchanged.
+pub(super) fn held_failure(c: &Circuit, held: &[NodeIc], directive: &str, e: SimError) -> SimError {
+    if !matches!(e, SimError::DcFailed { .. } | SimError::DcSingular { .. }) {
+        return e;
+    }
+    SimError::HeldDcFailed {
+        directive: directive.to_string(),
+        held: held
+            .iter()
+            .map(|ic| {
+                let name = &c.nodes[ic.node].name;
+                let v = ic.value;
+                let v = if v == 0.0 || (1e-3..1e6).contains(&v.abs()) {
+                    format!("{v}")
+                } else {
+                    format!("{v:e}")
+                };
+                (ic.span, format!("v({name}) = {v} V"))
+            })
+            .collect(),
+        cause: Box::new(e),
+    }
+}
+
 pub(super) fn held_operating_point(
     sorted: &Sorted,
     states: &[VarId],

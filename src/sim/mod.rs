@@ -243,6 +243,15 @@ pub enum SimError {
     },
     #[error("no DC operating point: {reason}")]
     DcFailed { reason: DcFailure },
+    /// The operating point with `.ic` nodes held failed, and the failure
+    /// names no element: the `.ic` lines are where it points.
+    #[error("{cause}, with `{directive}` holding {}", held.iter().map(|h| h.1.as_str()).collect::<Vec<_>>().join(", "))]
+    HeldDcFailed {
+        directive: String,
+        /// Each held node's line and `v(node) = value`.
+        held: Vec<(crate::diag::Span, String)>,
+        cause: Box<SimError>,
+    },
     #[error(
         "no DC operating point: the DC Jacobian is singular where Newton stopped{}, though every node has a DC path to ground: a conductance vanishes there (junctions or transistors cut off, a switch open) or controlled sources cancel each other",
         weakest_text(at)
@@ -440,6 +449,10 @@ impl crate::diag::ToDiagnostic for SimError {
                 codes::DC_FAILED,
                 "give initial conditions and use `.tran ... uic`",
             ),
+            SimError::HeldDcFailed { .. } => (
+                codes::DC_FAILED,
+                "the operating point is solved with these nodes held at their values: check them, or use `.tran ... uic` to start from them instead",
+            ),
             SimError::DcSingular { .. } => (
                 codes::DC_FAILED,
                 "give a `.nodeset` near the operating point, or initial conditions with `.tran ... uic`",
@@ -470,6 +483,9 @@ impl crate::diag::ToDiagnostic for SimError {
         let d = crate::diag::Diagnostic::error(code, self.to_string()).with_help(help);
         match self {
             SimError::NoTran { title } => d.with_label(*title, "this netlist"),
+            SimError::HeldDcFailed { held, .. } => held.iter().fold(d, |d, (span, what)| {
+                d.with_label(*span, format!("held at {what}"))
+            }),
             _ => d,
         }
     }

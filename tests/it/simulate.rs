@@ -1025,10 +1025,16 @@ fn an_operating_point_that_runs_out_of_work_says_so() {
         dc_deadline: Some(std::time::Instant::now()),
         ..Default::default()
     };
+    // Its diagnostic points at the `.ic` line (see
+    // `a_failed_held_operating_point_points_at_its_ic`).
     match sim::simulate(&s, &opts) {
-        Err(SimError::DcFailed {
-            reason: DcFailure::WorkLimit { .. },
-        }) => {}
+        Err(SimError::HeldDcFailed { cause, .. })
+            if matches!(
+                *cause,
+                SimError::DcFailed {
+                    reason: DcFailure::WorkLimit { .. },
+                }
+            ) => {}
         other => panic!("expected the DC time limit, got {other:?}"),
     }
 }
@@ -1747,4 +1753,31 @@ fn gear2_is_second_order_at_capped_steps() {
         (4.0..=10.0).contains(&ratio),
         "gear2 {fine:e} against TR-BDF2 {trbdf2:e} at TMAX 10 µs: ratio {ratio}"
     );
+}
+
+/// An operating point with `.ic` nodes held that fails, and names no element
+/// (Newton on a JFET amplifier with its gate held at 6.7·10^31 V, a fuzz
+/// finding), points at the `.ic` line: one label on each held node, saying
+/// the value it was held at. Before, K0406 had no location.
+#[test]
+fn a_failed_held_operating_point_points_at_its_ic() {
+    use kausal::diag::ToDiagnostic;
+    let text = std::fs::read_to_string(crate::root().join("netlists/jfet_amp.cir"))
+        .unwrap()
+        .replacen('\n', "\n.ic v(d)=0 v(g)=6.69e31\n", 1);
+    let err = sim::simulate(&sort_text(&text), &sim::Options::default()).unwrap_err();
+    let SimError::HeldDcFailed { held, .. } = &err else {
+        panic!("{err}");
+    };
+    let line = text.find(".ic").expect("the .ic line");
+    let spans: Vec<&str> = held
+        .iter()
+        .map(|(s, _)| &text[s.start as usize..s.end as usize])
+        .collect();
+    assert_eq!(spans, ["v(d)", "v(g)"], "{err}");
+    assert!(held.iter().all(|(s, _)| s.start as usize > line), "{err}");
+    assert_eq!(held[1].1, "v(g) = 6.69e31 V");
+    let d = err.to_diagnostic();
+    assert_eq!(d.labels.len(), 2);
+    assert!(err.to_string().contains("with `.ic` holding"), "{err}");
 }
