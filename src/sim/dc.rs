@@ -1443,22 +1443,26 @@ pub(super) fn dc_newton(
     })
 }
 
-/// Up to this many states a singular DC Jacobian's diagnostic names the
-/// state it depends least on (one evaluation of `f` per state).
+/// Up to this many states a singular DC Jacobian's diagnostic finds the
+/// state it depends least on by finite differences (one evaluation of `f`
+/// per state); above, from the coloured sparse Jacobian.
 const WEAKEST_STATES: usize = 500;
 
 /// The state the DC Jacobian at `y` depends least on: the smallest of its
-/// columns' largest entries in units of the tolerances, by finite
-/// differences. Evaluated once the operating point has failed for good
-/// (the evaluations move the blocks' warm starts), small circuits only.
+/// columns' largest entries in units of the tolerances. Evaluated once the
+/// operating point has failed for good (the evaluations move the blocks'
+/// warm starts).
 fn weakest_state<M>(ode: &CircuitOde<M>, t0: f64, y: &[f64], atol: &[f64]) -> Option<usize>
 where
     M: Matrix<T = f64>,
     M::V: HostVec,
 {
     let n = y.len();
-    if n > WEAKEST_STATES || atol.len() != n {
+    if atol.len() != n {
         return None;
+    }
+    if n > WEAKEST_STATES {
+        return weakest_column(ode, t0, y, atol);
     }
     let (mut f, mut ft, mut trial) = (vec![0.0; n], vec![0.0; n], y.to_vec());
     ode.eval(t0, y, &mut f).ok()?;
@@ -1476,6 +1480,36 @@ where
         }
     }
     best.map(|(k, _)| k)
+}
+
+/// [`weakest_state`] from the Jacobian's nonzero entries (a circuit past
+/// [`WEAKEST_STATES`], whose matrices are sparse: a 10^4-section line with
+/// a singular operating point named nothing): a column with no entry at all
+/// is the weakest.
+fn weakest_column<M>(ode: &CircuitOde<M>, t0: f64, y: &[f64], atol: &[f64]) -> Option<usize>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+{
+    use diffsol::{NonLinearOpJacobian, OdeEquations, Op, Vector};
+    let n = y.len();
+    let op = ode.rhs();
+    let sparsity = op.jacobian_sparsity()?;
+    let ctx = ode.context().clone();
+    let mut jm = M::new_from_sparsity(n, n, Some(sparsity), ctx.clone());
+    op.jacobian_inplace(&M::V::from_vec(y.to_vec(), ctx), t0, &mut jm);
+    if ode.error.borrow_mut().take().is_some() {
+        return None;
+    }
+    let mut col = vec![0.0f64; n];
+    let (at, vals) = jm.triplet_iter();
+    for ((i, j), v) in at.zip(vals) {
+        let w = (v * atol[j] / atol[i]).abs();
+        if i < n && j < n && w.is_finite() {
+            col[j] = col[j].max(w);
+        }
+    }
+    (0..n).min_by(|&a, &b| col[a].total_cmp(&col[b]))
 }
 
 /// The index of the largest residual.

@@ -1659,6 +1659,28 @@ fn a_singular_operating_point_names_what_it_depends_least_on() {
     assert!(err.to_string().contains("depends least on `Lk"), "{err}");
 }
 
+/// The same past 500 states, where finite differences over every state
+/// would cost an evaluation each: the element comes from the coloured
+/// sparse Jacobian (a node whose conductances cancel, `Ga` against `Ra`,
+/// beside a 510-section RC line). Named nothing before (a 10^4-section line
+/// of the grammar fuzzer).
+#[test]
+fn a_large_singular_operating_point_names_what_it_depends_least_on() {
+    let mut text = String::from(
+        "cancelling conductances\nV1 n0 0 DC 1\nCa a 0 1n\nRa a 0 1k\nGa a 0 a 0 -1m\nIa 0 a 1m\n",
+    );
+    for k in 1..=510 {
+        text.push_str(&format!("R{k} n{} n{k} 1k\nC{k} n{k} 0 1n\n", k - 1));
+    }
+    text.push_str(".tran 1u 10m\n.end\n");
+    let err = sim::simulate(&sort_text(&text), &sim::Options::default()).unwrap_err();
+    assert!(
+        matches!(err, SimError::DcSingular { at: Some(_), .. }),
+        "{err}"
+    );
+    assert!(err.to_string().contains("depends least on `Ca`"), "{err}");
+}
+
 /// A netlist without `.tran` is pointed at: its title line carries the
 /// diagnostic's label (K0400 had no location before).
 #[test]
