@@ -840,7 +840,11 @@ where
     let tape = &ode.tape;
     tape.limit_work(work.deadline);
     let out_of_work = || SimError::DcFailed {
-        reason: DcFailure::WorkLimit { work: work.limit },
+        reason: DcFailure::WorkLimit {
+            work: work.limit,
+            state: None,
+            at: None,
+        },
     };
     let outs = std::cell::RefCell::new(vec![0.0; if n == 0 { tape.out_regs.len() } else { 0 }]);
     let resid = |y: &[f64], f: &mut Vec<f64>| -> Result<f64, SimError> {
@@ -1126,7 +1130,20 @@ where
         return Ok(Found { y, rough: true });
     }
     if tape.over_budget() {
-        return Err(out_of_work());
+        // With where the direct attempt's residual was largest.
+        let state = match &error {
+            SimError::DcFailed {
+                reason: DcFailure::Stalled { state, .. } | DcFailure::NoConvergence { state, .. },
+            } => *state,
+            _ => None,
+        };
+        return Err(SimError::DcFailed {
+            reason: DcFailure::WorkLimit {
+                work: work.limit,
+                state,
+                at: None,
+            },
+        });
     }
     // Report the direct attempt's failure, which names what went wrong at
     // the full sources.
@@ -1570,6 +1587,11 @@ fn name_state(
             residual, state, ..
         } => DcFailure::NoConvergence {
             residual,
+            state,
+            at: name(state),
+        },
+        DcFailure::WorkLimit { work, state, .. } => DcFailure::WorkLimit {
+            work,
             state,
             at: name(state),
         },

@@ -365,13 +365,19 @@ pub enum DcFailure {
         islands: Vec<(Vec<String>, Vec<String>)>,
     },
     /// Newton, continuation, GMIN and source stepping ran out of the
-    /// operating point's work limit.
+    /// operating point's work limit. `state`: where the first attempt's
+    /// residual was largest, `at`: what owns it, named once known.
     #[error(
-        "Newton, continuation, GMIN and source stepping found none within the operating point's work limit ({:.1e} tape instructions or {} s, whichever came first)",
+        "Newton, continuation, GMIN and source stepping found none within the operating point's work limit ({:.1e} tape instructions or {} s, whichever came first){}",
         *work as f64,
-        dc::DC_MAX_TIME.as_secs()
+        dc::DC_MAX_TIME.as_secs(),
+        at.as_ref().map_or_else(String::new, |e| format!("; Newton's first attempt left its largest residual at {e}"))
     )]
-    WorkLimit { work: u64 },
+    WorkLimit {
+        work: u64,
+        state: Option<usize>,
+        at: Option<String>,
+    },
     /// Newton at the full sources was skipped (a test's switch).
     #[error("not tried (test)")]
     NotTried,
