@@ -149,10 +149,6 @@ fn dc_image(
     (image, map)
 }
 
-/// The operating point of `sorted`'s circuit with the nodes of `ics` held
-/// (its `.ic` or `.nodeset` values, as `directive` names them): the values
-/// of `states` (the states of the sorted system, in order) and of
-/// `outputs` there.
 /// A failed operating point with the nodes of `held` held at their values:
 /// its diagnostic points at their lines (the values are part of the
 /// problem, and a wild one, `.ic v(g)=6.69e31`, is its likeliest cause).
@@ -180,6 +176,10 @@ pub(super) fn held_failure(c: &Circuit, held: &[NodeIc], directive: &str, e: Sim
     }
 }
 
+/// The operating point of `sorted`'s circuit with the nodes of `ics` held
+/// (its `.ic` or `.nodeset` values, as `directive` names them): the values
+/// of `states` (the states of the sorted system, in order) and of
+/// `outputs` there.
 pub(super) fn held_operating_point(
     sorted: &Sorted,
     states: &[VarId],

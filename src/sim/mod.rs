@@ -243,8 +243,8 @@ pub enum SimError {
     },
     #[error("no DC operating point: {reason}")]
     DcFailed { reason: DcFailure },
-    /// The operating point with `.ic` nodes held failed, and the failure
-    /// names no element: the `.ic` lines are where it points.
+    /// The operating point with `.ic` nodes held failed: the diagnostic
+    /// points at the held nodes' lines, beside whatever `cause` names.
     #[error("{cause}, with `{directive}` holding {}", held.iter().map(|h| h.1.as_str()).collect::<Vec<_>>().join(", "))]
     HeldDcFailed {
         directive: String,
