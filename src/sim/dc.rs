@@ -835,7 +835,7 @@ where
 {
     ode.set_floor_factor(DC_FLOOR_FACTOR);
     let _scope = DcScope(ode);
-    use diffsol::{OdeEquations, Op, Vector};
+    use diffsol::{OdeEquations, Op};
     let n = y.len();
     let tape = &ode.tape;
     tape.limit_work(work.deadline);
@@ -965,21 +965,13 @@ where
     let mut jacobian: Box<JacobianAt<'_>> = if n > DENSE_STATES {
         // The coloured sparse Jacobian.
         use diffsol::NonLinearOpJacobian;
-        let op = ode.rhs();
-        let ctx = ode.context().clone();
-        let mut jm = M::new_from_sparsity(n, n, op.jacobian_sparsity(), ctx.clone());
+        let sparsity = ode.rhs().jacobian_sparsity();
+        let mut jm = M::new_from_sparsity(n, n, sparsity, ode.context().clone());
         Box::new(move |y: &[f64], shift: f64| {
             if tape.over_budget() {
                 return Err(out_of_work());
             }
-            let yv = M::V::from_vec(y.to_vec(), ctx.clone());
-            op.jacobian_inplace(&yv, t0, &mut jm);
-            if let Some(error) = ode.error.borrow_mut().take() {
-                return Err(SimError::Eval { error });
-            }
-            let (at, vals) = jm.triplet_iter();
-            let mut entries: Vec<(usize, usize, f64)> =
-                at.zip(vals).map(|((i, j), v)| (i, j, v)).collect();
+            let mut entries = sparse_jacobian(ode, t0, y, &mut jm)?;
             if shift != 0.0 {
                 entries.extend((0..n).map(|k| (k, k, -shift)));
             }
@@ -1508,25 +1500,41 @@ where
     M: Matrix<T = f64>,
     M::V: HostVec,
 {
-    use diffsol::{NonLinearOpJacobian, OdeEquations, Op, Vector};
+    use diffsol::{NonLinearOpJacobian, OdeEquations, Op};
     let n = y.len();
-    let op = ode.rhs();
-    let sparsity = op.jacobian_sparsity()?;
-    let ctx = ode.context().clone();
-    let mut jm = M::new_from_sparsity(n, n, Some(sparsity), ctx.clone());
-    op.jacobian_inplace(&M::V::from_vec(y.to_vec(), ctx), t0, &mut jm);
-    if ode.error.borrow_mut().take().is_some() {
-        return None;
-    }
+    let sparsity = ode.rhs().jacobian_sparsity()?;
+    let mut jm = M::new_from_sparsity(n, n, Some(sparsity), ode.context().clone());
+    let entries = sparse_jacobian(ode, t0, y, &mut jm).ok()?;
     let mut col = vec![0.0f64; n];
-    let (at, vals) = jm.triplet_iter();
-    for ((i, j), v) in at.zip(vals) {
+    for (i, j, v) in entries {
         let w = (v * atol[j] / atol[i]).abs();
         if i < n && j < n && w.is_finite() {
             col[j] = col[j].max(w);
         }
     }
     (0..n).min_by(|&a, &b| col[a].total_cmp(&col[b]))
+}
+
+/// The coloured sparse Jacobian of `f` at `(t0, y)`, computed into `jm`
+/// (a matrix of its pattern), as `(row, column, value)` entries.
+fn sparse_jacobian<M>(
+    ode: &CircuitOde<M>,
+    t0: f64,
+    y: &[f64],
+    jm: &mut M,
+) -> Result<Vec<(usize, usize, f64)>, SimError>
+where
+    M: Matrix<T = f64>,
+    M::V: HostVec,
+{
+    use diffsol::{NonLinearOpJacobian, OdeEquations, Op, Vector};
+    let yv = M::V::from_vec(y.to_vec(), ode.context().clone());
+    ode.rhs().jacobian_inplace(&yv, t0, jm);
+    if let Some(error) = ode.error.borrow_mut().take() {
+        return Err(SimError::Eval { error });
+    }
+    let (at, vals) = jm.triplet_iter();
+    Ok(at.zip(vals).map(|((i, j), v)| (i, j, v)).collect())
 }
 
 /// The index of the largest residual.
