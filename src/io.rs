@@ -411,6 +411,31 @@ impl AtomicFile {
         Ok(())
     }
 
+    /// Whether it writes straight into a pipe or a device (which cannot
+    /// be rewound), not into a temporary file.
+    pub fn is_direct(&self) -> bool {
+        matches!(
+            self.tmp.as_ref().map(|w| w.get_ref()),
+            Some(Sink::Direct(_))
+        )
+    }
+
+    /// Overwrite what was written at `offset` with `bytes` (a count in a
+    /// header, known only at the end), then go on at the end.
+    pub fn overwrite_at(&mut self, offset: u64, bytes: &[u8]) -> std::io::Result<()> {
+        use std::io::{Seek, SeekFrom};
+        let w = self.writer();
+        w.flush()?;
+        let f: &mut std::fs::File = match w.get_mut() {
+            Sink::Temporary(t) => t.as_file_mut(),
+            Sink::Direct(f) => f,
+        };
+        f.seek(SeekFrom::Start(offset))?;
+        f.write_all(bytes)?;
+        f.seek(SeekFrom::End(0))?;
+        Ok(())
+    }
+
     fn writer(&mut self) -> &mut std::io::BufWriter<Sink> {
         self.tmp
             .as_mut()

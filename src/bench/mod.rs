@@ -69,8 +69,9 @@ pub struct Point {
     /// Median solve time (kausal: `simulate`, in process; ngspice: its
     /// "Transient analysis time").
     pub solve_seconds: f64,
-    /// Median whole-job wall time: a `kausal sim -o FILE` process (start-up,
-    /// parse, sort, solve, CSV written) against an `ngspice -b` process.
+    /// Median whole-job wall time: a `kausal sim -o FILE.raw` process
+    /// (start-up, parse, sort, solve, binary raw file written) against an
+    /// `ngspice -b -r FILE.raw` process.
     pub total_seconds: f64,
     /// Largest absolute error over the compared signals (their units).
     pub error: f64,
@@ -439,7 +440,9 @@ fn run_kausal(
 }
 
 /// The median wall time of `repeats` `kausal sim` processes on `path`
-/// writing their CSV to a scratch file, as a user runs it.
+/// writing a binary raw file to a scratch directory, as a user runs it and
+/// as the ngspice process writes its own (the same format, the same
+/// vectors).
 fn kausal_process(
     exe: &Path,
     path: &Path,
@@ -449,7 +452,7 @@ fn kausal_process(
     repeats: usize,
 ) -> Result<(f64, Option<u64>), String> {
     let dir = crate::io::ScratchDir::new().map_err(|e| format!("no scratch directory: {e}"))?;
-    let out = dir.path().join("out.csv");
+    let out = dir.path().join("out.raw");
     let mut times = Vec::new();
     let mut peaks = Vec::new();
     for _ in 0..repeats.max(1) {
@@ -967,8 +970,9 @@ pub fn markdown(benches: &[CircuitBench], scaling: Option<&Scaling>, plots: &str
             "The fastest kausal run whose error is at most that of ngspice at its defaults \
              (trapezoidal, reltol 1e-3), against that ngspice run. Solve: kausal's \
              integration in process against ngspice's \"Transient analysis time\" (CPU, \
-             reported in whole milliseconds). Whole job: wall time of a `kausal sim -o FILE` \
-             process against an `ngspice -b` process (start-up, parse, solve, output), with \
+             reported in whole milliseconds). Whole job: wall time of a `kausal sim -o FILE.raw` \
+             process against an `ngspice -b -r FILE.raw` process (start-up, parse, solve, \
+             the same vectors written as binary raw files), with \
              each process's peak resident memory. Per step: solve time over accepted steps. \
              Cap: the step cap both sides ran with.\n\n",
         );

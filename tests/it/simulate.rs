@@ -373,6 +373,80 @@ fn streamed_csv_is_whole_or_absent() {
     assert_eq!(a, std::fs::read(&f2).unwrap());
 }
 
+/// `-o FILE.raw` is ngspice's binary raw file, streamed: every value is
+/// the CSV's to the bit, the streamed file is the kept one (`--raw`) byte
+/// for byte, a failed run leaves no file, and a destination that cannot be
+/// rewound for the point count is an error before the run, not a wrong file.
+#[test]
+fn a_raw_output_file_holds_the_csv_values_in_binary() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = crate::kausal;
+    let bridge = root().join("netlists/diode_bridge.cir");
+    let b = bridge.to_str().unwrap();
+    let csv = dir.path().join("a.csv");
+    let streamed = dir.path().join("a.raw");
+    let kept = dir.path().join("b.raw");
+    let ascii = dir.path().join("c.raw");
+    for args in [
+        vec!["-o", csv.to_str().unwrap()],
+        vec!["-o", streamed.to_str().unwrap()],
+        vec![
+            "-o",
+            kept.to_str().unwrap(),
+            "--raw",
+            ascii.to_str().unwrap(),
+        ],
+    ] {
+        let r = run(&[&["sim", b, "--all-steps"][..], &args].concat());
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    let bytes = std::fs::read(&streamed).unwrap();
+    assert!(
+        bytes == std::fs::read(&kept).unwrap(),
+        "streamed and kept differ"
+    );
+    let raw = kausal::validate::raw::parse(&bytes).unwrap();
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(
+        header[1..],
+        raw.names.iter().map(|n| n.as_str()).collect::<Vec<_>>()[..]
+    );
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
+        .collect();
+    assert!(rows.len() > 1000, "{} rows", rows.len());
+    assert_eq!(rows.len(), raw.time.len());
+    for (k, row) in rows.iter().enumerate() {
+        assert_eq!(row[0].to_bits(), raw.time[k].to_bits(), "time at row {k}");
+        for (j, col) in raw.data.iter().enumerate() {
+            assert_eq!(row[j + 1], col[k], "{} at row {k}", raw.names[j]);
+        }
+    }
+    // Not half-written: a run that fails leaves nothing at the path.
+    let net = dir.path().join("unstable.cir");
+    std::fs::write(
+        &net,
+        "unstable\nR1 a 0 -1\nC1 a 0 1u ic=1\n.tran 1u 1 uic\n.end\n",
+    )
+    .unwrap();
+    let failed = dir.path().join("failed.raw");
+    let r = run(&["sim", net.to_str().unwrap(), "-o", failed.to_str().unwrap()]);
+    assert!(!r.status.success());
+    assert!(!failed.exists());
+    // A device cannot take the count at the end.
+    #[cfg(unix)]
+    {
+        let dev = dir.path().join("dev.raw");
+        std::os::unix::fs::symlink("/dev/null", &dev).unwrap();
+        let r = run(&["sim", b, "-o", dev.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(1), "{err}");
+        assert!(err.contains("pipe or a device"), "{err}");
+    }
+}
+
 /// Without `uic`, every `.ic` node is held in the operating point, as
 /// ngspice holds it, and released at t = 0: one with no capacitor (which
 /// then jumps), one between two resistors; a capacitor's `ic=` is not used.

@@ -625,3 +625,52 @@ fn the_reference_falls_back_to_kausal_confirmed_by_ngspice() {
     assert!(out.contains("NOT confirmed"), "{out}");
     assert!(out.contains("verdict: FAIL"), "{out}");
 }
+
+/// ngspice reads kausal's binary raw file (`-o FILE.raw`) as its own: its
+/// `load` gives the point count and, printed to its full precision, the
+/// values kausal wrote.
+#[test]
+fn ngspice_loads_a_kausal_raw_file() {
+    require_ngspice();
+    let dir = tempfile::tempdir().unwrap();
+    let raw = dir.path().join("bridge.raw");
+    let bridge = root().join("netlists/diode_bridge.cir");
+    let r = crate::kausal(&["sim", bridge.to_str().unwrap(), "-o", raw.to_str().unwrap()]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let ours = validate::raw::parse(&std::fs::read(&raw).unwrap()).unwrap();
+    let last = ours.time.len() - 1;
+    let (name, col) = (&ours.names[0], &ours.data[0]);
+    let deck = dir.path().join("load.sp");
+    std::fs::write(
+        &deck,
+        format!(
+            "load a kausal raw file\n.control\nset numdgt=15\nload {}\n\
+             print length(time) {name}[{}] {name}[{last}]\n.endc\n.end\n",
+            raw.display(),
+            last / 2,
+        ),
+    )
+    .unwrap();
+    let out = std::process::Command::new(validate::ngspice_program())
+        .arg("-b")
+        .arg(&deck)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    let value = |key: &str| -> f64 {
+        let line = text
+            .lines()
+            .find(|l| l.trim_start().starts_with(key))
+            .unwrap_or_else(|| panic!("no `{key}` in ngspice's output:\n{text}"));
+        line.split('=').nth(1).unwrap().trim().parse().unwrap()
+    };
+    assert_eq!(value("length(time)"), ours.time.len() as f64);
+    for k in [last / 2, last] {
+        let theirs = value(&format!("{name}[{k}]"));
+        assert!(
+            (theirs - col[k]).abs() <= 1e-13 * col[k].abs().max(1e-12),
+            "{name}[{k}]: ngspice read {theirs}, kausal wrote {}",
+            col[k]
+        );
+    }
+}

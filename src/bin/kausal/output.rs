@@ -92,14 +92,36 @@ pub fn json(value: &impl serde::Serialize) -> Result<String, Error> {
     Ok(s)
 }
 
-/// Simulate, writing CSV rows as they come: into a file committed by the
+/// The format of `kausal sim`'s waveform file.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum WaveFormat {
+    /// `time,<vector>...` rows of shortest round-trip numbers.
+    Csv,
+    /// ngspice's binary raw file (what `ngspice -b -r` writes).
+    RawBinary,
+}
+
+impl WaveFormat {
+    /// A `.raw` file is ngspice's binary raw format; anything else CSV.
+    pub fn of(out: Option<&PathBuf>) -> WaveFormat {
+        match out.and_then(|p| p.extension()) {
+            Some(e) if e.eq_ignore_ascii_case("raw") => WaveFormat::RawBinary,
+            _ => WaveFormat::Csv,
+        }
+    }
+}
+
+/// Simulate, writing rows as they come: into a file committed by the
 /// caller (renamed over `out` only once the run succeeded) or to standard
-/// output (a closed pipe, `| head`, ends the writing, not the run).
-pub fn stream_csv(
+/// output (a closed pipe, `| head`, ends the writing, not the run). A raw
+/// file's point count, unknown until the end, is written over its header's
+/// padding then; so a raw file goes to a file, never a pipe.
+pub fn stream_waves(
     sorted: &Sorted,
     prepared: sim::Prepared,
     opts: &sim::Options,
     out: Option<&PathBuf>,
+    format: WaveFormat,
 ) -> Result<(sim::Waveforms, Option<AtomicFile>), sim::SimError> {
     let names: Vec<String> = sim::outputs(sorted, &opts.probes)?
         .into_iter()
@@ -110,25 +132,57 @@ pub fn stream_csv(
         path: Some(shown.to_path_buf()),
         source: std::rc::Rc::new(e),
     };
-    // One row writer for both destinations.
-    let run = |w: &mut dyn Write| -> Result<sim::Waveforms, sim::SimError> {
+    let title = &sorted.elaborated.circuit.title;
+    // One row writer for every destination.
+    // The offset of a raw file's point count, and the count.
+    let run = |w: &mut dyn Write| -> Result<(sim::Waveforms, usize, usize), sim::SimError> {
+        let mut head = String::new();
+        let count_at = match format {
+            WaveFormat::Csv => {
+                sim::output::csv_header(&mut head, &names);
+                0
+            }
+            WaveFormat::RawBinary => sim::output::raw_header(&mut head, &names, title, None, true),
+        };
+        w.write_all(head.as_bytes()).map_err(write_err)?;
         let mut line = String::new();
-        sim::output::csv_header(&mut line, &names);
-        w.write_all(line.as_bytes()).map_err(write_err)?;
+        let mut bytes = Vec::new();
+        let mut points = 0;
         let mut sink = |t: f64, v: &[f64]| {
-            line.clear();
-            sim::output::csv_row(&mut line, t, v);
-            w.write_all(line.as_bytes())
+            points += 1;
+            match format {
+                WaveFormat::Csv => {
+                    line.clear();
+                    sim::output::csv_row(&mut line, t, v);
+                    w.write_all(line.as_bytes())
+                }
+                WaveFormat::RawBinary => {
+                    bytes.clear();
+                    sim::output::raw_binary_row(&mut bytes, t, v);
+                    w.write_all(&bytes)
+                }
+            }
         };
         let mut wf = sim::run_prepared(sorted, prepared, opts, Some(&mut sink))?;
         w.flush().map_err(write_err)?;
         wf.names = names.clone();
-        Ok(wf)
+        Ok((wf, count_at, points))
     };
     match out {
         Some(path) => {
             let mut file = AtomicFile::create(path).map_err(write_err)?;
-            let w = run(&mut file)?;
+            if format == WaveFormat::RawBinary && file.is_direct() {
+                return Err(write_err(std::io::Error::other(
+                    "a raw file's point count is written into its header at the end, \
+                     which a pipe or a device cannot take: write it to a file (or use CSV)",
+                )));
+            }
+            let (w, count_at, points) = run(&mut file)?;
+            if format == WaveFormat::RawBinary {
+                let count = sim::output::raw_points(points);
+                file.overwrite_at(count_at as u64, count.as_bytes())
+                    .map_err(write_err)?;
+            }
             Ok((w, Some(file)))
         }
         None => {
@@ -137,7 +191,7 @@ pub fn stream_csv(
                 inner: stdout,
                 open: true,
             };
-            Ok((run(&mut pipe)?, None))
+            Ok((run(&mut pipe)?.0, None))
         }
     }
 }

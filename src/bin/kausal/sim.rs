@@ -1,5 +1,6 @@
 //! `kausal sim`: simulate a netlist's `.tran` and write the waveforms as CSV
-//! (streamed while they are computed) and optionally as an ngspice raw file;
+//! or ngspice's binary raw file (streamed while they are computed), and
+//! optionally as an ngspice ASCII raw file;
 //! the solver's statistics on standard error.
 
 use std::io::IsTerminal;
@@ -13,7 +14,7 @@ use kausal::sim::{self, Waveforms};
 
 use crate::args::{BuildArgs, Method, positive, relative_tolerance};
 use crate::error::Error;
-use crate::output::{emit, print_diags, stream_csv};
+use crate::output::{WaveFormat, emit, print_diags, stream_waves};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -21,7 +22,8 @@ pub struct Args {
     netlist: PathBuf,
     #[command(flatten)]
     build: BuildArgs,
-    /// Write the CSV here instead of standard output.
+    /// Write the waveforms here instead of standard output: CSV, or
+    /// ngspice's binary raw file if the name ends in `.raw`.
     #[arg(long, short)]
     out: Option<PathBuf>,
     /// Also write an ngspice ASCII raw file.
@@ -79,8 +81,8 @@ enum Save {
     All,
 }
 
-/// Where the CSV went.
-enum Csv {
+/// Where the waveforms went.
+enum WaveFile {
     /// Streamed into a temporary file, renamed over `-o` by committing it.
     File(AtomicFile),
     /// Streamed to standard output.
@@ -125,31 +127,37 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
     };
     // The integrator's memory takes the place of the schedule's.
     sorted.schedule = Default::default();
-    let (waves, csv) = match simulate(&sorted, prepared, &sim_opts, &args) {
+    let (waves, file) = match simulate(&sorted, prepared, &sim_opts, &args) {
         Ok(x) => x,
         Err(e) => return Err(Error::stage(sorted.elaborated.sources, e)),
     };
     // The files first: a closed stderr cannot lose them.
-    write_files(&sorted, &waves, csv, &args)?;
+    write_files(&sorted, &waves, file, &args)?;
     print_diags(&sorted.elaborated.sources, &waves.warnings);
     print_stats(&waves.stats);
     print_events(&waves.events, args.events);
     Ok(ExitCode::SUCCESS)
 }
 
-/// Run the simulation. Without a raw file (whose header counts the points)
-/// the CSV is streamed as it is computed: memory stays bounded by the
+/// Run the simulation. Without `--raw` (an ASCII raw file's header counts
+/// the points) the waveforms are streamed as they are computed: memory stays bounded by the
 /// circuit, however long the run or many the saved vectors.
 fn simulate(
     sorted: &Sorted,
     prepared: sim::Prepared,
     opts: &sim::Options,
     args: &Args,
-) -> Result<(Waveforms, Csv), sim::SimError> {
+) -> Result<(Waveforms, WaveFile), sim::SimError> {
     let result = match &args.raw {
-        Some(_) => sim::run_prepared(sorted, prepared, opts, None).map(|w| (w, Csv::Kept)),
-        None => stream_csv(sorted, prepared, opts, args.out.as_ref())
-            .map(|(w, f)| (w, f.map_or(Csv::Stdout, Csv::File))),
+        Some(_) => sim::run_prepared(sorted, prepared, opts, None).map(|w| (w, WaveFile::Kept)),
+        None => stream_waves(
+            sorted,
+            prepared,
+            opts,
+            args.out.as_ref(),
+            WaveFormat::of(args.out.as_ref()),
+        )
+        .map(|(w, f)| (w, f.map_or(WaveFile::Stdout, WaveFile::File))),
     };
     if let Some(bar) = PROGRESS.get() {
         bar.finish_and_clear();
@@ -157,20 +165,33 @@ fn simulate(
     result
 }
 
-/// Commit the streamed CSV file, or write the kept waveforms as CSV and raw.
-fn write_files(sorted: &Sorted, waves: &Waveforms, csv: Csv, args: &Args) -> Result<(), Error> {
-    match csv {
-        Csv::File(file) => {
+/// Commit the streamed file, or write the kept waveforms (CSV or binary
+/// raw, and the ASCII raw file).
+fn write_files(
+    sorted: &Sorted,
+    waves: &Waveforms,
+    file: WaveFile,
+    args: &Args,
+) -> Result<(), Error> {
+    match file {
+        WaveFile::File(file) => {
             let path = file.path().to_path_buf();
             file.commit().map_err(Error::write(path))
         }
-        Csv::Stdout => Ok(()),
-        Csv::Kept => {
+        WaveFile::Stdout => Ok(()),
+        WaveFile::Kept => {
             if let Some(path) = &args.raw {
                 let text = sim::output::raw_ascii(waves, &sorted.elaborated.circuit.title);
                 kausal::io::write_atomic(path, text.as_bytes()).map_err(Error::write(path))?;
             }
-            emit(args.out.as_ref(), &sim::output::csv(waves))
+            match WaveFormat::of(args.out.as_ref()) {
+                WaveFormat::Csv => emit(args.out.as_ref(), &sim::output::csv(waves)),
+                WaveFormat::RawBinary => {
+                    let path = args.out.as_ref().expect("a raw format has a path");
+                    let bytes = sim::output::raw_binary(waves, &sorted.elaborated.circuit.title);
+                    kausal::io::write_atomic(path, &bytes).map_err(Error::write(path))
+                }
+            }
         }
     }
 }
