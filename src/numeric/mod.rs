@@ -12,7 +12,7 @@ pub mod sparse_lu;
 pub mod union_find;
 
 pub use dense::DenseLu;
-pub use sparse_lu::TripletLu;
+pub use sparse_lu::{SparsePattern, TripletLu};
 pub use union_find::UnionFind;
 
 /// A factored square matrix, dense or sparse.

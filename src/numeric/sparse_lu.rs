@@ -417,6 +417,17 @@ pub struct TripletLu {
     f: Box<Factors>,
 }
 
+impl std::fmt::Debug for TripletLu {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "TripletLu {{ n: {}, nnz: {} }}",
+            self.f.n,
+            self.f.li.len() + self.f.ui.len() + self.f.n
+        )
+    }
+}
+
 impl TripletLu {
     /// Factor the `n`×`n` matrix of `entries` (repeated positions add up);
     /// `None` when it is singular.
@@ -463,6 +474,79 @@ impl TripletLu {
         let mut x = b.to_vec();
         self.f.solve(&mut x, &mut vec![0.0; self.f.n]);
         x
+    }
+}
+
+/// The compressed-column structure of matrices factored many times with
+/// one pattern (a torn block's Jacobian at every Newton iteration), with
+/// its fill-reducing order computed once.
+#[derive(Clone, Debug)]
+pub struct SparsePattern {
+    n: usize,
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    order: Vec<usize>,
+}
+
+impl SparsePattern {
+    /// The `n`×`n` pattern of the `(row, column)` positions (repeats are one).
+    pub fn new(n: usize, mut positions: Vec<(usize, usize)>) -> SparsePattern {
+        positions.sort_unstable_by_key(|&(i, j)| (j, i));
+        positions.dedup();
+        let mut col_ptr = vec![0usize; n + 1];
+        let mut row_idx = Vec::with_capacity(positions.len());
+        for &(i, j) in &positions {
+            row_idx.push(i);
+            col_ptr[j + 1] += 1;
+        }
+        for j in 0..n {
+            col_ptr[j + 1] += col_ptr[j];
+        }
+        let sym =
+            faer::sparse::SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
+        let order = amd_order_of(n, sym);
+        SparsePattern {
+            n,
+            col_ptr,
+            row_idx,
+            order,
+        }
+    }
+
+    /// How many positions; a matrix of this pattern is that many values.
+    pub fn nnz(&self) -> usize {
+        self.row_idx.len()
+    }
+
+    /// Where the value at `(row, column)` goes (`None`: not in the pattern).
+    pub fn slot(&self, row: usize, col: usize) -> Option<usize> {
+        let (a, b) = (self.col_ptr[col], self.col_ptr[col + 1]);
+        self.row_idx[a..b].binary_search(&row).ok().map(|k| a + k)
+    }
+
+    /// Factor the matrix whose values are `val` (in [`Self::slot`] order):
+    /// with the pivots of `old` (a factorization of this pattern) while
+    /// they still serve, which skips the pivot search and the symbolic
+    /// work, else afresh in the kept order; `None` when it is singular.
+    pub fn factor(&self, val: &[f64], old: Option<TripletLu>) -> Option<TripletLu> {
+        let csc = Csc {
+            col_ptr: &self.col_ptr,
+            row_idx: &self.row_idx,
+            val,
+        };
+        if let Some(mut lu) = old.filter(|lu| lu.f.valid && lu.f.n == self.n) {
+            let mut x = vec![0.0; self.n];
+            if lu.f.refactor(&csc, &mut x) {
+                return Some(lu);
+            }
+        }
+        let mut f = Factors {
+            n: self.n,
+            q: self.order.clone(),
+            ..Factors::default()
+        };
+        f.factor(&csc, &mut Work::default()).ok()?;
+        Some(TripletLu { f: Box::new(f) })
     }
 }
 
@@ -670,6 +754,81 @@ mod tests {
             (b[0] - 1.0).abs() < 1e-12 && (b[1] - 1.0).abs() < 1e-12,
             "{b:?}"
         );
+    }
+
+    /// A pattern's factorization: afresh, then with the kept pivots for
+    /// other values, then afresh again where a kept pivot has vanished; the
+    /// solutions are exact each time, and a singular matrix is `None`.
+    #[test]
+    fn a_pattern_refactors_with_its_pivots_until_one_vanishes() {
+        // An arrow matrix (a hub node and its spokes) with a vanishing
+        // diagonal entry in its last version.
+        let n = 7;
+        let positions: Vec<(usize, usize)> =
+            (0..n).flat_map(|i| [(i, i), (i, 0), (0, i)]).collect();
+        let pattern = SparsePattern::new(n, positions);
+        assert_eq!(pattern.nnz(), 3 * n - 2);
+        let matrix = |k: f64, spoke3: f64| -> Vec<Vec<f64>> {
+            (0..n)
+                .map(|i| {
+                    (0..n)
+                        .map(|j| match (i, j) {
+                            (0, 0) => 10.0 + k,
+                            (3, 3) => spoke3,
+                            (i, j) if i == j => 2.0 + k * i as f64,
+                            (0, _) | (_, 0) => -1.0 + 0.1 * k * (i + j) as f64,
+                            _ => 0.0,
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        let values = |a: &[Vec<f64>]| -> Vec<f64> {
+            let mut v = vec![0.0; pattern.nnz()];
+            for (i, row) in a.iter().enumerate() {
+                for (j, &x) in row.iter().enumerate() {
+                    if let Some(s) = pattern.slot(i, j) {
+                        v[s] = x;
+                    } else {
+                        assert_eq!(x, 0.0, "({i}, {j}) is outside the pattern");
+                    }
+                }
+            }
+            v
+        };
+        let solves = |lu: &TripletLu, a: &[Vec<f64>]| {
+            let x0: Vec<f64> = (0..n).map(|i| 1.0 - 0.3 * i as f64).collect();
+            let b: Vec<f64> = a
+                .iter()
+                .map(|row| row.iter().zip(&x0).map(|(a, x)| a * x).sum())
+                .collect();
+            let x = lu.solve(&b);
+            for (u, v) in x.iter().zip(&x0) {
+                assert!((u - v).abs() < 1e-12, "{x:?} against {x0:?}");
+            }
+        };
+        let a1 = matrix(0.0, 2.0);
+        let lu = pattern.factor(&values(&a1), None).expect("regular");
+        solves(&lu, &a1);
+        let rows = lu.f.pinv.clone();
+        let a2 = matrix(1.0, 5.0);
+        let before = lu.f.inv_pivot.clone();
+        let lu = pattern.factor(&values(&a2), Some(lu)).expect("regular");
+        assert_ne!(before, lu.f.inv_pivot, "the values changed");
+        assert_eq!(rows, lu.f.pinv, "refactored: the same pivot rows");
+        solves(&lu, &a2);
+        // A spoke's diagonal vanishes: refactoring with it as a pivot fails,
+        // a fresh factorization takes another row for its column.
+        let a3 = matrix(1.0, 0.0);
+        let lu = pattern.factor(&values(&a3), Some(lu)).expect("regular");
+        assert_ne!(rows, lu.f.pinv, "factored afresh: other pivot rows");
+        solves(&lu, &a3);
+        // A zero column is singular.
+        let mut a4 = matrix(1.0, 5.0);
+        for row in &mut a4 {
+            row[3] = 0.0;
+        }
+        assert!(pattern.factor(&values(&a4), Some(lu)).is_none());
     }
 
     #[test]

@@ -171,12 +171,28 @@ impl Tape {
     ) -> Result<Option<TripletLu>, EvalError> {
         let n = b.tears.len();
         if n > DENSE_TEARS {
-            let entries = self.sparse_columns(b, r, dr, t)?;
-            return match entries.iter().all(|e| e.2.is_finite()) {
-                true => TripletLu::new(n, entries)
-                    .map(Some)
-                    .ok_or_else(|| b.singular(t)),
-                false => Err(b.singular(t)),
+            let pattern = b.pattern.get_or_init(|| Pattern::of(b));
+            return match pattern {
+                Some(p) => {
+                    let val = self.pattern_values(b, p, r, dr, t)?;
+                    if !val.iter().all(|v| v.is_finite()) {
+                        return Err(b.singular(t));
+                    }
+                    let old = b.kept.borrow_mut().take();
+                    p.sparse
+                        .factor(&val, old)
+                        .map(Some)
+                        .ok_or_else(|| b.singular(t))
+                }
+                None => {
+                    let entries = self.dense_columns(b, r, dr, t)?;
+                    match entries.iter().all(|e| e.2.is_finite()) {
+                        true => TripletLu::new(n, entries)
+                            .map(Some)
+                            .ok_or_else(|| b.singular(t)),
+                        false => Err(b.singular(t)),
+                    }
+                }
             };
         }
         w.dense_jac(n);
@@ -187,55 +203,55 @@ impl Tape {
         Ok(None)
     }
 
+    /// The values of `b`'s Jacobian at the current point in the slots of its
+    /// pattern: the columns of one colour (which share no residual) in one
+    /// tangent run, each residual's derivative put where its one tear of
+    /// that colour goes.
+    fn pattern_values(
+        &self,
+        b: &TapeBlock,
+        p: &Pattern,
+        r: &mut [f64],
+        dr: &mut [f64],
+        t: f64,
+    ) -> Result<Vec<f64>, EvalError> {
+        let mut val = vec![0.0; p.sparse.nnz()];
+        for (members, entries) in p.members.iter().zip(&p.by_colour) {
+            for &x in &b.touched {
+                dr[x] = 0.0;
+            }
+            for &j in members {
+                dr[b.tears[j as usize]] = 1.0;
+            }
+            self.run_tangent(&b.body, r, dr, t, None)?;
+            for &(i, slot) in entries {
+                val[slot as usize] = dr[b.residuals[i as usize]];
+            }
+        }
+        Ok(val)
+    }
+
     /// The nonzero entries `(residual, tear, ∂)` of `b`'s Jacobian at the
-    /// current point: columns that share no residual ([`tear_pattern`],
-    /// coloured once per block) in one tangent run, else one run a column.
-    pub(super) fn sparse_columns(
+    /// current point, one tangent run a column (a block too dense for
+    /// [`tear_pattern`]).
+    fn dense_columns(
         &self,
         b: &TapeBlock,
         r: &mut [f64],
         dr: &mut [f64],
         t: f64,
     ) -> Result<Vec<(usize, usize, f64)>, EvalError> {
-        let n = b.tears.len();
         let mut entries = Vec::new();
-        let pattern = b.pattern.get_or_init(|| {
-            tear_pattern(b).map(|rows| {
-                let (colour, n_colours) = colour_columns(n, &rows);
-                Pattern {
-                    members: members(&colour, n_colours),
-                    rows,
-                    colour,
-                }
-            })
-        });
-        // Without a pattern every column is its own colour.
-        let n_colours = pattern.as_ref().map_or(n, |p| p.members.len()) as u32;
-        for c in 0..n_colours {
+        for (c, &tear) in b.tears.iter().enumerate() {
             for &x in &b.touched {
                 dr[x] = 0.0;
             }
-            let seeds = match pattern {
-                Some(p) => &p.members[c as usize][..],
-                None => std::slice::from_ref(&c),
-            };
-            for &j in seeds {
-                dr[b.tears[j as usize]] = 1.0;
-            }
+            dr[tear] = 1.0;
             self.run_tangent(&b.body, r, dr, t, None)?;
             for (i, &res) in b.residuals.iter().enumerate() {
                 let v = dr[res];
-                let j = match pattern {
-                    Some(p) => p.rows[i]
-                        .iter()
-                        .find(|&&j| p.colour[j as usize] == c)
-                        .copied(),
-                    None => Some(c),
-                };
-                if let Some(j) = j
-                    && v != 0.0
-                {
-                    entries.push((i, j as usize, v));
+                if v != 0.0 {
+                    entries.push((i, c, v));
                 }
             }
         }
@@ -627,7 +643,8 @@ impl Tape {
             let mut dr = std::mem::take(&mut w.dr);
             let factored = self.factor_jacobian(b, r, &mut dr, t, w);
             w.dr = dr;
-            let sparse = factored?;
+            let sparse = Kept::new(b, factored?);
+            let sparse = &sparse.lu;
             for (j, &x) in b.residuals.iter().enumerate() {
                 w.step[j] = r[x];
             }
@@ -892,14 +909,67 @@ pub(super) const PATTERN_MAX: usize = 64;
 /// Blocks with more tears than this factor a constant Jacobian as sparse.
 pub(super) const DENSE_TEARS: usize = 48;
 
-/// Which tears each residual of a block depends on ([`tear_pattern`]) and
-/// a colouring of the tears in which no residual sees two of one colour
-/// (each tear's colour, and the tears of each colour).
+/// Which tears each residual of a block depends on ([`tear_pattern`]), a
+/// colouring of the tears in which no residual sees two of one colour, and
+/// the Jacobian's sparse pattern.
 #[derive(Clone, Debug)]
 pub(super) struct Pattern {
-    rows: Vec<Vec<u32>>,
-    colour: Vec<u32>,
+    /// The tears of each colour.
     members: Vec<Vec<u32>>,
+    /// For each colour, `(residual, slot)`: the residuals that see a tear
+    /// of it, and where in the pattern that entry goes.
+    by_colour: Vec<Vec<(u32, u32)>>,
+    sparse: SparsePattern,
+}
+
+impl Pattern {
+    /// `b`'s pattern; `None` when a residual depends on too many tears.
+    fn of(b: &TapeBlock) -> Option<Pattern> {
+        let rows = tear_pattern(b)?;
+        let n = b.tears.len();
+        let (colour, n_colours) = colour_columns(n, &rows);
+        let positions = rows
+            .iter()
+            .enumerate()
+            .flat_map(|(i, row)| row.iter().map(move |&j| (i, j as usize)))
+            .collect();
+        let sparse = SparsePattern::new(n, positions);
+        let mut by_colour = vec![Vec::new(); n_colours as usize];
+        for (i, row) in rows.iter().enumerate() {
+            for &j in row {
+                let slot = sparse
+                    .slot(i, j as usize)
+                    .expect("a position of the pattern");
+                by_colour[colour[j as usize] as usize].push((i as u32, slot as u32));
+            }
+        }
+        Some(Pattern {
+            members: members(&colour, n_colours),
+            by_colour,
+            sparse,
+        })
+    }
+}
+
+/// A block's sparse factors while they are used, given back to the block
+/// when dropped (the next factorization refactors them).
+pub(super) struct Kept<'b> {
+    block: &'b TapeBlock,
+    pub(super) lu: Option<TripletLu>,
+}
+
+impl<'b> Kept<'b> {
+    pub(super) fn new(block: &'b TapeBlock, lu: Option<TripletLu>) -> Kept<'b> {
+        Kept { block, lu }
+    }
+}
+
+impl Drop for Kept<'_> {
+    fn drop(&mut self) {
+        if let Some(lu) = self.lu.take() {
+            *self.block.kept.borrow_mut() = Some(lu);
+        }
+    }
 }
 
 /// Solve with a sparse factorization when there is one, else with the

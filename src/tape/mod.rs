@@ -16,7 +16,7 @@ use crate::ir::{DiodeParams, EquationSystem, Expr, ExprId, Func, VarId, Waveform
 use crate::numeric::colour::{colour_columns, members};
 use crate::numeric::dense::{lu_factor, lu_solve};
 use crate::numeric::newton::{self, Damping};
-use crate::numeric::{DenseLu, Factored, TripletLu};
+use crate::numeric::{DenseLu, Factored, SparsePattern, TripletLu};
 
 mod analyze;
 pub use analyze::{DensePattern, PATTERN_LIMIT};
@@ -71,6 +71,10 @@ pub struct TapeBlock {
     /// The sparsity of a block past [`DENSE_TEARS`], once computed (`None`
     /// inside: too dense to colour).
     pattern: std::cell::OnceCell<Option<Pattern>>,
+    /// The last sparse factorization of the block's Jacobian, given back
+    /// by its user ([`block::Kept`]) for the next one to refactor with the
+    /// same pivots.
+    kept: std::cell::RefCell<Option<TripletLu>>,
     /// The block is `0 = q - Q(x)` for a junction charge `Q`: it is solved
     /// by Halley's method on the device's own derivatives.
     pub charge_inverse: Option<ChargeInverse>,
@@ -136,6 +140,7 @@ impl TapeBlock {
             constant_jacobian: false,
             lu: std::cell::OnceCell::new(),
             pattern: std::cell::OnceCell::new(),
+            kept: std::cell::RefCell::new(None),
             charge_inverse: None,
         }
     }

@@ -367,14 +367,14 @@ impl Tape {
                     let mut w = Work::take(n, r.len());
                     self.solve_block(k as usize, r, t)?;
                     let result = (|| {
-                        let mut sparse = None;
+                        let mut sparse = Kept::new(b, None);
                         let constant = if b.constant_jacobian {
                             Some(self.constant_lu(b, r, t, &mut w)?)
                         } else {
                             let mut scratch = std::mem::take(&mut w.dr);
                             let got = self.factor_jacobian(b, r, &mut scratch, t, &mut w);
                             w.dr = scratch;
-                            sparse = got?;
+                            sparse = Kept::new(b, got?);
                             None
                         };
                         for &x in &b.tears {
@@ -390,7 +390,7 @@ impl Tape {
                             match constant {
                                 Some(lu) => lu.solve_in_place(&mut w.step, &mut w.tmp),
                                 None => solve_factored(
-                                    sparse.as_ref(),
+                                    sparse.lu.as_ref(),
                                     &w.jac,
                                     &w.perm,
                                     &mut w.step,
