@@ -178,11 +178,7 @@ impl Tape {
                     if !val.iter().all(|v| v.is_finite()) {
                         return Err(b.singular(t));
                     }
-                    let old = b.kept.borrow_mut().take();
-                    p.sparse
-                        .factor(&val, old)
-                        .map(Some)
-                        .ok_or_else(|| b.singular(t))
+                    p.sparse.factor(&val).map(Some).ok_or_else(|| b.singular(t))
                 }
                 None => {
                     let entries = self.dense_columns(b, r, dr, t)?;
@@ -643,8 +639,7 @@ impl Tape {
             let mut dr = std::mem::take(&mut w.dr);
             let factored = self.factor_jacobian(b, r, &mut dr, t, w);
             w.dr = dr;
-            let sparse = Kept::new(b, factored?);
-            let sparse = &sparse.lu;
+            let sparse = factored?;
             for (j, &x) in b.residuals.iter().enumerate() {
                 w.step[j] = r[x];
             }
@@ -948,27 +943,6 @@ impl Pattern {
             by_colour,
             sparse,
         })
-    }
-}
-
-/// A block's sparse factors while they are used, given back to the block
-/// when dropped (the next factorization refactors them).
-pub(super) struct Kept<'b> {
-    block: &'b TapeBlock,
-    pub(super) lu: Option<TripletLu>,
-}
-
-impl<'b> Kept<'b> {
-    pub(super) fn new(block: &'b TapeBlock, lu: Option<TripletLu>) -> Kept<'b> {
-        Kept { block, lu }
-    }
-}
-
-impl Drop for Kept<'_> {
-    fn drop(&mut self) {
-        if let Some(lu) = self.lu.take() {
-            *self.block.kept.borrow_mut() = Some(lu);
-        }
     }
 }
 

@@ -71,10 +71,6 @@ pub struct TapeBlock {
     /// The sparsity of a block past [`DENSE_TEARS`], once computed (`None`
     /// inside: too dense to colour).
     pattern: std::cell::OnceCell<Option<Pattern>>,
-    /// The last sparse factorization of the block's Jacobian, given back
-    /// by its user ([`block::Kept`]) for the next one to refactor with the
-    /// same pivots.
-    kept: std::cell::RefCell<Option<TripletLu>>,
     /// The block is `0 = q - Q(x)` for a junction charge `Q`: it is solved
     /// by Halley's method on the device's own derivatives.
     pub charge_inverse: Option<ChargeInverse>,
@@ -140,7 +136,6 @@ impl TapeBlock {
             constant_jacobian: false,
             lu: std::cell::OnceCell::new(),
             pattern: std::cell::OnceCell::new(),
-            kept: std::cell::RefCell::new(None),
             charge_inverse: None,
         }
     }

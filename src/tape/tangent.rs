@@ -367,14 +367,14 @@ impl Tape {
                     let mut w = Work::take(n, r.len());
                     self.solve_block(k as usize, r, t)?;
                     let result = (|| {
-                        let mut sparse = Kept::new(b, None);
+                        let mut sparse = None;
                         let constant = if b.constant_jacobian {
                             Some(self.constant_lu(b, r, t, &mut w)?)
                         } else {
                             let mut scratch = std::mem::take(&mut w.dr);
                             let got = self.factor_jacobian(b, r, &mut scratch, t, &mut w);
                             w.dr = scratch;
-                            sparse = Kept::new(b, got?);
+                            sparse = got?;
                             None
                         };
                         for &x in &b.tears {
@@ -390,7 +390,7 @@ impl Tape {
                             match constant {
                                 Some(lu) => lu.solve_in_place(&mut w.step, &mut w.tmp),
                                 None => solve_factored(
-                                    sparse.lu.as_ref(),
+                                    sparse.as_ref(),
                                     &w.jac,
                                     &w.perm,
                                     &mut w.step,
