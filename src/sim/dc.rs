@@ -22,6 +22,38 @@ pub(super) struct Start {
     /// The outputs at t = 0 when they are not those of `y`: the operating
     /// point with the `.ic` nodes held, before they are released.
     pub(super) row: Option<Vec<f64>>,
+    /// The operating point's stages in the order tried (empty: held `.ic`
+    /// nodes or `uic`), and the one whose point it is.
+    pub(super) stages: Vec<DcStage>,
+    pub(super) found: Option<DcStage>,
+}
+
+/// A stage of the operating point's search (see [`initial_state`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DcStage {
+    /// Newton on the states alone, from ngspice's start.
+    Newton,
+    /// The DC image with its charges algebraic.
+    AlgebraicImage,
+    /// The DC image with its charges as states.
+    ChargeImage,
+    /// Newton on the states through continuation, GMIN and source stepping.
+    Stepping,
+    /// The same from every transistor conducting.
+    TransistorsOn,
+}
+
+impl DcStage {
+    pub fn describe(self) -> &'static str {
+        match self {
+            DcStage::Newton => "Newton",
+            DcStage::AlgebraicImage => "the DC image",
+            DcStage::ChargeImage => "the DC image with charge states",
+            DcStage::Stepping => "continuation and stepping",
+            DcStage::TransistorsOn => "stepping from the transistors on",
+        }
+    }
 }
 
 /// The element that owns each branch variable.
@@ -238,6 +270,8 @@ where
                     y: held.y,
                     warnings: held.warnings,
                     row: Some(held.row),
+                    stages: Vec::new(),
+                    found: None,
                 });
             }
             Err(ic::Unheld::Sim(e)) => {
@@ -306,6 +340,8 @@ where
             y,
             warnings,
             row: None,
+            stages: Vec::new(),
+            found: None,
         });
     }
     // `.nodeset`: the operating point with those nodes held is the first
@@ -328,7 +364,13 @@ where
     // finds; where none is found from there, the solve starts again from 0 V.
     let diode_start = if held_start { None } else { diodes_on(c, tape) };
     let fets = &fets;
+    let tried = std::cell::RefCell::new(Vec::new());
     let solve_with = |start: Vec<f64>, stepping: bool| {
+        tried.borrow_mut().push(if stepping {
+            DcStage::Stepping
+        } else {
+            DcStage::Newton
+        });
         let work = DcWork { stepping, ..work };
         tape.in_mode(Mode::Dc, move || {
             dc_point::<M>(ode, t0, start, atol, ptc, fets, work)
@@ -340,6 +382,11 @@ where
     // the wall-clock limit, at least a quarter of it: a failing operating
     // point ends within 1.25 times either.
     let image = |algebraic: bool| {
+        tried.borrow_mut().push(if algebraic {
+            DcStage::AlgebraicImage
+        } else {
+            DcStage::ChargeImage
+        });
         let image_opts = Options {
             dc_work: Some(
                 work.deadline
@@ -366,10 +413,12 @@ where
         ode.seed_tears(|v| h.named.get(&sys.vars[v].name).copied());
         h.y
     };
-    let start = |y, warnings| Start {
+    let start = |y, warnings, found| Start {
         y,
         warnings,
         row: None,
+        stages: tried.borrow().clone(),
+        found: Some(found),
     };
     let first = match diode_start.clone() {
         _ if image_only() => Err(SimError::DcFailed {
@@ -379,7 +428,7 @@ where
         None => solve_with(y.clone(), false),
     };
     if let Ok(Found { y, rough: false }) = first {
-        return Ok(start(y, warnings));
+        return Ok(start(y, warnings, DcStage::Newton));
     }
     // The first attempt is Newton alone. Where it finds no operating point
     // on the states, or only stalls near one, the image with algebraic
@@ -397,7 +446,7 @@ where
     };
     let algebraic = match algebraic {
         Some(h) if !h.rough => {
-            return Ok(start(from_image(h), warnings));
+            return Ok(start(from_image(h), warnings, DcStage::AlgebraicImage));
         }
         other => other,
     };
@@ -409,7 +458,9 @@ where
     // those spent 2.3 and 4.2 s failing where it takes 5 and 23 ms.
     let charged = (!held_start && algebraic_image() && algebraic.is_none()).then(|| image(false));
     let charged = match charged {
-        Some(Ok(h)) if !h.rough => return Ok(start(from_image(h), warnings)),
+        Some(Ok(h)) if !h.rough => {
+            return Ok(start(from_image(h), warnings, DcStage::ChargeImage));
+        }
         other => other,
     };
     // Then Newton with continuation, GMIN and source stepping, from the
@@ -439,13 +490,22 @@ where
     let r = match r {
         Err(e) if image_only() => Err(e),
         Err(e) => match transistors_on(sorted, &tape.states) {
-            Some(start) => solve(start).map_err(|_| e),
+            Some(start) => {
+                let r = solve(start).map_err(|_| e);
+                // Recorded as its own stage, not as stepping.
+                if let Some(last) = tried.borrow_mut().last_mut() {
+                    *last = DcStage::TransistorsOn;
+                }
+                r
+            }
             None => Err(e),
         },
         ok => ok,
     };
+    // The stage whose point `r` is.
+    let r_stage = tried.borrow().last().copied().unwrap_or(DcStage::Newton);
     if let Ok(Found { y, rough: false }) = r {
-        return Ok(start(y, warnings));
+        return Ok(start(y, warnings, r_stage));
     }
     // Then the image with charge states (the junction charges its own
     // states). Where Newton stalls near a point in all of them, the
@@ -457,12 +517,12 @@ where
     if let Some(Ok(h)) = charged
         && !(h.rough && (r.is_ok() || algebraic.is_some()))
     {
-        return Ok(start(from_image(h), warnings));
+        return Ok(start(from_image(h), warnings, DcStage::ChargeImage));
     }
     if r.is_err()
         && let Some(h) = algebraic
     {
-        return Ok(start(from_image(h), warnings));
+        return Ok(start(from_image(h), warnings, DcStage::AlgebraicImage));
     }
     let weakest = |y: &[f64]| {
         tape.in_mode(Mode::Dc, || {
@@ -472,12 +532,10 @@ where
             k
         })
     };
-    Ok(Start {
-        y: r.map_err(|e| name_state(sorted, &tape.states, name_dc_failure(c, e), &weakest))?
-            .y,
-        warnings,
-        row: None,
-    })
+    let y = r
+        .map_err(|e| name_state(sorted, &tape.states, name_dc_failure(c, e), &weakest))?
+        .y;
+    Ok(start(y, warnings, r_stage))
 }
 
 /// The states with every diode's junction at its critical voltage

@@ -151,6 +151,7 @@ where
     *ode.y0.borrow_mut() = start.y;
     let rtol = run_rtol(opts, c);
     let mut warnings = start.warnings;
+    let (mut start_stages, dc_found) = (start.stages, start.found);
     if method == Method::Bdf
         && let Some(d) = oscillation_at_loose_rtol(sys, &ode, tran, rtol, t0, &ode.y0.borrow())
     {
@@ -225,7 +226,11 @@ where
         tmax,
         switches,
     };
-    let mut stats = Stats::default();
+    let mut stats = Stats {
+        dc_stages: std::mem::take(&mut start_stages),
+        dc_found,
+        ..Stats::default()
+    };
     // The steps a stalled BDF took before ESDIRK34 took over.
     let mut stalled_steps = 0;
     let rec = match method {

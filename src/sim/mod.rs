@@ -41,6 +41,7 @@ use crate::pipeline::Sorted;
 use crate::tape::{self, EvalError, Mode, OutputRef, Tape};
 use ode::{CircuitOde, EvalCounts, HostVec, Regs};
 
+pub use dc::DcStage;
 use dc::*;
 use driver::*;
 pub use events::StateEvent;
@@ -172,6 +173,10 @@ pub struct Stats {
     /// it was estimated (see [`stability_bound`]).
     pub stable_step: Option<f64>,
     pub wall: Duration,
+    /// The operating point's stages in the order tried (empty: `uic` or
+    /// held `.ic` nodes), and the one whose point the run started from.
+    pub dc_stages: Vec<DcStage>,
+    pub dc_found: Option<DcStage>,
     /// Assignments computed in `f` / at output points only / never.
     pub in_f: usize,
     pub at_outputs: usize,

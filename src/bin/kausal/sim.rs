@@ -209,6 +209,19 @@ fn print_stats(s: &sim::Stats) {
     } else {
         print_solver(s);
     }
+    if let Some(found) = s.dc_found {
+        match s.dc_stages.len() {
+            0 | 1 => eprintln!("operating point: {}", found.describe()),
+            _ => {
+                let tried: Vec<&str> = s.dc_stages.iter().map(|d| d.describe()).collect();
+                eprintln!(
+                    "operating point: {} (tried: {})",
+                    found.describe(),
+                    tried.join(", ")
+                );
+            }
+        }
+    }
     eprintln!(
         "assignments: {} in f, {} at output points only, {} pruned",
         s.in_f, s.at_outputs, s.unused
