@@ -45,6 +45,7 @@ pub enum DcStage {
 }
 
 impl DcStage {
+    /// The stage in words, as `kausal sim` reports it.
     pub fn describe(self) -> &'static str {
         match self {
             DcStage::Newton => "Newton",
