@@ -514,10 +514,10 @@ impl SparsePattern {
     }
 
     /// Factor the matrix whose values are `val` (in [`Self::slot`] order)
-    /// in the kept order; `None` when it is singular. (Refactoring with
-    /// the last factorization's pivots saved 6 % of a digital deck's
-    /// operating point and made a near-singular one's failure take four
-    /// times as long: every factorization searches its pivots.)
+    /// in the kept order; `None` when it is singular. Every factorization
+    /// searches its pivots: between a block's Newton iterations far from
+    /// the solution the matrix changes too much for the last pivots to be
+    /// trusted, and on a near-singular block they steer Newton's path.
     pub fn factor(&self, val: &[f64]) -> Option<TripletLu> {
         let csc = Csc {
             col_ptr: &self.col_ptr,

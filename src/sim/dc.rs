@@ -366,18 +366,17 @@ where
     let diode_start = if held_start { None } else { diodes_on(c, tape) };
     let fets = &fets;
     let tried = std::cell::RefCell::new(Vec::new());
-    let solve_with = |start: Vec<f64>, stepping: bool| {
-        tried.borrow_mut().push(if stepping {
-            DcStage::Stepping
-        } else {
-            DcStage::Newton
-        });
-        let work = DcWork { stepping, ..work };
+    let solve_with = |start: Vec<f64>, stage: DcStage| {
+        tried.borrow_mut().push(stage);
+        let work = DcWork {
+            stepping: stage != DcStage::Newton,
+            ..work
+        };
         tape.in_mode(Mode::Dc, move || {
             dc_point::<M>(ode, t0, start, atol, ptc, fets, work)
         })
     };
-    let solve = |start: Vec<f64>| solve_with(start, true);
+    let solve = |start: Vec<f64>| solve_with(start, DcStage::Stepping);
     // The DC image (see [`ic`]): capacitors open, inductors shorted, with
     // what is left of the DC work limit, and at least a quarter of it, and
     // the wall-clock limit, at least a quarter of it: a failing operating
@@ -425,8 +424,8 @@ where
         _ if image_only() => Err(SimError::DcFailed {
             reason: DcFailure::NotTried,
         }),
-        Some(start) => solve_with(start, false),
-        None => solve_with(y.clone(), false),
+        Some(start) => solve_with(start, DcStage::Newton),
+        None => solve_with(y.clone(), DcStage::Newton),
     };
     if let Ok(Found { y, rough: false }) = first {
         return Ok(start(y, warnings, DcStage::Newton));
@@ -491,14 +490,7 @@ where
     let r = match r {
         Err(e) if image_only() => Err(e),
         Err(e) => match transistors_on(sorted, &tape.states) {
-            Some(start) => {
-                let r = solve(start).map_err(|_| e);
-                // Recorded as its own stage, not as stepping.
-                if let Some(last) = tried.borrow_mut().last_mut() {
-                    *last = DcStage::TransistorsOn;
-                }
-                r
-            }
+            Some(start) => solve_with(start, DcStage::TransistorsOn).map_err(|_| e),
             None => Err(e),
         },
         ok => ok,
@@ -511,10 +503,7 @@ where
     // Then the image with charge states (the junction charges its own
     // states). Where Newton stalls near a point in all of them, the
     // states' point is kept, else the algebraic image's.
-    let charged = match charged {
-        Some(tried) => Some(tried),
-        None => (!held_start).then(|| image(false)),
-    };
+    let charged = charged.or_else(|| (!held_start).then(|| image(false)));
     if let Some(Ok(h)) = charged
         && !(h.rough && (r.is_ok() || algebraic.is_some()))
     {
