@@ -14,17 +14,17 @@ const UNROLLED: usize = 8;
 /// Calls `$f::<N>` for `$n` up to [`UNROLLED`], else `$f::<0>` (the order
 /// read at run time).
 macro_rules! by_order {
-    ($n:expr, $f:ident($($arg:expr),*)) => {
+    ($n:expr, $f:ident::<$inv:tt>($($arg:expr),*)) => {
         match $n {
-            1 => $f::<1>($n, $($arg),*),
-            2 => $f::<2>($n, $($arg),*),
-            3 => $f::<3>($n, $($arg),*),
-            4 => $f::<4>($n, $($arg),*),
-            5 => $f::<5>($n, $($arg),*),
-            6 => $f::<6>($n, $($arg),*),
-            7 => $f::<7>($n, $($arg),*),
-            UNROLLED => $f::<UNROLLED>($n, $($arg),*),
-            _ => $f::<0>($n, $($arg),*),
+            1 => $f::<1, $inv>($n, $($arg),*),
+            2 => $f::<2, $inv>($n, $($arg),*),
+            3 => $f::<3, $inv>($n, $($arg),*),
+            4 => $f::<4, $inv>($n, $($arg),*),
+            5 => $f::<5, $inv>($n, $($arg),*),
+            6 => $f::<6, $inv>($n, $($arg),*),
+            7 => $f::<7, $inv>($n, $($arg),*),
+            UNROLLED => $f::<UNROLLED, $inv>($n, $($arg),*),
+            _ => $f::<0, $inv>($n, $($arg),*),
         }
     };
 }
@@ -32,12 +32,26 @@ macro_rules! by_order {
 /// LU-factorize the row-major `n`×`n` matrix `a` in place (partial
 /// pivoting, row order into `perm`); false if it is singular or not finite.
 pub fn lu_factor(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
-    by_order!(n, factor(a, perm))
+    by_order!(n, factor::<false>(a, perm))
 }
 
-/// [`lu_factor`] of order `N`, or of order `n` where `N` is 0.
+/// [`lu_factor`] with U's diagonal stored as its reciprocals, for
+/// [`lu_solve_inv`]: the multipliers and the back substitution multiply
+/// where [`lu_factor`] and [`lu_solve`] divide. The circuit integrator
+/// factors and solves at every step, and the divisions in the
+/// substitution's dependency chain were most of its solves' time (mul:
+/// 5·10^5 steps of 7 states). Its own matrices only: the tape's blocks and
+/// the operating point keep the exact quotients, whose rounding the corpus
+/// results were validated with (a level-1 inverter loop's Newton, marginal
+/// at an edge, fails under the other rounding).
+pub fn lu_factor_inv(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
+    by_order!(n, factor::<true>(a, perm))
+}
+
+/// [`lu_factor`] (`INV`: [`lu_factor_inv`]) of order `N`, or of order `n`
+/// where `N` is 0.
 #[inline(always)]
-fn factor<const N: usize>(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
+fn factor<const N: usize, const INV: bool>(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
     let n = if N == 0 { n } else { N };
     let perm = &mut perm[..n];
     for (k, p) in perm.iter_mut().enumerate() {
@@ -59,10 +73,18 @@ fn factor<const N: usize>(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
         // Row slices, as in `lu_solve`: the circuit integrator factors at
         // every stage, and bounds checks per entry showed in its profile.
         let (upper, lower) = a.split_at_mut((k + 1) * n);
+        let pivot = upper[k * n + k];
+        let inv = 1.0 / pivot;
+        if INV {
+            if !inv.is_finite() {
+                // A subnormal pivot, the largest of its column: singular.
+                return false;
+            }
+            upper[k * n + k] = inv;
+        }
         let pivot_row = &upper[k * n..];
-        let pivot = pivot_row[k];
         for row in lower.chunks_exact_mut(n) {
-            let f = row[k] / pivot;
+            let f = if INV { row[k] * inv } else { row[k] / pivot };
             row[k] = f;
             if f != 0.0 {
                 for (x, &u) in row[k + 1..].iter_mut().zip(&pivot_row[k + 1..]) {
@@ -79,12 +101,24 @@ fn factor<const N: usize>(n: usize, a: &mut [f64], perm: &mut [usize]) -> bool {
 /// circuit integrator solves, and bounds checks per entry showed in its
 /// profile.
 pub fn lu_solve(n: usize, lu: &[f64], perm: &[usize], b: &mut [f64], tmp: &mut [f64]) {
-    by_order!(n, solve(lu, perm, b, tmp))
+    by_order!(n, solve::<false>(lu, perm, b, tmp))
 }
 
-/// [`lu_solve`] of order `N`, or of order `n` where `N` is 0.
+/// [`lu_solve`] with the factors of [`lu_factor_inv`].
+pub fn lu_solve_inv(n: usize, lu: &[f64], perm: &[usize], b: &mut [f64], tmp: &mut [f64]) {
+    by_order!(n, solve::<true>(lu, perm, b, tmp))
+}
+
+/// [`lu_solve`] (`INV`: [`lu_solve_inv`]) of order `N`, or of order `n`
+/// where `N` is 0.
 #[inline(always)]
-fn solve<const N: usize>(n: usize, lu: &[f64], perm: &[usize], b: &mut [f64], tmp: &mut [f64]) {
+fn solve<const N: usize, const INV: bool>(
+    n: usize,
+    lu: &[f64],
+    perm: &[usize],
+    b: &mut [f64],
+    tmp: &mut [f64],
+) {
     let n = if N == 0 { n } else { N };
     let (lu, tmp) = (&lu[..n * n], &mut tmp[..n]);
     for (x, &p) in tmp.iter_mut().zip(&perm[..n]) {
@@ -106,7 +140,11 @@ fn solve<const N: usize>(n: usize, lu: &[f64], perm: &[usize], b: &mut [f64], tm
             .zip(rest.iter())
             .map(|(u, y)| u * y)
             .sum::<f64>();
-        *x /= row[i];
+        if INV {
+            *x *= row[i];
+        } else {
+            *x /= row[i];
+        }
     }
     b[..n].copy_from_slice(tmp);
 }
@@ -168,13 +206,50 @@ mod tests {
             let (mut fast, mut general) = (a.clone(), a.clone());
             let (mut pf, mut pg) = (vec![0; n], vec![0; n]);
             assert!(lu_factor(n, &mut fast, &mut pf), "order {n}");
-            assert!(factor::<0>(n, &mut general, &mut pg), "order {n}");
+            assert!(factor::<0, false>(n, &mut general, &mut pg), "order {n}");
             assert_eq!((&fast, &pf), (&general, &pg), "order {n}");
             let (mut bf, mut bg, mut tmp) = (b.clone(), b.clone(), vec![0.0; n]);
             lu_solve(n, &fast, &pf, &mut bf, &mut tmp);
-            solve::<0>(n, &general, &pg, &mut bg, &mut tmp);
+            solve::<0, false>(n, &general, &pg, &mut bg, &mut tmp);
             assert_eq!(bf, bg, "order {n}");
             let err = bf
+                .iter()
+                .zip(&x)
+                .map(|(p, q)| (p - q).abs())
+                .fold(0.0, f64::max);
+            assert!(err < 1e-9, "order {n}: {err:e}");
+        }
+    }
+
+    /// The reciprocal factors: U's diagonal inverted, the same solutions
+    /// to rounding at every order, and a column whose largest entry is
+    /// subnormal (its reciprocal overflows) singular.
+    #[test]
+    fn reciprocal_factors_solve_as_the_quotients_do() {
+        let mut a = vec![4.0, 1.0, 2.0, 3.0];
+        let mut perm = vec![0; 2];
+        assert!(lu_factor_inv(2, &mut a, &mut perm));
+        // U = [[4, 1], [0, 3 - 0.5·1]]
+        assert_eq!([a[0], a[3]], [0.25, 1.0 / 2.5]);
+        let mut tiny = vec![1e-310, 0.0, 0.0, 1.0];
+        assert!(!lu_factor_inv(2, &mut tiny, &mut perm));
+        assert!(lu_factor(2, &mut [1e-310, 0.0, 0.0, 1.0], &mut perm));
+        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for n in 1..=UNROLLED + 2 {
+            let a: Vec<f64> = (0..n * n).map(|_| next()).collect();
+            let x: Vec<f64> = (0..n).map(|_| next()).collect();
+            let b = mul(&a, &x);
+            let (mut lu, mut p) = (a.clone(), vec![0; n]);
+            assert!(lu_factor_inv(n, &mut lu, &mut p), "order {n}");
+            let (mut got, mut tmp) = (b.clone(), vec![0.0; n]);
+            lu_solve_inv(n, &lu, &p, &mut got, &mut tmp);
+            let err = got
                 .iter()
                 .zip(&x)
                 .map(|(p, q)| (p - q).abs())

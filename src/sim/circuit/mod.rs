@@ -81,7 +81,7 @@ mod newton;
 use super::ode::{CircuitOde, HostVec, Regs};
 use super::*;
 use crate::ir::EquationSystem;
-use crate::numeric::dense::{lu_factor, lu_solve};
+use crate::numeric::dense::{lu_factor_inv, lu_solve_inv};
 use crate::tape::{ChargeInverse, EvalError};
 use diffsol::Matrix;
 

@@ -50,14 +50,14 @@ where
         }
         self.stats.lu_factorizations += 1;
         nw.beta = beta;
-        nw.factored = all_finite(&nw.lu) && lu_factor(n, &mut nw.lu, &mut nw.perm);
+        nw.factored = all_finite(&nw.lu) && lu_factor_inv(n, &mut nw.lu, &mut nw.perm);
         nw.factored
     }
 
     /// `delta := (I - βJ)⁻¹ delta` with the factored iteration matrix.
     pub(super) fn solve_delta(&mut self) {
         let nw = &self.newton;
-        lu_solve(
+        lu_solve_inv(
             self.n,
             &nw.lu,
             &nw.perm,
