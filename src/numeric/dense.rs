@@ -188,17 +188,29 @@ mod tests {
             .collect()
     }
 
-    /// The orders compiled one by one compute exactly what the general
-    /// loops compute (the same operations in the same order), and solve.
-    #[test]
-    fn unrolled_orders_agree_with_the_general_loops_bit_for_bit() {
-        let mut seed = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = || {
+    /// Numbers in [-0.5, 0.5) from a xorshift generator seeded with `seed`.
+    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
             seed ^= seed << 13;
             seed ^= seed >> 7;
             seed ^= seed << 17;
             (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        }
+    }
+
+    /// `max_k |a_k - b_k|`.
+    fn max_difference(a: &[f64], b: &[f64]) -> f64 {
+        a.iter()
+            .zip(b)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0, f64::max)
+    }
+
+    /// The orders compiled one by one compute exactly what the general
+    /// loops compute (the same operations in the same order), and solve.
+    #[test]
+    fn unrolled_orders_agree_with_the_general_loops_bit_for_bit() {
+        let mut next = uniform(0x2545_f491_4f6c_dd1d);
         for n in 1..=UNROLLED + 2 {
             let a: Vec<f64> = (0..n * n).map(|_| next()).collect();
             let x: Vec<f64> = (0..n).map(|_| next()).collect();
@@ -212,11 +224,7 @@ mod tests {
             lu_solve(n, &fast, &pf, &mut bf, &mut tmp);
             solve::<0, false>(n, &general, &pg, &mut bg, &mut tmp);
             assert_eq!(bf, bg, "order {n}");
-            let err = bf
-                .iter()
-                .zip(&x)
-                .map(|(p, q)| (p - q).abs())
-                .fold(0.0, f64::max);
+            let err = max_difference(&bf, &x);
             assert!(err < 1e-9, "order {n}: {err:e}");
         }
     }
@@ -234,13 +242,7 @@ mod tests {
         let mut tiny = vec![1e-310, 0.0, 0.0, 1.0];
         assert!(!lu_factor_inv(2, &mut tiny, &mut perm));
         assert!(lu_factor(2, &mut [1e-310, 0.0, 0.0, 1.0], &mut perm));
-        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform(0x9e37_79b9_7f4a_7c15);
         for n in 1..=UNROLLED + 2 {
             let a: Vec<f64> = (0..n * n).map(|_| next()).collect();
             let x: Vec<f64> = (0..n).map(|_| next()).collect();
@@ -249,11 +251,7 @@ mod tests {
             assert!(lu_factor_inv(n, &mut lu, &mut p), "order {n}");
             let (mut got, mut tmp) = (b.clone(), vec![0.0; n]);
             lu_solve_inv(n, &lu, &p, &mut got, &mut tmp);
-            let err = got
-                .iter()
-                .zip(&x)
-                .map(|(p, q)| (p - q).abs())
-                .fold(0.0, f64::max);
+            let err = max_difference(&got, &x);
             assert!(err < 1e-9, "order {n}: {err:e}");
         }
     }
