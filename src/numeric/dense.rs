@@ -11,8 +11,8 @@
 /// steps of 7 states, the general loops were a fifth of the run).
 const UNROLLED: usize = 8;
 
-/// Calls `$f::<N>` for `$n` up to [`UNROLLED`], else `$f::<0>` (the order
-/// read at run time).
+/// Calls `$f::<N, INV>` for `$n` up to [`UNROLLED`], else `$f::<0, INV>`
+/// (the order read at run time).
 macro_rules! by_order {
     ($n:expr, $f:ident::<$inv:tt>($($arg:expr),*)) => {
         match $n {
@@ -74,14 +74,17 @@ fn factor<const N: usize, const INV: bool>(n: usize, a: &mut [f64], perm: &mut [
         // every stage, and bounds checks per entry showed in its profile.
         let (upper, lower) = a.split_at_mut((k + 1) * n);
         let pivot = upper[k * n + k];
-        let inv = 1.0 / pivot;
-        if INV {
+        let inv = if INV {
+            let inv = 1.0 / pivot;
             if !inv.is_finite() {
                 // A subnormal pivot, the largest of its column: singular.
                 return false;
             }
             upper[k * n + k] = inv;
-        }
+            inv
+        } else {
+            f64::NAN
+        };
         let pivot_row = &upper[k * n..];
         for row in lower.chunks_exact_mut(n) {
             let f = if INV { row[k] * inv } else { row[k] / pivot };
