@@ -1540,9 +1540,19 @@ where
     let mut best: Option<(usize, f64)> = None;
     for k in 0..n {
         let h = 1e-7 * (y[k].abs() + 1e7 * atol[k]);
+        if !(h > 0.0 && h.is_finite()) {
+            // A state at 0 whose tolerance underflowed has no scale at all
+            // (a transistor of area 1e-308): nothing depends on it less.
+            return Some(k);
+        }
         trial[k] = y[k] + h;
-        ode.eval(t0, &trial, &mut ft).ok()?;
+        let moved = ode.eval(t0, &trial, &mut ft);
         trial[k] = y[k];
+        if moved.is_err() {
+            // A direction the circuit's loops cannot be solved in says
+            // nothing of the others.
+            continue;
+        }
         let col = (0..n)
             .map(|j| (ft[j] - f[j]).abs() / h * atol[k] / atol[j])
             .fold(0.0, f64::max);

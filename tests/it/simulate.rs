@@ -1758,6 +1758,18 @@ fn a_singular_operating_point_names_what_it_depends_least_on() {
         "{err}"
     );
     assert!(err.to_string().contains("depends least on `Lk"), "{err}");
+    // A state whose perturbed evaluation fails (its loops have no solution
+    // there) is passed over, not the end of the search: the 741 follower
+    // with one transistor of area 1e-308 (a grammar-fuzzing finding) named
+    // nothing.
+    let deck = std::fs::read_to_string(root().join("netlists/ua741_follower.cir")).unwrap();
+    let text = deck.replace("\nQ5 n5 n7 n8 QN\n", "\nQ5 n5 n7 n8 QN 1e-308\n");
+    assert_ne!(text, deck);
+    let err = sim::simulate(&sort_text(&text), &sim::Options::default()).unwrap_err();
+    assert!(
+        matches!(err, SimError::DcSingular { at: Some(_), .. }),
+        "{err}"
+    );
 }
 
 /// The same past 500 states, where finite differences over every state
