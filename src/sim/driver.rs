@@ -151,7 +151,7 @@ where
     *ode.y0.borrow_mut() = start.y;
     let rtol = run_rtol(opts, c);
     let mut warnings = start.warnings;
-    let (mut start_stages, dc_found) = (start.stages, start.found);
+    let (dc_stages, dc_found) = (start.stages, start.found);
     if method == Method::Bdf
         && let Some(d) = oscillation_at_loose_rtol(sys, &ode, tran, rtol, t0, &ode.y0.borrow())
     {
@@ -227,7 +227,7 @@ where
         switches,
     };
     let mut stats = Stats {
-        dc_stages: std::mem::take(&mut start_stages),
+        dc_stages,
         dc_found,
         ..Stats::default()
     };
