@@ -247,6 +247,22 @@ where
         self.tape.outputs(&mut self.regs.borrow_mut(), t, y, out)
     }
 
+    /// The outputs at the point of the last evaluation of `f` on the
+    /// solver's registers, at its time `t` (see [`Tape::outputs_after_rhs`]).
+    pub fn outputs_after_rhs(&self, t: f64, out: &mut [f64]) -> Result<(), EvalError> {
+        self.tangents.borrow_mut().valid = false;
+        self.tape
+            .outputs_after_rhs(&mut self.regs.borrow_mut(), t, out)
+    }
+
+    /// `∂out/∂y` of the outputs after an evaluation, in the directions of
+    /// the [`CircuitOde::jacobian_columns`] on the solver's registers just
+    /// made (`m` of them; see [`Tape::output_jacobian`]).
+    pub fn output_jacobian(&self, t: f64, m: usize, jac: &mut [f64]) -> Result<(), EvalError> {
+        let (mut regs, mut mregs) = (self.regs.borrow_mut(), self.mregs.borrow_mut());
+        self.tape.output_jacobian(&mut regs, &mut mregs, m, t, jac)
+    }
+
     /// Columns `cols` of the Jacobian at `(t, y)` in one tangent pass
     /// (row-major, `cols.len()` wide), and `f` there into `dy`, on the
     /// solver's registers or the output side's.

@@ -245,6 +245,17 @@ where
         Ok(())
     }
 
+    /// The row at `t` that `outputs` computes (the circuit integrator's
+    /// outputs at a step's end).
+    pub(super) fn record_with(
+        &mut self,
+        t: f64,
+        outputs: impl FnOnce(&mut [f64]) -> Result<(), crate::tape::EvalError>,
+    ) -> Result<(), SimError> {
+        outputs(&mut self.out).map_err(|error| SimError::Eval { error })?;
+        self.rows.push(t, &self.out)
+    }
+
     pub(super) fn record(&mut self, t: f64, y: &[f64]) -> Result<(), SimError> {
         self.ode
             .outputs(t, y, &mut self.out)

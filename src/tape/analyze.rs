@@ -389,6 +389,27 @@ impl Tape {
             })
     }
 
+    /// Whether the outputs after an evaluation ([`Tape::outputs_after_rhs`])
+    /// depend on the states as [`Tape::jacobian_follows_junctions`] proves
+    /// `f` does, without a junction's current: affine in the states and the
+    /// junction voltages (a charge's column of their Jacobian is then a
+    /// constant over `Q′`, followed as `f`'s is).
+    pub fn outputs_follow_junctions(&self) -> bool {
+        let mut dep = vec![Dep::Const; self.n_regs];
+        let charges = self.charge_states();
+        for (k, &s) in self.state_regs.iter().enumerate() {
+            dep[s] = match charges[k] {
+                Some(ci) => Dep::Charge(ci.diode),
+                None => Dep::Lin,
+            };
+        }
+        self.classify(&self.code, &mut dep);
+        self.classify(&self.tail_code, &mut dep);
+        self.tail_regs
+            .iter()
+            .all(|&r| matches!(dep[r], Dep::Const | Dep::Time | Dep::Lin | Dep::Volt(_)))
+    }
+
     /// How each register of `code` depends on the states (see
     /// [`Tape::jacobian_follows_junctions`]).
     pub(super) fn classify(&self, code: &[Instr], dep: &mut [Dep]) {

@@ -980,6 +980,8 @@ mod tests {
             out_code: Vec::new(),
             out_inputs: Vec::new(),
             out_regs: Vec::new(),
+            tail_code: Vec::new(),
+            tail_regs: Vec::new(),
             memo_links: Vec::new(),
             sources: Vec::new(),
             diodes: Vec::new(),

@@ -502,12 +502,12 @@ impl Compiler<'_> {
     }
 }
 
-/// The registers `code` (with the bodies of the blocks it solves, and
-/// theirs) reads but never writes; a block's tears count as written.
-fn tangent_inputs(code: &[Instr], blocks: &[TapeBlock], n_regs: usize) -> Vec<Reg> {
+/// The registers `programs` (with the bodies of the blocks they solve, and
+/// theirs) read but never write; a block's tears count as written.
+fn tangent_inputs(programs: &[&[Instr]], blocks: &[TapeBlock], n_regs: usize) -> Vec<Reg> {
     let mut written = vec![false; n_regs];
     let mut read = vec![false; n_regs];
-    let mut stack: Vec<&[Instr]> = vec![code];
+    let mut stack: Vec<&[Instr]> = programs.to_vec();
     while let Some(prog) = stack.pop() {
         for ins in prog {
             if let Instr::Block { k } = *ins {
@@ -639,6 +639,39 @@ fn output_vars(sys: &EquationSystem, outputs: &[OutputRef]) -> Vec<bool> {
     out_needed
 }
 
+/// `tail` behind the bodies of the private blocks of `code` whose values it
+/// reads: a private block's solve leaves its body at the last trial point
+/// (nothing in `f` reads it), so the tail brings each up to date first, in
+/// `code`'s order, as a block's settling would.
+fn settled_tail(
+    blocks: &[TapeBlock],
+    code: &[Instr],
+    tail: Vec<Instr>,
+    regs: &[Reg],
+) -> Vec<Instr> {
+    let mut read: std::collections::HashSet<Reg> = regs.iter().copied().collect();
+    let mut stack: Vec<&[Instr]> = vec![&tail];
+    while let Some(prog) = stack.pop() {
+        for ins in prog {
+            match *ins {
+                Instr::Block { k } => stack.push(&blocks[k as usize].body),
+                _ => read.extend(ins.operands()),
+            }
+        }
+    }
+    let mut settled = Vec::new();
+    for ins in code {
+        if let Instr::Block { k } = *ins {
+            let b = &blocks[k as usize];
+            if b.private && b.body.iter().any(|i| read.contains(&i.dest())) {
+                settled.extend_from_slice(&b.body);
+            }
+        }
+    }
+    settled.extend(tail);
+    settled
+}
+
 /// The states the output program reads, as `(index in y, register)`.
 fn states_read(
     blocks: &[TapeBlock],
@@ -718,6 +751,19 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
     }
     let deriv_regs: Vec<Reg> = ders.iter().map(|d| c.var_reg[d.0 as usize]).collect();
     let var_regs = c.var_reg.clone();
+    // The outputs after an evaluation of `f`: what `code` computed is read
+    // from its registers, only the output-only steps are computed.
+    c.in_code = false;
+    let mut tail_code = Vec::new();
+    for (k, step) in sched.steps.iter().enumerate() {
+        if at_out[k] {
+            c.step(step, &mut tail_code);
+        }
+    }
+    let tail_regs: Vec<Reg> = outputs
+        .iter()
+        .map(|&o| c.output(o, &mut tail_code))
+        .collect();
     // The output program gets its own registers for everything computed.
     c.memo
         .retain(|&e, _| matches!(sys.exprs.get(e), Expr::Const(_)));
@@ -727,7 +773,6 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
         }
     }
     let mut out_code = Vec::new();
-    c.in_code = false;
     for (k, step) in sched.steps.iter().enumerate() {
         if for_out[k] {
             c.step(step, &mut out_code);
@@ -755,6 +800,7 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
         &[&code, &out_code],
         &[&deriv_regs, &out_regs],
     );
+    let tail_code = settled_tail(&c.blocks, &code, tail_code, &tail_regs);
     // Switch conductances change between runs of the code: never constants.
     let switch_regs: Vec<Reg> = sys
         .params
@@ -776,7 +822,7 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
         .chain(&floor_reg)
         .copied()
         .collect();
-    set_constant_jacobians(&mut c.blocks, &[&code, &out_code], &varying);
+    set_constant_jacobians(&mut c.blocks, &[&code, &out_code, &tail_code], &varying);
     c.set_charge_inverses();
     let memo_links = memo_links(&c.blocks, &code, &out_code);
     let n_in_f = count(&in_f);
@@ -788,7 +834,7 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
         .filter(|((_, p), r)| p.source && **r != NONE)
         .map(|((_, p), &r)| (r, p.value))
         .collect();
-    let tangent_inputs = tangent_inputs(&code, &c.blocks, c.n_regs as usize);
+    let tangent_inputs = tangent_inputs(&[&code, &tail_code], &c.blocks, c.n_regs as usize);
     Tape {
         n_regs: c.n_regs as usize,
         tangent_inputs,
@@ -801,6 +847,8 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
         out_code,
         out_inputs,
         out_regs,
+        tail_code,
+        tail_regs,
         memo_links,
         sources: sys.sources.values().map(|s| s.wave.clone()).collect(),
         diodes: sys.diodes.clone(),

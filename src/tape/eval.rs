@@ -233,6 +233,23 @@ impl Tape {
         Ok(())
     }
 
+    /// The outputs at the point of the last [`Tape::rhs`] on `regs` (its
+    /// time `t`), from what that evaluation left in them: the output-only
+    /// steps alone are computed. Equal to [`Tape::outputs`] there up to the
+    /// blocks' convergence.
+    pub fn outputs_after_rhs(
+        &self,
+        regs: &mut [f64],
+        t: f64,
+        out: &mut [f64],
+    ) -> Result<(), EvalError> {
+        self.run(&self.tail_code, regs, t)?;
+        for (o, &r) in out.iter_mut().zip(&self.tail_regs) {
+            *o = regs[r];
+        }
+        Ok(())
+    }
+
     /// The first register of `code` that became NaN or infinite from finite
     /// operands, and the variable it holds (if any).
     pub fn first_non_finite(&self, regs: &[f64]) -> Option<(usize, Option<VarId>)> {

@@ -7,7 +7,10 @@
 //!
 //! Only what the scene needs is computed during integration: the state
 //! derivatives, with the blocks they need. Requested outputs are computed by
-//! a second program, at output points only.
+//! a second program, at output points only, from the states; a third, the
+//! tail, computes them after an evaluation of `f` from its registers (only
+//! the steps `f` does not need), for an integrator whose output points are
+//! its steps' ends.
 
 use std::collections::HashMap;
 
@@ -208,15 +211,20 @@ pub struct Tape {
     pub init: Vec<f64>,
     pub code: Vec<Instr>,
     pub blocks: Vec<TapeBlock>,
-    /// The registers `code` reads and nothing in it writes (states,
-    /// parameters, constants): a tangent pass clears only these, as every
-    /// other register's tangent is written before it is read.
+    /// The registers `code` and `tail_code` read and nothing in them writes
+    /// (states, parameters, constants): a tangent pass clears only these,
+    /// as every other register's tangent is written before it is read.
     pub tangent_inputs: Vec<Reg>,
     /// Computes the outputs from the states, on its own registers.
     pub out_code: Vec<Instr>,
     /// The states `out_code` reads: (index in `y`, register).
     pub out_inputs: Vec<(usize, Reg)>,
     pub out_regs: Vec<Reg>,
+    /// Computes the outputs after an evaluation of `f`, from `code`'s
+    /// registers: only what `f` does not compute (see
+    /// [`Tape::outputs_after_rhs`]).
+    pub tail_code: Vec<Instr>,
+    pub tail_regs: Vec<Reg>,
     /// `(from, to)`: the inversion memo of a junction charge in `code` and
     /// of the same charge in `out_code`. An output point after a step
     /// starts each inversion where the step's last evaluation ended (a

@@ -463,6 +463,24 @@ impl Tape {
         self.jacobian_compressed(regs, dregs, t, y, &colour, 0..cols.len(), jac, dy)
     }
 
+    /// `∂out/∂y` of the outputs after an evaluation (`tail_code`) in the
+    /// `m` directions of the tangent pass [`Tape::jacobian_compressed`] just
+    /// made on `regs` and `dregs` (row-major, `m` wide).
+    pub fn output_jacobian(
+        &self,
+        regs: &mut [f64],
+        dregs: &mut [f64],
+        m: usize,
+        t: f64,
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
+        self.run_tangents(&self.tail_code, regs, dregs, m, t)?;
+        for (i, &d) in self.tail_regs.iter().enumerate() {
+            jac[i * m..(i + 1) * m].copy_from_slice(&dregs[d.idx() * m..(d.idx() + 1) * m]);
+        }
+        Ok(())
+    }
+
     /// The compressed `∂f/∂y` of the colours `colours` of a column colouring
     /// in one pass: direction `j` seeds every state `k` with `colour[k] ==
     /// colours.start + j` (`u32::MAX`: none), so `jac[i * m + j]` (`m` the

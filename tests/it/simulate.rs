@@ -1941,3 +1941,65 @@ fn an_operating_point_out_of_work_names_where_newton_was_worst() {
     assert!(at.starts_with("`Q1"), "{err}");
     assert!(err.to_string().contains("largest residual at `Q1"), "{err}");
 }
+
+/// After an evaluation of `f`, the outputs are read from its registers and
+/// only the output-only steps computed (`Tape::outputs_after_rhs`, what the
+/// circuit integrator writes at a step's end): every variable of the
+/// system, asked for as an output, equals what the output program computes
+/// from the states alone, through private blocks (a junction charge's
+/// inversion, a loop nothing else in `f` reads), torn gate loops and the
+/// bridge's linear loop.
+#[test]
+fn outputs_after_an_evaluation_equal_the_output_programs() {
+    use kausal::tape::OutputRef;
+    for name in [
+        "diode_bridge.cir",
+        "bench/vacask_mul.cir",
+        "mos3_inverter_chain.cir",
+        "bjt_opamp_follower.cir",
+        "switch_buck.cir",
+    ] {
+        let s = sort_file(name);
+        let sys = s.system();
+        let outputs: Vec<OutputRef> = sys.vars.ids().map(OutputRef::Var).collect();
+        let t = kausal::tape::compile(sys, &s.schedule, &outputs);
+        assert!(
+            t.tail_code.len() < t.out_code.len(),
+            "{name}: the tail computes less than the output program"
+        );
+        let n = t.states.len();
+        let mut regs = t.registers();
+        let mut dy = vec![0.0; n];
+        let (mut ours, mut theirs) = (vec![0.0; outputs.len()], vec![0.0; outputs.len()]);
+        for (k, scale) in [0.0, 1e-3, 0.3].into_iter().enumerate() {
+            // Voltages of a fraction of a volt, charges of femtocoulombs.
+            let y: Vec<f64> = t
+                .states
+                .iter()
+                .enumerate()
+                .map(|(i, &v)| {
+                    let unit = match sys.vars[v].kind {
+                        kausal::ir::VarKind::Charge => 1e-15,
+                        kausal::ir::VarKind::BranchCurrent => 1e-3,
+                        _ => 1.0,
+                    };
+                    scale * unit * if (i + k) % 2 == 0 { 1.0 } else { -0.5 }
+                })
+                .collect();
+            let at = 1e-7 * k as f64;
+            t.rhs(&mut regs, at, &y, &mut dy).unwrap();
+            t.outputs_after_rhs(&mut regs, at, &mut ours).unwrap();
+            t.outputs(&mut regs, at, &y, &mut theirs).unwrap();
+            for (o, (&a, &b)) in ours.iter().zip(&theirs).enumerate() {
+                let OutputRef::Var(v) = outputs[o] else {
+                    unreachable!()
+                };
+                assert!(
+                    (a - b).abs() <= 1e-9 * (a.abs().max(b.abs())) + 1e-12 * (1.0 + a.abs()),
+                    "{name}, scale {scale}: {} is {a:e} after f, {b:e} from the states",
+                    sys.vars[v].name
+                );
+            }
+        }
+    }
+}

@@ -76,6 +76,10 @@ where
             for i in 0..n {
                 jac[i * n + k] *= ratio;
             }
+            // The outputs read the charge through its voltage alone.
+            for row in self.newton.out_jac.chunks_exact_mut(n) {
+                row[k] *= ratio;
+            }
             jac[k * n + k] += (jn.gd_j - jn.gd_p) / jn.cap_p;
             (jn.cap_j, jn.gd_j) = (jn.cap_p, jn.gd_p);
             self.newton.factored = false;

@@ -43,6 +43,12 @@
 //!   manifold, where an interpolated one needs its charges settled by Newton
 //!   steps (`Recorder::settle_charges`) that cost as much as a step. Without,
 //!   output points are the step's cubic Hermite interpolant.
+//! - **At a step's end the outputs come from the last Newton iterate's
+//!   evaluation** where they are affine in the states and junction voltages
+//!   (`Tape::outputs_follow_junctions`): `out(x − δ) + (∂out/∂y)·δ`, their
+//!   Jacobian computed and followed with `J`, instead of the output program,
+//!   which solves the junction charges' inversions and the loops again (18 %
+//!   of VACASK's mul, which writes every step).
 //!
 //! `--method gear2` takes the steps after the first as one variable-step
 //! BDF2 stage each (ngspice's gear of order 2), with the same Newton, error
@@ -139,6 +145,10 @@ struct Newton {
     stale: bool,
     /// Accepted steps since `J` was computed.
     age: usize,
+    /// Row-major `∂out/∂y` of the outputs after an evaluation, computed
+    /// with `J` and followed with it (only where
+    /// [`TrBdf2::outputs_follow`]); empty otherwise.
+    out_jac: Vec<f64>,
     /// The estimated contraction rate of the iteration (CVODE's `crate`),
     /// carried from stage to stage; 1 after a new Jacobian.
     rate: f64,
@@ -192,6 +202,9 @@ struct Stage {
     pred: Vec<f64>,
     /// A Newton correction, or the step's local error estimate.
     delta: Vec<f64>,
+    /// The last Newton correction (the iterate `f` was last evaluated at
+    /// is `x` minus it).
+    last_delta: Vec<f64>,
     /// Newton's weights: one over each state's convergence tolerance.
     weight: Vec<f64>,
     /// Scratch of the LU solves.
@@ -206,6 +219,7 @@ impl Stage {
             c: vec![0.0; n],
             pred: vec![0.0; n],
             delta: vec![0.0; n],
+            last_delta: vec![0.0; n],
             weight: vec![0.0; n],
             scratch: vec![0.0; n],
         }
@@ -292,6 +306,12 @@ where
     /// [`TrBdf2::follow_junctions`] follows exactly
     /// ([`crate::tape::Tape::jacobian_follows_junctions`]).
     exact: bool,
+    /// With `exact`, the outputs after an evaluation are affine in the
+    /// states and junction voltages
+    /// ([`crate::tape::Tape::outputs_follow_junctions`]): at a step's end
+    /// they are read from the last iterate's registers and carried through
+    /// its correction by their followed Jacobian, not computed again.
+    outputs_follow: bool,
 }
 
 impl<'a, M: Matrix<T = f64>> TrBdf2<'a, M>
@@ -344,6 +364,13 @@ where
             })
             .collect();
         let vz = vec![f64::NAN; junctions.len()];
+        let exact = ode.tape.jacobian_follows_junctions();
+        let outputs_follow = exact && ode.tape.outputs_follow_junctions();
+        let n_out = if outputs_follow {
+            ode.tape.tail_regs.len()
+        } else {
+            0
+        };
         let mut s = TrBdf2 {
             ode,
             n,
@@ -368,6 +395,7 @@ where
                 factored: false,
                 stale: true,
                 age: 0,
+                out_jac: vec![0.0; n_out * n],
                 rate: 1.0,
                 full: false,
             },
@@ -385,10 +413,36 @@ where
             jscale: vec![f64::INFINITY; n],
             no_growth: false,
             bdf2,
-            exact: ode.tape.jacobian_follows_junctions(),
+            exact,
+            outputs_follow,
         };
         s.read_junctions(false);
         Ok(s)
+    }
+
+    /// The outputs at the end of the step just accepted, from the
+    /// registers of its last Newton iterate `x − δ` (the output program
+    /// would solve the junction charges' inversions and the loops again):
+    /// `out(x − δ) + (∂out/∂y)·δ`. The outputs are affine in the states and
+    /// junction voltages (`outputs_follow`), and `∂out/∂y` was followed to
+    /// the iterate's junctions with `J`, so what is left is second order
+    /// in `δ`, as the state's own Newton error is. Read as they are, the
+    /// iterate's outputs were first order off: a junction's charge
+    /// correction reaches the current through its series resistance
+    /// amplified by `1/(C·RS)` (a clamp's nA current 12 times its range
+    /// off at rtol 1e-7).
+    fn outputs_at_end(&self, t: f64, out: &mut [f64]) -> Result<(), EvalError> {
+        self.ode.outputs_after_rhs(t, out)?;
+        let n = self.n;
+        for (o, v) in out.iter_mut().enumerate() {
+            let row = &self.newton.out_jac[o * n..(o + 1) * n];
+            *v += row
+                .iter()
+                .zip(&self.stage.last_delta)
+                .map(|(g, d)| g * d)
+                .sum::<f64>();
+        }
+        Ok(())
     }
 
     /// Start afresh from the current point (a source corner): `f` there,
@@ -773,11 +827,15 @@ where
         };
         let corner = hard.get(k).copied().unwrap_or(f64::INFINITY);
         let stop = if land { next_point } else { t_end }.min(corner).min(t_end);
+        // Whether the solver's registers hold the last Newton iterate of a
+        // step that ends here (see [`TrBdf2::outputs_at_end`]).
+        let mut fresh = false;
         // A stop within rounding of here (an output point an ulp before a
         // source corner) is reached without a step.
         if stop - s.t > 1e-12 * t_end.abs() {
             s.step(stop - s.t, sys)?;
             budget.step(s.t, s.h)?;
+            fresh = true;
         }
         // `t + (stop - t)` may miss `stop` by an ulp.
         if s.t >= stop - 1e-12 * t_end.abs() {
@@ -787,11 +845,18 @@ where
         while rec.next < rec.grid.len() && rec.grid.at(rec.next) <= s.t {
             let tg = rec.grid.at(rec.next);
             if tg == s.t {
-                rec.record(tg, &s.y)?;
+                if fresh && s.outputs_follow {
+                    rec.record_with(tg, |out| s.outputs_at_end(tg, out))?;
+                } else {
+                    rec.record(tg, &s.y)?;
+                }
                 recorded = true;
             } else {
+                // The output program loads the interpolated states into
+                // the solver's registers.
                 s.interpolate(tg, &mut y);
                 rec.record(tg, &y)?;
+                fresh = false;
             }
             rec.next += 1;
         }
