@@ -370,14 +370,7 @@ impl Tape {
     /// product of two signals, a coefficient that varies in time) answers
     /// `false`.
     pub fn jacobian_follows_junctions(&self) -> bool {
-        let mut dep = vec![Dep::Const; self.n_regs];
-        let charges = self.charge_states();
-        for (k, &s) in self.state_regs.iter().enumerate() {
-            dep[s] = match charges[k] {
-                Some(ci) => Dep::Charge(ci.diode),
-                None => Dep::Lin,
-            };
-        }
+        let (mut dep, charges) = self.state_deps();
         self.classify(&self.code, &mut dep);
         self.deriv_regs
             .iter()
@@ -395,6 +388,18 @@ impl Tape {
     /// junction voltages (a charge's column of their Jacobian is then a
     /// constant over `Q′`, followed as `f`'s is).
     pub fn outputs_follow_junctions(&self) -> bool {
+        let (mut dep, _) = self.state_deps();
+        self.classify(&self.code, &mut dep);
+        self.classify(&self.tail_code, &mut dep);
+        self.tail_regs
+            .iter()
+            .all(|&r| matches!(dep[r], Dep::Const | Dep::Time | Dep::Lin | Dep::Volt(_)))
+    }
+
+    /// Every register constant but the states: a junction charge its
+    /// diode's charge, any other state affine; and each state's charge
+    /// inversion, if it is a junction charge.
+    fn state_deps(&self) -> (Vec<Dep>, Vec<Option<ChargeInverse>>) {
         let mut dep = vec![Dep::Const; self.n_regs];
         let charges = self.charge_states();
         for (k, &s) in self.state_regs.iter().enumerate() {
@@ -403,11 +408,7 @@ impl Tape {
                 None => Dep::Lin,
             };
         }
-        self.classify(&self.code, &mut dep);
-        self.classify(&self.tail_code, &mut dep);
-        self.tail_regs
-            .iter()
-            .all(|&r| matches!(dep[r], Dep::Const | Dep::Time | Dep::Lin | Dep::Volt(_)))
+        (dep, charges)
     }
 
     /// How each register of `code` depends on the states (see

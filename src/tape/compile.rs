@@ -54,6 +54,22 @@ impl Compiler<'_> {
         }
     }
 
+    /// A program of the steps of `sched` that `steps` flags, then
+    /// `outputs`, and the outputs' registers.
+    fn outputs(
+        &mut self,
+        sched: &Schedule,
+        steps: &[bool],
+        outputs: &[OutputRef],
+    ) -> (Vec<Instr>, Vec<Reg>) {
+        let mut code = Vec::new();
+        for (step, _) in sched.steps.iter().zip(steps).filter(|(_, f)| **f) {
+            self.step(step, &mut code);
+        }
+        let regs = outputs.iter().map(|&o| self.output(o, &mut code)).collect();
+        (code, regs)
+    }
+
     /// Mark the junction-charge blocks, each with its four memo registers.
     fn set_charge_inverses(&mut self) {
         for k in 0..self.blocks.len() {
@@ -754,16 +770,7 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
     // The outputs after an evaluation of `f`: what `code` computed is read
     // from its registers, only the output-only steps are computed.
     c.in_code = false;
-    let mut tail_code = Vec::new();
-    for (k, step) in sched.steps.iter().enumerate() {
-        if at_out[k] {
-            c.step(step, &mut tail_code);
-        }
-    }
-    let tail_regs: Vec<Reg> = outputs
-        .iter()
-        .map(|&o| c.output(o, &mut tail_code))
-        .collect();
+    let (tail_code, tail_regs) = c.outputs(sched, &at_out, outputs);
     // The output program gets its own registers for everything computed.
     c.memo
         .retain(|&e, _| matches!(sys.exprs.get(e), Expr::Const(_)));
@@ -772,16 +779,7 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
             c.var_reg[v.0 as usize] = NONE;
         }
     }
-    let mut out_code = Vec::new();
-    for (k, step) in sched.steps.iter().enumerate() {
-        if for_out[k] {
-            c.step(step, &mut out_code);
-        }
-    }
-    let out_regs: Vec<Reg> = outputs
-        .iter()
-        .map(|&o| c.output(o, &mut out_code))
-        .collect();
+    let (out_code, out_regs) = c.outputs(sched, &for_out, outputs);
     let count = |flags: &[bool]| -> usize {
         sched
             .steps
