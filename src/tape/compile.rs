@@ -770,7 +770,9 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
     // The outputs after an evaluation of `f`: what `code` computed is read
     // from its registers, only the output-only steps are computed.
     c.in_code = false;
+    let tail_blocks = c.blocks.len();
     let (tail_code, tail_regs) = c.outputs(sched, &at_out, outputs);
+    let tail_blocks = tail_blocks..c.blocks.len();
     // The output program gets its own registers for everything computed.
     c.memo
         .retain(|&e, _| matches!(sys.exprs.get(e), Expr::Const(_)));
@@ -798,6 +800,11 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
         &[&code, &out_code],
         &[&deriv_regs, &out_regs],
     );
+    // The tail's own blocks settle their bodies: its outputs read them
+    // (the analysis above sees only `code` and the output program).
+    for b in &mut c.blocks[tail_blocks] {
+        b.private = false;
+    }
     let tail_code = settled_tail(&c.blocks, &code, tail_code, &tail_regs);
     // Switch conductances change between runs of the code: never constants.
     let switch_regs: Vec<Reg> = sys
