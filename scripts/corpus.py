@@ -15,6 +15,7 @@ group is killed when it overruns), with stdin from /dev/null and its output in a
 """
 
 import argparse
+import concurrent.futures
 import hashlib
 import json
 import os
@@ -976,6 +977,26 @@ def was_accepted(dest):
         return False
 
 
+def run_group(group, args):
+    """Run the netlists `group` (one directory's) one after another, writing each record;
+    (seconds, repo, path, ngspice class, verdict) of each run."""
+    done = []
+    for repo, path in group:
+        dest = os.path.join(args.out, "entries", key_of(repo, path) + ".json")
+        if args.resume and os.path.exists(dest):
+            continue
+        if args.accepted and not was_accepted(dest):
+            continue
+        t0 = time.monotonic()
+        rec = process(repo, path, args.corpus, args.kausal, args.out)
+        with open(dest + ".tmp", "w", encoding="utf-8") as f:
+            json.dump(rec, f, indent=1, sort_keys=True)
+        os.replace(dest + ".tmp", dest)
+        v = rec.get("validate", {}).get("verdict") or rec.get("check", {}).get("verdict") or "-"
+        done.append((time.monotonic() - t0, repo, path, ngspice_class(rec), v))
+    return done
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("command", choices=["run", "summary"])
@@ -989,6 +1010,9 @@ def main():
     ap.add_argument("--accepted", action="store_true",
                     help="run again only the entries kausal accepted last time (after a change to "
                          "the simulator or validate; refusals and ngspice's runs are kept)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="netlists run at once, by directory: the netlists of one directory one "
+                         "after another, as ngspice writes files next to them (default 1)")
     ap.add_argument("--write", help="replace the generated section of this file")
     ap.add_argument("--cmdline", default="scripts/corpus.sh --write")
     args = ap.parse_args()
@@ -1013,21 +1037,22 @@ def main():
         if commit:
             info["kausal"] += " (commit %s)" % commit
         started = time.monotonic()
-        for n, (repo, path) in enumerate(todo, 1):
-            dest = os.path.join(args.out, "entries", key_of(repo, path) + ".json")
-            if args.resume and os.path.exists(dest):
-                continue
-            if args.accepted and not was_accepted(dest):
-                continue
-            t0 = time.monotonic()
-            rec = process(repo, path, args.corpus, args.kausal, args.out)
-            with open(dest + ".tmp", "w", encoding="utf-8") as f:
-                json.dump(rec, f, indent=1, sort_keys=True)
-            os.replace(dest + ".tmp", dest)
-            v = rec.get("validate", {}).get("verdict") or rec.get("check", {}).get("verdict") or "-"
-            print("[%d/%d %5.1fs %6.0fs] %s:%s  ngspice=%s  %s" % (
-                n, len(todo), time.monotonic() - t0, time.monotonic() - started, repo, path,
-                ngspice_class(rec), v), flush=True)
+        # One directory's netlists one after another (ngspice writes files next to them);
+        # directories in worker processes (`run` limits its children in `preexec_fn`, which
+        # is not safe in a threaded process).
+        groups = {}
+        for repo, path in todo:
+            groups.setdefault((repo, os.path.dirname(path)), []).append((repo, path))
+        jobs = max(1, args.jobs)
+        n = 0
+        with concurrent.futures.ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = [pool.submit(run_group, g, args) for g in groups.values()]
+            for f in concurrent.futures.as_completed(futures):
+                for secs, repo, path, ng, v in f.result():
+                    n += 1
+                    print("[%d/%d %5.1fs %6.0fs] %s:%s  ngspice=%s  %s" % (
+                        n, len(todo), secs, time.monotonic() - started, repo, path, ng, v), flush=True)
+        info["jobs"] = jobs
     if args.command == "run":
         info["seconds"] = round(time.monotonic() - started)
         with open(os.path.join(args.out, "run.json"), "w", encoding="utf-8") as f:

@@ -15,7 +15,7 @@
 # --write, replaces the generated section of VALIDATION.md (its explanation column is kept).
 #
 # Usage: scripts/corpus.sh [--write] [--summary-only] [--resume] [--accepted] [--only TEXT] [--list FILE]
-#                          [CORPUS_DIR [MANIFEST [KAUSAL_BIN]]]
+#                          [--jobs N] [CORPUS_DIR [MANIFEST [KAUSAL_BIN]]]
 #   CORPUS_DIR  default $KAUSAL_CORPUS, else ../corpus next to the repository root
 #               (laid out by scripts/corpus-fetch.sh: CORPUS_DIR/<owner>+<name>/<path>)
 #   MANIFEST    default $KAUSAL_MANIFEST, else ../shared/corpus/MANIFEST.tsv
@@ -28,6 +28,9 @@
 #   --only TEXT     run only the netlists whose `repo:path` contains TEXT (the summary still covers
 #                   every entry run so far)
 #   --list FILE     run only the netlists named in FILE (`repo:path`, one a line)
+#   --jobs N        N directories at once (one directory's netlists one after another, as ngspice
+#                   writes files next to them; default 1). Each kausal/ngspice pair still runs
+#                   one after the other, but beside N - 1 other jobs: its times are noisier.
 # Limits (seconds): CORPUS_NGSPICE_TIMEOUT=60 CORPUS_CHECK_TIMEOUT=60 CORPUS_SIM_TIMEOUT=120
 #   CORPUS_VALIDATE_TIMEOUT=120; CORPUS_MEM_LIMIT_GB=8 (address space of each process).
 # ngspice runs each netlist as its authors wrote it, `.control` section included, and some of
@@ -49,6 +52,7 @@ while [[ $# -gt 0 ]]; do
         --accepted) extra+=(--accepted) ;;
         --only) extra+=(--only "$2"); shift ;;
         --list) extra+=(--list "$(cd "$(dirname "$2")" && pwd)/$(basename "$2")"); shift ;;
+        --jobs) extra+=(--jobs "$2"); shift ;;
         -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
         --) shift; pos+=("$@"); break ;;
         -*) echo "corpus.sh: unknown option '$1'" >&2; exit 2 ;;
