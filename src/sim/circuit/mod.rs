@@ -202,9 +202,6 @@ struct Stage {
     pred: Vec<f64>,
     /// A Newton correction, or the step's local error estimate.
     delta: Vec<f64>,
-    /// The last Newton correction (the iterate `f` was last evaluated at
-    /// is `x` minus it).
-    last_delta: Vec<f64>,
     /// Newton's weights: one over each state's convergence tolerance.
     weight: Vec<f64>,
     /// Scratch of the LU solves.
@@ -219,7 +216,6 @@ impl Stage {
             c: vec![0.0; n],
             pred: vec![0.0; n],
             delta: vec![0.0; n],
-            last_delta: vec![0.0; n],
             weight: vec![0.0; n],
             scratch: vec![0.0; n],
         }
@@ -434,12 +430,15 @@ where
     fn outputs_at_end(&self, t: f64, out: &mut [f64]) -> Result<(), EvalError> {
         self.ode.outputs_after_rhs(t, out)?;
         let n = self.n;
+        // δ: the accepted state less the iterate's, which the evaluation
+        // left in the state registers.
+        let regs = &self.ode.tape.state_regs;
         for (o, v) in out.iter_mut().enumerate() {
             let row = &self.newton.out_jac[o * n..(o + 1) * n];
             *v += row
                 .iter()
-                .zip(&self.stage.last_delta)
-                .map(|(g, d)| g * d)
+                .zip(self.y.iter().zip(regs))
+                .map(|(g, (y, &r))| g * (y - self.ode.register(r)))
                 .sum::<f64>();
         }
         Ok(())

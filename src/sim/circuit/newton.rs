@@ -21,16 +21,13 @@ where
             &mut self.stage.scratch,
         );
         self.stats.jacobians += 1;
-        let r = r.and_then(|()| {
-            if self.outputs_follow {
-                let mut g = std::mem::take(&mut self.newton.out_jac);
-                let r = self.ode.output_jacobian(t, self.n, &mut g);
-                self.newton.out_jac = g;
-                r
-            } else {
-                Ok(())
+        let r = match r {
+            Ok(()) if self.outputs_follow => {
+                self.ode
+                    .output_jacobian(t, self.n, &mut self.newton.out_jac)
             }
-        });
+            r => r,
+        };
         let nw = &mut self.newton;
         nw.factored = false;
         nw.stale = false;
@@ -84,7 +81,6 @@ where
             self.stage.delta[i] = self.stage.c[i] + beta * self.stage.f[i] - self.stage.x[i];
         }
         self.solve_delta();
-        self.stage.last_delta.copy_from_slice(&self.stage.delta);
         let mut norm: f64 = 0.0;
         for i in 0..n {
             self.stage.x[i] += self.stage.delta[i];
