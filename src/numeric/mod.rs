@@ -5,6 +5,7 @@
 //! This layer knows no circuit, equation or tape: it works on slices and
 //! index lists, so that every user shares one copy of each routine.
 
+pub mod balance;
 pub mod colour;
 pub mod dense;
 pub mod newton;

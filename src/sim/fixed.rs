@@ -82,7 +82,7 @@ where
     M: Matrix<T = f64>,
     M::V: HostVec,
 {
-    let j = super::modes::dense_jacobian(ode, t, y)?;
+    let j = super::modes::balanced_jacobian(ode, t, y)?;
     Some(j.complex_eigenvalues().iter().copied().collect())
 }
 

@@ -102,9 +102,15 @@ impl Mode {
     }
 }
 
-/// `J(t, y)` as a dense matrix, for a small circuit (at most
-/// `DENSE_STATES` states); `None` where it is larger or not finite.
-pub(super) fn dense_jacobian<M>(
+/// `J(t, y)` as a dense matrix balanced for an eigenvalue solve
+/// (`D⁻¹ J D`, [`crate::numeric::balance`]: the same eigenvalues and
+/// participation factors), for a small circuit (at most `DENSE_STATES`
+/// states); `None` where it is larger or not finite. Unbalanced, a MOS
+/// inverter chain's Jacobian (junction charges in coulombs beside node
+/// voltages, entries from 1e-3 to 1e25) gave a fast complex pair with Q in
+/// the thousands where every eigenvalue is real and negative, and the
+/// ringing diagnosis (K0409) named it.
+pub(super) fn balanced_jacobian<M>(
     ode: &CircuitOde<M>,
     t: f64,
     y: &[f64],
@@ -125,6 +131,7 @@ where
     if jac.iter().any(|v| !v.is_finite()) {
         return None;
     }
+    crate::numeric::balance::balance(n, &mut jac);
     Some(nalgebra::DMatrix::from_row_slice(n, n, &jac))
 }
 
@@ -147,7 +154,7 @@ where
 {
     use nalgebra::{Complex, DMatrix, DVector};
     let n = y.len();
-    let j = dense_jacobian(ode, t, y)?;
+    let j = balanced_jacobian(ode, t, y)?;
     // Q = |λ| / (2 |Re λ|) > min_q, i.e. -Re λ < |λ| / (2 min_q).
     let lambda = j
         .complex_eigenvalues()

@@ -545,6 +545,27 @@ fn a_ringing_mode_is_named() {
     }
 }
 
+/// A MOS inverter chain with source and drain resistances takes many short
+/// steps at its edges, but its modes are all real (RC and transconductance
+/// only): its Jacobian, junction charges in coulombs beside voltages, gave
+/// a 4e14 Hz "ringing mode" with Q ≈ 6400 when its eigenvalues were solved
+/// unbalanced. No K0409 for it.
+#[test]
+fn real_modes_of_a_badly_scaled_jacobian_are_not_ringing() {
+    let w =
+        sim::simulate(&sorted("mos_chain_rs.cir"), &sim::Options::default()).expect("simulates");
+    assert!(
+        w.stats.steps >= 20 * 1201,
+        "the chain no longer takes enough steps to be diagnosed: {}",
+        w.stats.steps
+    );
+    assert!(
+        w.warnings.iter().all(|d| d.code != "K0409"),
+        "{:?}",
+        w.warnings
+    );
+}
+
 /// BDF at a loose rtol on a high-Q oscillator is warned about before the run
 /// (K0410: the LC tank grows 170-fold at rtol 1e-2); not with tr-bdf2, not at
 /// rtol 1e-3, and not on the underdamped RLC (Q ≈ 3).
