@@ -142,6 +142,23 @@ impl Sorted {
             None => &self.built.system,
         }
     }
+
+    /// Drop the equation system, the sort and the circuit, keeping the
+    /// sources (to render diagnostics), the warnings and the circuit's
+    /// title: what a simulation that has compiled its tape and found its
+    /// operating point no longer reads (see `sim::run_prepared_releasing`).
+    pub fn release_ir(&mut self) {
+        self.built = Built::default();
+        self.reduction = None;
+        self.causal = Default::default();
+        self.schedule = Default::default();
+        let c = &mut self.elaborated.circuit;
+        *c = crate::elab::Circuit {
+            title: std::mem::take(&mut c.title),
+            title_span: c.title_span,
+            ..Default::default()
+        };
+    }
 }
 
 /// What was done to a group of coupled inductors whose inductance matrix

@@ -55,7 +55,7 @@ pub struct ElemVars {
 }
 
 /// The system plus the maps from circuit entities to its variables.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Built {
     pub system: EquationSystem,
     /// Branch voltage and current of each element (`None` for K).

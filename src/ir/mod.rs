@@ -9,6 +9,7 @@ pub mod derive;
 mod device;
 mod entity;
 mod expr;
+mod names;
 pub mod print;
 mod system;
 mod verify;
@@ -19,6 +20,7 @@ pub use device::{
 };
 pub use entity::{EntityId, IdVec};
 pub use expr::{Cmp, Expr, ExprArena, ExprId, Func, Slope, bits, select};
+pub use names::NameTable;
 pub use system::{
     EqId, Equation, EquationSystem, KvlLoop, Name, Origin, OriginKind, Param, ParamId, SourceFn,
     SourceId, Var, VarId, VarKind, VarRole, Waveform, joined,

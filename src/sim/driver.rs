@@ -112,6 +112,98 @@ where
     for<'b> &'b M::V: diffsol::VectorRef<M::V>,
     for<'b> &'b M: diffsol::matrix::MatrixRef<M>,
 {
+    let ready = setup::<M>(job)?;
+    integrate::<M, LS>(ready, &job.parts(), sink)
+}
+
+/// [`run`] for a caller that owns the sorted circuit: once the operating
+/// point is found, its equation system and circuit are released
+/// ([`Sorted::release_ir`]) before the integrator allocates. On a
+/// 10^5-section ladder they were about half the run's memory.
+pub(super) fn run_releasing<M, LS>(
+    sorted: &mut Sorted,
+    parts: &Parts<'_>,
+    sink: Option<RowSink<'_>>,
+) -> Result<Waveforms, SimError>
+where
+    M: Matrix<T = f64> + diffsol::DefaultSolver,
+    M::V: HostVec + diffsol::DefaultDenseMatrix<T = f64, C = M::C>,
+    LS: LinearSolver<M>,
+    for<'b> &'b M::V: diffsol::VectorRef<M::V>,
+    for<'b> &'b M: diffsol::matrix::MatrixRef<M>,
+{
+    let ready = setup::<M>(&parts.with(sorted))?;
+    sorted.release_ir();
+    integrate::<M, LS>(ready, parts, sink)
+}
+
+/// A [`Job`] without its circuit: what the integration reads.
+pub(super) struct Parts<'a> {
+    pub(super) tape: Rc<Tape>,
+    pub(super) tran: &'a crate::elab::Tran,
+    pub(super) outputs: &'a [Output],
+    pub(super) opts: &'a Options,
+    pub(super) method: Method,
+    pub(super) switches: &'a super::events::Switches,
+}
+
+impl<'a> Parts<'a> {
+    pub(super) fn with<'s>(&self, sorted: &'s Sorted) -> Job<'s>
+    where
+        'a: 's,
+    {
+        Job {
+            sorted,
+            tape: self.tape.clone(),
+            tran: self.tran,
+            outputs: self.outputs,
+            opts: self.opts,
+            method: self.method,
+            switches: self.switches,
+        }
+    }
+}
+
+impl Job<'_> {
+    fn parts(&self) -> Parts<'_> {
+        Parts {
+            tape: self.tape.clone(),
+            tran: self.tran,
+            outputs: self.outputs,
+            opts: self.opts,
+            method: self.method,
+            switches: self.switches,
+        }
+    }
+}
+
+/// A run whose operating point is found: its problem, tolerances,
+/// breakpoints and first row, and the names its diagnostics need. Nothing in
+/// it refers to the equation system or the circuit.
+pub(super) struct Ready<M: Matrix<T = f64>>
+where
+    M::V: HostVec,
+{
+    problem: OdeSolverProblem<CircuitOde<M>>,
+    names: NameTable<VarId>,
+    atol_own: Vec<f64>,
+    atol_current: f64,
+    rtol: f64,
+    first: Option<Vec<f64>>,
+    charges: Vec<usize>,
+    inversions: Option<Vec<crate::tape::ChargeInverse>>,
+    hard: Vec<f64>,
+    tmax: Option<f64>,
+    stats: Stats,
+    warnings: Vec<crate::diag::Diagnostic>,
+}
+
+/// The operating point and everything [`integrate`] needs from the circuit.
+fn setup<M>(job: &Job<'_>) -> Result<Ready<M>, SimError>
+where
+    M: Matrix<T = f64> + diffsol::DefaultSolver,
+    M::V: HostVec,
+{
     let Job {
         sorted,
         ref tape,
@@ -150,10 +242,11 @@ where
         .map_err(|error| SimError::Eval { error })?;
     *ode.y0.borrow_mut() = start.y;
     let rtol = run_rtol(opts, c);
+    let names = NameTable::of(sys.vars.iter().map(|(_, v)| v.name.as_str()));
     let mut warnings = start.warnings;
     let (dc_stages, dc_found) = (start.stages, start.found);
     if method == Method::Bdf
-        && let Some(d) = oscillation_at_loose_rtol(sys, &ode, tran, rtol, t0, &ode.y0.borrow())
+        && let Some(d) = oscillation_at_loose_rtol(&names, &ode, tran, rtol, t0, &ode.y0.borrow())
     {
         warnings.push(d);
     }
@@ -199,6 +292,67 @@ where
     } else {
         None
     };
+    let hard = breakpoints(sys, t0, tran.tstop);
+    let tmax = match (opts.tmax.or(tran.tmax), sine_step_cap(sys)) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    };
+    Ok(Ready {
+        problem,
+        names,
+        atol_own,
+        atol_current: atol_pair(opts, c).1,
+        rtol,
+        first: start.row,
+        charges,
+        inversions,
+        hard,
+        tmax,
+        stats: Stats {
+            dc_stages,
+            dc_found,
+            ..Stats::default()
+        },
+        warnings,
+    })
+}
+
+/// Integrate a [`Ready`] run with the method of `parts`.
+fn integrate<M, LS>(
+    ready: Ready<M>,
+    parts: &Parts<'_>,
+    sink: Option<RowSink<'_>>,
+) -> Result<Waveforms, SimError>
+where
+    M: Matrix<T = f64> + diffsol::DefaultSolver,
+    M::V: HostVec + diffsol::DefaultDenseMatrix<T = f64, C = M::C>,
+    LS: LinearSolver<M>,
+    for<'b> &'b M::V: diffsol::VectorRef<M::V>,
+    for<'b> &'b M: diffsol::matrix::MatrixRef<M>,
+{
+    let Parts {
+        ref tape,
+        tran,
+        outputs,
+        opts,
+        method,
+        switches,
+    } = *parts;
+    let Ready {
+        problem,
+        names,
+        atol_own,
+        atol_current,
+        rtol,
+        first,
+        charges,
+        inversions,
+        hard,
+        tmax,
+        mut stats,
+        mut warnings,
+    } = ready;
+    let t0 = 0.0;
     let rec = Recorder {
         ode: &problem.eqn,
         grid: output_grid(opts, tran),
@@ -206,30 +360,20 @@ where
         rows: Rows::new(outputs.len(), sink),
         out: vec![0.0; tape.out_regs.len()],
         dc_start: !tran.uic,
-        first: start.row,
+        first,
         charges,
         settle: None,
         inversions,
         last: Vec::new(),
     };
-    let hard = breakpoints(sys, t0, tran.tstop);
-    let tmax = match (opts.tmax.or(tran.tmax), sine_step_cap(sys)) {
-        (Some(a), Some(b)) => Some(a.min(b)),
-        (a, b) => a.or(b),
-    };
     let stops = Stops {
-        sys,
+        names: &names,
         problem: &problem,
         hard: &hard,
         opts,
         method,
         tmax,
         switches,
-    };
-    let mut stats = Stats {
-        dc_stages,
-        dc_found,
-        ..Stats::default()
     };
     // The steps a stalled BDF took before ESDIRK34 took over.
     let mut stalled_steps = 0;
@@ -241,12 +385,12 @@ where
                 .and_then(|eigs| super::fixed::stability_bound(method, &eigs));
             warnings.push(super::fixed::bound_note(method, h, bound));
             stats.stable_step = bound.map(|b| b.0);
-            let names = |k: usize| sys.vars[tape.states[k]].name.to_string();
+            let state_name = |k: usize| names.get(tape.states[k]).to_string();
             let run = super::fixed::Run {
                 method,
                 h,
                 bound: bound.map(|b| b.0),
-                names: &names,
+                names: &state_name,
                 hard: &hard,
             };
             super::fixed::drive(&problem.eqn, run, rec, &mut stats)?
@@ -255,7 +399,7 @@ where
             let setup = circuit::Setup {
                 rtol,
                 atol: atol_own,
-                atol_current: atol_pair(opts, c).1,
+                atol_current,
                 y0: problem.eqn.y0.borrow().clone(),
                 h0: problem.h0,
                 h_cap: tmax.unwrap_or(f64::INFINITY),
@@ -339,7 +483,7 @@ where
     }
     let points = rec.grid.len();
     let steps = stats.steps - stalled_steps;
-    if let Some(d) = ringing(sys, &problem.eqn, tran, steps, points, &rec.last) {
+    if let Some(d) = ringing(&names, &problem.eqn, tran, steps, points, &rec.last) {
         warnings.push(d);
     }
     let mut w = rec.rows.into_waveforms(stats);
@@ -510,7 +654,7 @@ pub(super) struct Stops<'p, M: Matrix<T = f64>>
 where
     M::V: HostVec,
 {
-    pub(super) sys: &'p EquationSystem,
+    pub(super) names: &'p NameTable<VarId>,
     pub(super) problem: &'p OdeSolverProblem<CircuitOde<M>>,
     pub(super) hard: &'p [f64],
     pub(super) opts: &'p Options,
@@ -617,7 +761,7 @@ where
     S::Config: StepLimits,
 {
     let Stops {
-        sys,
+        names,
         problem,
         hard,
         opts,
@@ -695,7 +839,7 @@ where
                 // A NaN error estimate can pass an explicit method's test and
                 // give a NaN step: stop there, naming what went non-finite.
                 if r.is_ok() && !(solver.state().t.is_finite() && solver.state().h.is_finite()) {
-                    return Err(non_finite_step(sys, problem, &solver, t_before));
+                    return Err(non_finite_step(names, problem, &solver, t_before));
                 }
                 // An evaluation that failed inside a step made diffsol retry
                 // with a smaller step; it is reported only if the solver gives up.
@@ -815,7 +959,7 @@ where
                             _ => 0,
                         };
                         if !too_many || here >= 3 {
-                            return Err(diagnose(sys, problem, &solver, e));
+                            return Err(diagnose(names, problem, &solver, e));
                         }
                         rescues = Some((t, here + 1));
                         stats.rescues += 1;
@@ -869,7 +1013,7 @@ fn held_by_newton(mut e: SimError, s: &diffsol::ode_solver::OdeSolverStatistics)
 /// The error of a step that came back with a NaN time or size from
 /// `t_before`: what went non-finite there, else an underflow at `t_before`.
 fn non_finite_step<'p, M, S>(
-    sys: &EquationSystem,
+    names: &NameTable<VarId>,
     problem: &'p OdeSolverProblem<CircuitOde<M>>,
     solver: &S,
     t_before: f64,
@@ -882,7 +1026,7 @@ where
     let e = diffsol::DiffsolError::from(diffsol::error::OdeSolverError::StepSizeTooSmall {
         time: t_before,
     });
-    match diagnose(sys, problem, solver, e) {
+    match diagnose(names, problem, solver, e) {
         SimError::NonFinite {
             name, value, what, ..
         } => SimError::NonFinite {

@@ -32,7 +32,7 @@ use diffsol::{
 
 use crate::build::Built;
 use crate::elab::{Circuit, ElementKind, GROUND, Output};
-use crate::ir::{EquationSystem, VarId};
+use crate::ir::{EquationSystem, NameTable, VarId};
 use crate::numeric::dense::{lu_factor, lu_solve};
 use crate::numeric::newton::{self, Damping};
 use crate::numeric::sparse_lu::CircuitLu;
@@ -644,46 +644,98 @@ pub fn run_prepared(
     opts: &Options,
     sink: Option<RowSink<'_>>,
 ) -> Result<Waveforms, SimError> {
-    let (tape, method) = (&p.tape, p.method);
-    let c = &sorted.elaborated.circuit;
-    let n = tape.states.len();
+    let names = output_names(sorted, &p);
+    let n = p.tape.states.len();
     let job = Job {
         sorted,
-        tape: tape.clone(),
+        tape: p.tape.clone(),
         tran: &p.tran,
         outputs: &p.list,
         opts,
-        method,
+        method: p.method,
         switches: &p.switches,
     };
-    let mut w = if n == 0 {
+    let w = if n == 0 {
         algebraic(
             sorted,
-            tape.clone(),
+            p.tape.clone(),
             &p.tran,
             &p.list,
             opts,
             &p.switches,
             sink,
         )?
-    } else if matches!(method, Method::Circuit | Method::Gear2) && n > DENSE_STATES {
+    } else {
+        check_method(p.method, n)?;
+        if n <= DENSE_STATES {
+            run::<NalgebraMat<f64>, NalgebraLU<f64>>(&job, sink)?
+        } else {
+            run::<FaerSparseMat<f64>, CircuitLu>(&job, sink)?
+        }
+    };
+    Ok(finish(w, names, &p))
+}
+
+/// [`run_prepared`] for a caller that owns `sorted` and needs only its
+/// sources and title afterwards: the equation system and the circuit are
+/// released once the operating point is found ([`Sorted::release_ir`]),
+/// before the integrator allocates. A circuit with no states keeps them.
+pub fn run_prepared_releasing(
+    sorted: &mut Sorted,
+    p: Prepared,
+    opts: &Options,
+    sink: Option<RowSink<'_>>,
+) -> Result<Waveforms, SimError> {
+    let n = p.tape.states.len();
+    if n == 0 {
+        return run_prepared(sorted, p, opts, sink);
+    }
+    check_method(p.method, n)?;
+    let names = output_names(sorted, &p);
+    let parts = driver::Parts {
+        tape: p.tape.clone(),
+        tran: &p.tran,
+        outputs: &p.list,
+        opts,
+        method: p.method,
+        switches: &p.switches,
+    };
+    let w = if n <= DENSE_STATES {
+        driver::run_releasing::<NalgebraMat<f64>, NalgebraLU<f64>>(sorted, &parts, sink)?
+    } else {
+        driver::run_releasing::<FaerSparseMat<f64>, CircuitLu>(sorted, &parts, sink)?
+    };
+    Ok(finish(w, names, &p))
+}
+
+/// The ngspice names of `p`'s outputs.
+fn output_names(sorted: &Sorted, p: &Prepared) -> Vec<String> {
+    let c = &sorted.elaborated.circuit;
+    p.list.iter().map(|o| c.output_name(o)).collect()
+}
+
+/// K0405 where the method cannot integrate `n` states.
+fn check_method(method: Method, n: usize) -> Result<(), SimError> {
+    if matches!(method, Method::Circuit | Method::Gear2) && n > DENSE_STATES {
         return Err(SimError::TooManyStates {
             n,
             max: DENSE_STATES,
         });
-    } else if n <= DENSE_STATES {
-        run::<NalgebraMat<f64>, NalgebraLU<f64>>(&job, sink)?
-    } else {
-        run::<FaerSparseMat<f64>, CircuitLu>(&job, sink)?
-    };
-    w.names = p.list.iter().map(|o| c.output_name(o)).collect();
-    w.stats.method = Some(method);
-    w.stats.states = n;
+    }
+    Ok(())
+}
+
+/// The run's waveforms with their names and the tape's statistics.
+fn finish(mut w: Waveforms, names: Vec<String>, p: &Prepared) -> Waveforms {
+    let tape = &p.tape;
+    w.names = names;
+    w.stats.method = Some(p.method);
+    w.stats.states = tape.states.len();
     w.stats.in_f = tape.coverage.in_f;
     w.stats.at_outputs = tape.coverage.at_outputs;
     w.stats.unused = tape.coverage.unused;
     w.stats.wall = p.start.elapsed();
-    Ok(w)
+    w
 }
 
 #[cfg(test)]

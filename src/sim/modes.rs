@@ -18,7 +18,7 @@ pub(super) const RINGING_MIN_STEPS: usize = 20_000;
 /// diode's junction capacitance) rings at MHz through a run of seconds: the
 /// error test makes the solver follow every cycle.
 pub(super) fn ringing<M>(
-    sys: &EquationSystem,
+    names: &NameTable<VarId>,
     ode: &CircuitOde<M>,
     tran: &crate::elab::Tran,
     steps: usize,
@@ -34,7 +34,7 @@ where
     }
     // Faster than a tenth of the output interval, Q > 5.
     let fast = 20.0 * std::f64::consts::PI / tran.tstep;
-    let m = least_damped_mode(sys, ode, tran.tstop, y, fast, 5.0)?;
+    let m = least_damped_mode(names, ode, tran.tstop, y, fast, 5.0)?;
     Some(
         crate::diag::Diagnostic::warning(
             codes::RINGING,
@@ -55,7 +55,7 @@ where
 /// amplitude it computes: at rtol 1e-2 a lossless LC tank grows 170-fold over
 /// 1000 periods.
 pub(super) fn oscillation_at_loose_rtol<M>(
-    sys: &EquationSystem,
+    names: &NameTable<VarId>,
     ode: &CircuitOde<M>,
     tran: &crate::elab::Tran,
     rtol: f64,
@@ -71,7 +71,7 @@ where
     }
     let ten_cycles =
         20.0 * std::f64::consts::PI / (tran.tstop - tran.tstart).max(f64::MIN_POSITIVE);
-    let m = least_damped_mode(sys, ode, t0, y0, ten_cycles, 20.0)?;
+    let m = least_damped_mode(names, ode, t0, y0, ten_cycles, 20.0)?;
     Some(
         crate::diag::Diagnostic::warning(
             codes::BDF_ON_LIGHT_DAMPING,
@@ -141,7 +141,7 @@ where
 /// (right and left eigenvectors by inverse iteration: dimensionless whatever
 /// the states' units).
 pub(super) fn least_damped_mode<M>(
-    sys: &EquationSystem,
+    names: &NameTable<VarId>,
     ode: &CircuitOde<M>,
     t: f64,
     y: &[f64],
@@ -193,7 +193,7 @@ where
         .map(|&k| {
             format!(
                 "{} ({:.0} %)",
-                sys.vars[ode.tape.states[k]].name,
+                names.get(ode.tape.states[k]),
                 100.0 * part[k] / total
             )
         })
@@ -207,7 +207,7 @@ where
 
 /// Turn a solver failure into a message that names what went wrong.
 pub(super) fn diagnose<'p, M, S>(
-    sys: &EquationSystem,
+    names: &NameTable<VarId>,
     problem: &'p OdeSolverProblem<CircuitOde<M>>,
     solver: &S,
     e: diffsol::DiffsolError,
@@ -228,7 +228,7 @@ where
         let regs = eqn.registers();
         if let Some((reg, var)) = tape.first_non_finite(&regs) {
             let sys_name =
-                var.map_or_else(|| format!("register {reg}"), |v| sys.vars[v].name.clone());
+                var.map_or_else(|| format!("register {reg}"), |v| names.get(v).to_string());
             return SimError::NonFinite {
                 name: sys_name.clone(),
                 value: regs[reg],
@@ -263,7 +263,7 @@ where
             state: tape
                 .states
                 .get(k)
-                .map_or_else(String::new, |&v| sys.vars[v].name.clone()),
+                .map_or_else(String::new, |&v| names.get(v).to_string()),
             value: y.get(k).copied().unwrap_or(f64::NAN),
         };
     }

@@ -23,6 +23,25 @@ use clap::{Parser, Subcommand};
 #[global_allocator]
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// mimalloc's `mi_option_purge_delay` (its index in `mi_option_e`, the same
+/// in its v2 and v3 headers; libmimalloc-sys names the options around it,
+/// `eager_commit_delay` = 14 and `use_numa_nodes` = 16, but not this one).
+const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
+
+/// Return freed memory to the system at once from here on, not 10 ms
+/// later (`kausal sim` only): a simulation frees its causalization, its
+/// schedule, then its equation system and circuit just before the
+/// integrator allocates, and with the delay they were resident together (a
+/// 10^4-section ladder peaked at 48 MB against 34 MB, 10^5 at 299 MB
+/// against 254 MB, its time unchanged within noise). Not for every
+/// command: `kausal sort` of 10^6 equations, which frees and allocates as
+/// it goes, took 10 to 15 % longer with it (system time 0.7 → 0.9 s).
+pub(crate) fn purge_freed_memory_at_once() {
+    // SAFETY: mi_option_set takes an option index and a value and only
+    // stores the value in mimalloc's option table.
+    unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, 0) }
+}
+
 #[derive(Parser)]
 #[command(
     name = "kausal",

@@ -117,7 +117,7 @@ impl WaveFormat {
 /// file's point count, unknown until the end, is written over its header's
 /// padding then; so a raw file goes to a file, never a pipe.
 pub fn stream_waves(
-    sorted: &Sorted,
+    sorted: &mut Sorted,
     prepared: sim::Prepared,
     opts: &sim::Options,
     out: Option<&PathBuf>,
@@ -132,17 +132,18 @@ pub fn stream_waves(
         path: Some(shown.to_path_buf()),
         source: std::rc::Rc::new(e),
     };
-    let title = &sorted.elaborated.circuit.title;
+    let title = sorted.elaborated.circuit.title.clone();
     // One row writer for every destination.
     // The offset of a raw file's point count, and the count.
-    let run = |w: &mut dyn Write| -> Result<(sim::Waveforms, usize, usize), sim::SimError> {
+    let mut prepared = Some(prepared);
+    let mut run = |w: &mut dyn Write| -> Result<(sim::Waveforms, usize, usize), sim::SimError> {
         let mut head = String::new();
         let count_at = match format {
             WaveFormat::Csv => {
                 sim::output::csv_header(&mut head, &names);
                 0
             }
-            WaveFormat::RawBinary => sim::output::raw_header(&mut head, &names, title, None, true),
+            WaveFormat::RawBinary => sim::output::raw_header(&mut head, &names, &title, None, true),
         };
         w.write_all(head.as_bytes()).map_err(write_err)?;
         let mut line = String::new();
@@ -163,7 +164,10 @@ pub fn stream_waves(
                 }
             }
         };
-        let mut wf = sim::run_prepared(sorted, prepared, opts, Some(&mut sink))?;
+        let prepared = prepared.take().expect("one run");
+        // The equation system and circuit go once the operating point is
+        // found: the integrator's memory takes their place.
+        let mut wf = sim::run_prepared_releasing(sorted, prepared, opts, Some(&mut sink))?;
         w.flush().map_err(write_err)?;
         wf.names = names.clone();
         Ok((wf, count_at, points))

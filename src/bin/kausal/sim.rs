@@ -92,6 +92,7 @@ enum WaveFile {
 }
 
 pub fn run(mut args: Args) -> Result<ExitCode, Error> {
+    crate::purge_freed_memory_at_once();
     if let Some(Save::All) = args.save {
         args.probes.push("all".into());
     }
@@ -127,7 +128,7 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
     };
     // The integrator's memory takes the place of the schedule's.
     sorted.schedule = Default::default();
-    let (waves, file) = match simulate(&sorted, prepared, &sim_opts, &args) {
+    let (waves, file) = match simulate(&mut sorted, prepared, &sim_opts, &args) {
         Ok(x) => x,
         Err(e) => return Err(Error::stage(sorted.elaborated.sources, e)),
     };
@@ -143,13 +144,15 @@ pub fn run(mut args: Args) -> Result<ExitCode, Error> {
 /// the points) the waveforms are streamed as they are computed: memory stays bounded by the
 /// circuit, however long the run or many the saved vectors.
 fn simulate(
-    sorted: &Sorted,
+    sorted: &mut Sorted,
     prepared: sim::Prepared,
     opts: &sim::Options,
     args: &Args,
 ) -> Result<(Waveforms, WaveFile), sim::SimError> {
     let result = match &args.raw {
-        Some(_) => sim::run_prepared(sorted, prepared, opts, None).map(|w| (w, WaveFile::Kept)),
+        Some(_) => {
+            sim::run_prepared_releasing(sorted, prepared, opts, None).map(|w| (w, WaveFile::Kept))
+        }
         None => stream_waves(
             sorted,
             prepared,

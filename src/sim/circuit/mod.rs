@@ -86,7 +86,7 @@ mod newton;
 
 use super::ode::{CircuitOde, HostVec, Regs};
 use super::*;
-use crate::ir::EquationSystem;
+use crate::ir::{NameTable, VarId};
 use crate::numeric::dense::{lu_factor_inv, lu_solve_inv};
 use crate::tape::{ChargeInverse, EvalError};
 use diffsol::Matrix;
@@ -458,7 +458,7 @@ where
 
     /// One accepted step of at most `h_max`; a step that reaches
     /// `t + h_max` lands on it exactly.
-    pub fn step(&mut self, h_max: f64, sys: &EquationSystem) -> Result<(), SimError> {
+    pub fn step(&mut self, h_max: f64, names: &NameTable<VarId>) -> Result<(), SimError> {
         let mut failures = 0usize;
         loop {
             let mut h = self.h.min(self.h_cap).min(h_max);
@@ -474,7 +474,7 @@ where
                 }
             }
             if h.is_nan() || h < self.h_min {
-                return Err(self.underflow(sys));
+                return Err(self.underflow(names));
             }
             self.error = None;
             let attempt = self.attempt(h);
@@ -499,7 +499,7 @@ where
     }
 
     /// The step size underflowed: name the state that kept it small.
-    fn underflow(&self, sys: &EquationSystem) -> SimError {
+    fn underflow(&self, names: &NameTable<VarId>) -> SimError {
         if let Some(error) = self.error.clone() {
             return SimError::Eval { error };
         }
@@ -511,7 +511,7 @@ where
                 .tape
                 .states
                 .get(k)
-                .map_or_else(String::new, |&v| sys.vars[v].name.clone()),
+                .map_or_else(String::new, |&v| names.get(v).to_string()),
             value: self.y.get(k).copied().unwrap_or(f64::NAN),
         }
     }
@@ -799,7 +799,7 @@ where
     let tstart = rec.grid.first().unwrap_or(0.0);
     let h_min = 1e-15 * t_end.abs().max(f64::MIN_POSITIVE);
     let Stops {
-        sys, hard, opts, ..
+        names, hard, opts, ..
     } = *stops_at;
     let (all_steps, progress) = (opts.all_steps, opts.progress);
     let mut s = TrBdf2::new(ode, setup, t0, h_min)?;
@@ -832,7 +832,7 @@ where
         // A stop within rounding of here (an output point an ulp before a
         // source corner) is reached without a step.
         if stop - s.t > 1e-12 * t_end.abs() {
-            s.step(stop - s.t, sys)?;
+            s.step(stop - s.t, names)?;
             budget.step(s.t, s.h)?;
             fresh = true;
         }
