@@ -42,7 +42,7 @@ impl Culprit {
         let var = &sys.vars[v];
         Culprit {
             id: v.to_string(),
-            text: var.name.clone(),
+            text: sys.var_name(v).to_string(),
             origin: var.origin.describe(),
             elements: var
                 .origin

@@ -283,9 +283,11 @@ fn overdetermined_sets(sys: &EquationSystem, prefer: Option<EqId>) -> Vec<(EqId,
 fn differentiate(aug: &mut EquationSystem, derivs: &mut HashMap<VarId, VarId>, eq: EqId) -> EqId {
     let e = aug.eqs[eq].clone();
     let mut memo = HashMap::new();
-    let vars = &mut aug.vars;
+    let (vars, names) = (&mut aug.vars, &mut aug.names);
     let mut dvar = |x: VarId, arena: &mut crate::ir::ExprArena| -> ExprId {
-        let d = *derivs.entry(x).or_insert_with(|| new_derivative(vars, x));
+        let d = *derivs
+            .entry(x)
+            .or_insert_with(|| new_derivative(vars, names, x));
         arena.var(d)
     };
     let dl = derive::time_derivative(&mut aug.exprs, e.lhs, &mut dvar, &mut memo);
@@ -302,10 +304,15 @@ fn differentiate(aug: &mut EquationSystem, derivs: &mut HashMap<VarId, VarId>, e
 
 /// A fresh algebraic unknown `der(x)` (the caller refreshes the system's
 /// unknown flags).
-fn new_derivative(vars: &mut crate::ir::IdVec<VarId, crate::ir::Var>, x: VarId) -> VarId {
+fn new_derivative(
+    vars: &mut crate::ir::IdVec<VarId, crate::ir::Var>,
+    names: &mut crate::ir::NameTable<VarId>,
+    x: VarId,
+) -> VarId {
+    let name = crate::ir::joined(&["der(", names.get(x), ")"]);
+    names.push(&name);
     let base = &vars[x];
     vars.push(crate::ir::Var {
-        name: format!("der({})", base.name),
         kind: VarKind::Derivative,
         role: VarRole::Unknown,
         origin: base.origin.clone(),

@@ -314,8 +314,8 @@ mod tests {
             kind: OriginKind::Element { name: "R1".into() },
             span: None,
         };
-        let u = s.add_var("u".into(), VarKind::BranchVoltage, o.clone());
-        let i = s.add_var("i".into(), VarKind::BranchCurrent, o);
+        let u = s.add_var("u", VarKind::BranchVoltage, o.clone());
+        let i = s.add_var("i", VarKind::BranchCurrent, o);
         (s, u, i)
     }
 
@@ -330,8 +330,8 @@ mod tests {
             kind: OriginKind::Element { name: "M1".into() },
             span: None,
         };
-        let vd = s.add_var("vd".into(), VarKind::Potential, o.clone());
-        let vg = s.add_var("vg".into(), VarKind::Potential, o);
+        let vd = s.add_var("vd", VarKind::Potential, o.clone());
+        let vg = s.add_var("vg", VarKind::Potential, o);
         let x = &mut s.exprs;
         let (e_vds, e_id, e_vd, e_vg) = (x.var(vds), x.var(id), x.var(vd), x.var(vg));
         let zero = x.constant(0.0);

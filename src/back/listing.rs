@@ -41,7 +41,7 @@ pub fn summary(sys: &EquationSystem, s: &Schedule) -> Summary {
         largest_block: blocks.iter().map(|b| b.n_eqs()).max().unwrap_or(0),
         tearing_variables: blocks
             .iter()
-            .flat_map(|b| b.tears.iter().map(|&v| sys.vars[v].name.clone()))
+            .flat_map(|b| b.tears.iter().map(|&v| sys.var_name(v).to_string()))
             .collect(),
         implicit: s
             .assignments()
@@ -147,7 +147,7 @@ fn chunk(sys: &EquationSystem, steps: &[Step], first: usize) -> Chunk {
         k += 1;
         let buf = &mut c.buf;
         let start = buf.len();
-        let name = &sys.vars[a.var].name;
+        let name = &sys.var_name(a.var);
         push_right(buf, k, 5);
         buf.push_str("  ");
         buf.push_str(indent);
@@ -194,7 +194,7 @@ fn chunk(sys: &EquationSystem, steps: &[Step], first: usize) -> Chunk {
         match step {
             Step::Assign(a) => line(&mut c, a, "", ""),
             Step::Block(b) => {
-                let tears: Vec<&str> = b.tears.iter().map(|&v| sys.vars[v].name.as_str()).collect();
+                let tears: Vec<&str> = b.tears.iter().map(|&v| sys.var_name(v)).collect();
                 let whole = if b.solved_whole() {
                     format!(" (solved whole: {} unknowns, sparse LU)", b.n_eqs())
                 } else {
@@ -359,7 +359,7 @@ pub fn trace(sys: &EquationSystem, c: &Causalization) -> String {
             );
             for b in &st.blocks {
                 let eqs: Vec<String> = b.eqs.iter().map(|e| e.to_string()).collect();
-                let vars: Vec<&str> = b.vars.iter().map(|&v| sys.vars[v].name.as_str()).collect();
+                let vars: Vec<&str> = b.vars.iter().map(|&v| sys.var_name(v)).collect();
                 let _ = writeln!(
                     out,
                     "    block {{{}}} in {{{}}}",
@@ -378,7 +378,7 @@ pub fn trace(sys: &EquationSystem, c: &Causalization) -> String {
             "  pass {:>3}  {rule}  {:>5} -> {:<14} number {}",
             step.pass,
             step.eq.to_string(),
-            sys.vars[step.var].name,
+            sys.var_name(step.var),
             step.number
         );
         if step.rule == Rule::Tear
@@ -407,7 +407,7 @@ fn assignment_json(sys: &EquationSystem, a: &Assignment, k: &mut usize) -> serde
         "eq": a.eq.to_string(),
         "number": a.number,
         "rule": a.rule,
-        "var": sys.vars[a.var].name,
+        "var": sys.var_name(a.var),
         "form": form,
         "expr": text,
         "equation": print::equation(sys, a.eq),
@@ -432,7 +432,7 @@ pub fn json(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> serde_json
                     "elements": b.elements,
                     "linear": b.linear,
                     "solved_whole": b.solved_whole(),
-                    "tearing": b.tears.iter().map(|&v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
+                    "tearing": b.tears.iter().map(|&v| sys.var_name(v).to_string()).collect::<Vec<_>>(),
                     "inner": inner,
                     "residuals": res,
                 }})
@@ -442,7 +442,7 @@ pub fn json(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> serde_json
     let trace: Vec<serde_json::Value> = c
         .trace
         .iter()
-        .map(|t| json!({"pass": t.pass, "rule": t.rule, "eq": t.eq.to_string(), "var": sys.vars[t.var].name, "number": t.number}))
+        .map(|t| json!({"pass": t.pass, "rule": t.rule, "eq": t.eq.to_string(), "var": sys.var_name(t.var), "number": t.number}))
         .collect();
     let stalls: Vec<serde_json::Value> = c
         .stalls
@@ -452,7 +452,7 @@ pub fn json(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> serde_json
                 "after": st.after,
                 "blocks": st.blocks.iter().map(|b| json!({
                     "eqs": b.eqs.iter().map(|e| e.to_string()).collect::<Vec<_>>(),
-                    "vars": b.vars.iter().map(|&v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
+                    "vars": b.vars.iter().map(|&v| sys.var_name(v).to_string()).collect::<Vec<_>>(),
                 })).collect::<Vec<_>>(),
             })
         })
@@ -460,7 +460,7 @@ pub fn json(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> serde_json
     let tears: Vec<serde_json::Value> = c
         .tears
         .iter()
-        .map(|t| json!({"var": sys.vars[t.var].name, "residual": t.eq.to_string(), "causalizes": t.gain, "candidates": t.candidates}))
+        .map(|t| json!({"var": sys.var_name(t.var), "residual": t.eq.to_string(), "causalizes": t.gain, "candidates": t.candidates}))
         .collect();
     json!({
         "title": sys.title,
@@ -497,7 +497,7 @@ pub fn dot(sys: &EquationSystem, c: &Causalization) -> String {
             let _ = writeln!(
                 out,
                 "  {v} [shape=ellipse, label=\"{}\"{}];",
-                dot_escape(&var.name),
+                dot_escape(sys.var_name(v)),
                 if tear { ", peripheries=2" } else { "" }
             );
         }
@@ -546,7 +546,7 @@ pub fn incidence(sys: &EquationSystem, c: &Causalization, s: &Schedule) -> Strin
         "sorted incidence (rows: assignments in order; columns: unknowns as computed):"
     );
     for (k, &v) in cols.iter().enumerate() {
-        let _ = writeln!(out, "  c{k:<4} {}", sys.vars[v].name);
+        let _ = writeln!(out, "  c{k:<4} {}", sys.var_name(v));
     }
     let _ = write!(out, "  {:>6} ", "");
     for k in 0..cols.len() {
@@ -588,7 +588,9 @@ pub fn index_reduction(orig: &EquationSystem, red: &crate::analysis::IndexReduct
         let _ = writeln!(
             out,
             "    integrator of {} removed: {} and {} are algebraic unknowns",
-            sys.vars[r.state].name, sys.vars[r.state].name, sys.vars[r.der].name
+            sys.var_name(r.state),
+            sys.var_name(r.state),
+            sys.var_name(r.der)
         );
     }
     let _ = writeln!(
@@ -605,7 +607,7 @@ pub fn index_reduction(orig: &EquationSystem, red: &crate::analysis::IndexReduct
             d.of
         );
     }
-    let states: Vec<&str> = sys.states().map(|v| sys.vars[v].name.as_str()).collect();
+    let states: Vec<&str> = sys.states().map(|v| sys.var_name(v)).collect();
     let _ = writeln!(out, "  states ({}): {}", states.len(), states.join(", "));
     out
 }
@@ -620,15 +622,15 @@ pub fn index_reduction_json(
             "eq": r.constraint.to_string(),
             "equation": print::equation(orig, r.constraint),
             "origin": orig.eqs[r.constraint].origin.describe(),
-            "removed_integrator": sys.vars[r.state].name,
-            "now_algebraic": [sys.vars[r.state].name.clone(), sys.vars[r.der].name.clone()],
+            "removed_integrator": sys.var_name(r.state),
+            "now_algebraic": [sys.var_name(r.state).to_string(), sys.var_name(r.der).to_string()],
         })).collect::<Vec<_>>(),
         "differentiated": red.differentiated.iter().map(|d| json!({
             "eq": d.eq.to_string(),
             "equation": print::equation(sys, d.eq),
             "of": d.of.to_string(),
         })).collect::<Vec<_>>(),
-        "states": sys.states().map(|v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
+        "states": sys.states().map(|v| sys.var_name(v).to_string()).collect::<Vec<_>>(),
     })
 }
 

@@ -141,7 +141,7 @@ pub fn check_with(
             Some(k) if !matches!(c.elements[k.elem].kind, ElementKind::Behavioural { .. }) => {
                 states += 1
             }
-            _ => hidden.push(sys.vars[v].name.clone()),
+            _ => hidden.push(sys.var_name(v).to_string()),
         }
     }
     let integral = causality.integral().count();

@@ -196,8 +196,8 @@ mod tests {
             kind: OriginKind::Element { name: "D1".into() },
             span: None,
         };
-        let u = s.add_var("u".into(), VarKind::BranchVoltage, o.clone());
-        let du = s.add_var("du".into(), VarKind::Derivative, o);
+        let u = s.add_var("u", VarKind::BranchVoltage, o.clone());
+        let du = s.add_var("du", VarKind::Derivative, o);
         let p = s.add_param("k".into(), 2.0);
         let x = &mut s.exprs;
         let (ue, pe) = (x.var(u), x.param(p));

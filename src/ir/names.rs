@@ -36,6 +36,12 @@ impl<K: EntityId> NameTable<K> {
         t
     }
 
+    /// Room for `n` more names of `bytes` bytes in all.
+    pub fn reserve(&mut self, n: usize, bytes: usize) {
+        self.ends.reserve(n);
+        self.text.reserve(bytes);
+    }
+
     /// Append `name` under the next key.
     pub fn push(&mut self, name: &str) -> K {
         let k = K::new(self.ends.len());

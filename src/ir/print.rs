@@ -53,7 +53,7 @@ pub fn write_expr_in(sys: &EquationSystem, x: &ExprArena, id: ExprId, out: &mut 
     };
     match e {
         Expr::Const(b) => out.push_str(&number(f64::from_bits(b))),
-        Expr::Var(v) => out.push_str(&sys.vars[v].name),
+        Expr::Var(v) => out.push_str(sys.var_name(v)),
         Expr::Param(p) => out.push_str(&sys.params[p].name),
         Expr::Time => out.push('t'),
         Expr::TimeRate => out.push_str("der(t)"),
@@ -176,7 +176,7 @@ pub fn system(sys: &EquationSystem, max_incidence: usize) -> String {
     let unknowns: Vec<super::VarId> = sys.unknowns().collect();
     let names = |ids: &[super::VarId]| {
         ids.iter()
-            .map(|&v| sys.vars[v].name.as_str())
+            .map(|&v| sys.var_name(v))
             .collect::<Vec<_>>()
             .join(", ")
     };
@@ -199,7 +199,7 @@ pub fn system(sys: &EquationSystem, max_incidence: usize) -> String {
     }
     let _ = writeln!(out, "incidence (rows: equations; columns: unknowns):");
     for (k, &v) in unknowns.iter().enumerate() {
-        let _ = writeln!(out, "  c{k:<3} {}", sys.vars[v].name);
+        let _ = writeln!(out, "  c{k:<3} {}", sys.var_name(v));
     }
     let mut col = vec![usize::MAX; sys.vars.len()];
     for (k, &v) in unknowns.iter().enumerate() {
@@ -242,7 +242,7 @@ pub fn system_json(sys: &EquationSystem) -> serde_json::Value {
             let unknowns: Vec<String> = vars
                 .iter()
                 .filter(|&&v| sys.vars[v].is_unknown())
-                .map(|&v| sys.vars[v].name.clone())
+                .map(|&v| sys.var_name(v).to_string())
                 .collect();
             json!({
                 "id": id.to_string(),
@@ -261,7 +261,7 @@ pub fn system_json(sys: &EquationSystem) -> serde_json::Value {
         .map(|(id, v)| {
             json!({
                 "id": id.to_string(),
-                "name": v.name,
+                "name": sys.var_name(id),
                 "kind": v.kind,
                 "role": v.role,
                 "unknown": v.is_unknown(),
@@ -278,8 +278,8 @@ pub fn system_json(sys: &EquationSystem) -> serde_json::Value {
         "title": sys.title,
         "equations": eqs,
         "variables": var_list,
-        "unknowns": sys.unknowns().map(|v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
-        "states": sys.states().map(|v| sys.vars[v].name.clone()).collect::<Vec<_>>(),
+        "unknowns": sys.unknowns().map(|v| sys.var_name(v).to_string()).collect::<Vec<_>>(),
+        "states": sys.states().map(|v| sys.var_name(v).to_string()).collect::<Vec<_>>(),
         "params": params,
         "eliminated": sys.eliminated,
     })

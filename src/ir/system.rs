@@ -3,6 +3,7 @@
 
 use super::entity::IdVec;
 use super::expr::{ExprArena, ExprId};
+use super::names::NameTable;
 use crate::diag::Span;
 
 crate::entity_id!(
@@ -54,10 +55,10 @@ pub enum VarRole {
     Derivative { of: VarId },
 }
 
+/// A variable; its display name (`u_R1`, `i_L1`, `v(a)`, `der(u_C1)`) is
+/// [`EquationSystem::var_name`], kept apart in one buffer for all of them.
 #[derive(Clone, Debug)]
 pub struct Var {
-    /// Display name, e.g. `u_R1`, `i_L1`, `v(a)`, `der(u_C1)`.
-    pub name: String,
     pub kind: VarKind,
     pub role: VarRole,
     /// The element (or node) the variable belongs to.
@@ -535,6 +536,11 @@ pub struct EquationSystem {
     pub title: String,
     pub exprs: ExprArena,
     pub vars: IdVec<VarId, Var>,
+    /// The name of every variable, one per entry of `vars` (a `String`
+    /// each was a third of a big system's variable memory): add variables
+    /// with [`EquationSystem::add_var`], which keeps both; `ir::verify`
+    /// checks the count.
+    pub names: NameTable<VarId>,
     pub params: IdVec<ParamId, Param>,
     pub sources: IdVec<SourceId, SourceFn>,
     pub eqs: IdVec<EqId, Equation>,
@@ -563,10 +569,10 @@ pub struct EquationSystem {
 }
 
 impl EquationSystem {
-    pub fn add_var(&mut self, name: String, kind: VarKind, origin: Origin) -> VarId {
+    pub fn add_var(&mut self, name: impl AsRef<str>, kind: VarKind, origin: Origin) -> VarId {
         self.unknown.push(true);
+        self.names.push(name.as_ref());
         self.vars.push(Var {
-            name,
             kind,
             role: VarRole::Unknown,
             origin,
@@ -576,10 +582,10 @@ impl EquationSystem {
 
     /// Make `state` a state with a fresh derivative unknown; returns the derivative.
     pub fn add_state(&mut self, state: VarId) -> VarId {
-        let name = joined(&["der(", &self.vars[state].name, ")"]);
+        let name = joined(&["der(", self.names.get(state), ")"]);
+        self.names.push(&name);
         let origin = self.vars[state].origin.clone();
         let der = self.vars.push(Var {
-            name,
             kind: VarKind::Derivative,
             role: VarRole::Derivative { of: state },
             origin,
@@ -625,6 +631,8 @@ impl EquationSystem {
             ..EquationSystem::default()
         };
         sys.unknown.reserve(vars);
+        // Most generated names (`u_R12`, `v(n12)`) fit in 12 bytes.
+        sys.names.reserve(vars, 12 * vars);
         sys.incidence_start.reserve(eqs + 1);
         sys.incidence.reserve(3 * eqs);
         sys
@@ -746,8 +754,13 @@ impl EquationSystem {
     pub fn find_var(&self, name: &str) -> Option<VarId> {
         self.vars
             .iter()
-            .find(|(_, v)| v.name.eq_ignore_ascii_case(name))
             .map(|(id, _)| id)
+            .find(|&id| self.names.get(id).eq_ignore_ascii_case(name))
+    }
+
+    /// The display name of `v` (`u_R1`, `der(u_C1)`).
+    pub fn var_name(&self, v: VarId) -> &str {
+        self.names.get(v)
     }
 }
 

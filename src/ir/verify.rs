@@ -22,11 +22,19 @@ pub enum VerifyError {
     Incidence { eq: super::EqId },
     #[error("the stored unknown flag of variable {var} is stale")]
     UnknownFlag { var: super::VarId },
+    #[error("{names} variable names for {vars} variables")]
+    Names { names: usize, vars: usize },
 }
 
 /// Check every invariant of `sys`; returns all violations found.
 pub fn verify(sys: &EquationSystem) -> Vec<VerifyError> {
     let mut errs = Vec::new();
+    if sys.names.len() != sys.vars.len() {
+        errs.push(VerifyError::Names {
+            names: sys.names.len(),
+            vars: sys.vars.len(),
+        });
+    }
     for (i, &e) in sys.exprs.nodes().iter().enumerate() {
         let user = ExprId::new(i);
         for op in e.operands().into_iter().flatten() {

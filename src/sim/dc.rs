@@ -266,7 +266,7 @@ where
         match held_point(&c.ics, ".ic") {
             Ok(held) => {
                 let sys = sorted.system();
-                ode.seed_tears(|v| held.named.get(&sys.vars[v].name).copied());
+                ode.seed_tears(|v| held.named.get(sys.var_name(v)).copied());
                 return Ok(Start {
                     y: held.y,
                     warnings: held.warnings,
@@ -410,7 +410,7 @@ where
     let from_image = |h: ic::Held| {
         let sys = sorted.system();
         ode.reset_tears();
-        ode.seed_tears(|v| h.named.get(&sys.vars[v].name).copied());
+        ode.seed_tears(|v| h.named.get(sys.var_name(v)).copied());
         h.y
     };
     let start = |y, warnings, found| Start {
@@ -778,11 +778,8 @@ pub(super) fn fets(sorted: &Sorted, tape: &Tape) -> Vec<Fet> {
     let by_name: HashMap<&str, VarId> = sys
         .vars
         .iter()
-        .filter(|(_, v)| {
-            let n = v.name.as_str();
-            n.ends_with(":von") || n.ends_with(":vds") || n.ends_with(":vg")
-        })
-        .map(|(id, v)| (v.name.as_str(), id))
+        .map(|(id, _)| (sys.var_name(id), id))
+        .filter(|(n, _)| n.ends_with(":von") || n.ends_with(":vds") || n.ends_with(":vg"))
         .collect();
     if by_name.is_empty() {
         return Vec::new();
@@ -1626,7 +1623,7 @@ fn name_state(
     let name = |k: Option<usize>| {
         let s = *states.get(k?)?;
         let c = &sorted.elaborated.circuit;
-        let var = &sorted.system().vars[s].name;
+        let var = &sorted.system().var_name(s);
         // A junction's charge `q_D1` is no branch variable: its element by
         // the name after the prefix.
         let by_name = || {

@@ -242,7 +242,7 @@ where
         .map_err(|error| SimError::Eval { error })?;
     *ode.y0.borrow_mut() = start.y;
     let rtol = run_rtol(opts, c);
-    let names = NameTable::of(sys.vars.iter().map(|(_, v)| v.name.as_str()));
+    let names = sys.names.clone();
     let mut warnings = start.warnings;
     let (dc_stages, dc_found) = (start.stages, start.found);
     if method == Method::Bdf

@@ -237,7 +237,7 @@ pub(super) fn held_operating_point(
     let unmapped = |v: VarId| {
         Unheld::Structure(format!(
             "kausal cannot map the state `{}` onto the operating point",
-            sorted.system().vars[v].name
+            sorted.system().var_name(v)
         ))
     };
     enum Read {
@@ -247,14 +247,14 @@ pub(super) fn held_operating_point(
     let image_state: std::collections::HashMap<&str, usize> = dc_states
         .iter()
         .enumerate()
-        .map(|(k, &d)| (sys.vars[d].name.as_str(), k))
+        .map(|(k, &d)| (sys.var_name(d), k))
         .collect();
     // With algebraic charges, each charge is a variable of the image.
     let image_charge: std::collections::HashMap<&str, VarId> = dc
         .built
         .charges
         .values()
-        .map(|&q| (sys.vars[q].name.as_str(), q))
+        .map(|&q| (sys.var_name(q), q))
         .collect();
     let mut refs = Vec::new();
     let mut from = Vec::with_capacity(states.len());
@@ -262,7 +262,7 @@ pub(super) fn held_operating_point(
         let var = &sorted.system().vars[s];
         if var.kind == VarKind::Charge && algebraic {
             let q = *image_charge
-                .get(var.name.as_str())
+                .get(sorted.system().var_name(s))
                 .ok_or_else(|| unmapped(s))?;
             from.push(Read::Output(refs.len()));
             refs.push(tape::OutputRef::Var(q));
@@ -270,7 +270,7 @@ pub(super) fn held_operating_point(
         }
         if var.kind == VarKind::Charge {
             let k = *image_state
-                .get(var.name.as_str())
+                .get(sorted.system().var_name(s))
                 .ok_or_else(|| unmapped(s))?;
             from.push(Read::State(k));
             continue;

@@ -360,7 +360,7 @@ where
             .reg_var
             .iter()
             .zip(regs.iter())
-            .filter_map(|(v, &x)| v.map(|v| (sys.vars[v].name.clone(), x)))
+            .filter_map(|(v, &x)| v.map(|v| (sys.var_name(v).to_string(), x)))
             .collect()
     }
 

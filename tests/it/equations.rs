@@ -87,9 +87,9 @@ fn seed_a_in_loop_form_has_the_seeds_seven_equations() {
         "u_L1 = u_C1 - u_R2",
     ];
     assert_eq!(texts, expected);
-    let unknowns: Vec<&str> = sys.unknowns().map(|v| sys.vars[v].name.as_str()).collect();
+    let unknowns: Vec<&str> = sys.unknowns().map(|v| sys.var_name(v)).collect();
     assert_eq!(unknowns.len(), 7);
-    let states: Vec<&str> = sys.states().map(|v| sys.vars[v].name.as_str()).collect();
+    let states: Vec<&str> = sys.states().map(|v| sys.var_name(v)).collect();
     assert_eq!(states, ["u_C1", "i_L1"]);
     assert_eq!(sys.eliminated.len(), 3);
 }

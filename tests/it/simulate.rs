@@ -2000,7 +2000,7 @@ fn outputs_after_an_evaluation_equal_the_output_programs() {
                 assert!(
                     (a - b).abs() <= 1e-9 * (a.abs().max(b.abs())) + 1e-12 * (1.0 + a.abs()),
                     "{name}, scale {scale}: {} is {a:e} after f, {b:e} from the states",
-                    sys.vars[v].name
+                    sys.var_name(v)
                 );
             }
         }

@@ -143,8 +143,8 @@ fn seed_d_is_reduced_as_in_seed_001() {
     }
     // iL2 loses its integrator.
     assert_eq!(red.removed.len(), 1);
-    assert_eq!(sys.vars[red.removed[0].state].name, "i_L2");
-    let states: Vec<&str> = sys.states().map(|v| sys.vars[v].name.as_str()).collect();
+    assert_eq!(sys.var_name(red.removed[0].state), "i_L2");
+    let states: Vec<&str> = sys.states().map(|v| sys.var_name(v)).collect();
     assert_eq!(states, ["i_L1", "u_C1"]);
     // The re-sort finds a 7x7 algebraic loop and tears it.
     let blocks: Vec<_> = s.schedule.blocks().collect();
@@ -163,14 +163,14 @@ fn prefer_state_chooses_which_capacitor_keeps_its_state() {
     let states: Vec<&str> = s
         .system()
         .states()
-        .map(|v| s.system().vars[v].name.as_str())
+        .map(|v| s.system().var_name(v))
         .collect();
     assert_eq!(states, ["u_C1"]);
     let s = sort("netlists/parallel_caps.cir", &["C2"]).ok().unwrap();
     let states: Vec<&str> = s
         .system()
         .states()
-        .map(|v| s.system().vars[v].name.as_str())
+        .map(|v| s.system().var_name(v))
         .collect();
     assert_eq!(states, ["u_C2"]);
     assert!(

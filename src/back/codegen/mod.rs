@@ -279,7 +279,7 @@ impl Gen<'_> {
         Shaped {
             template: format!("v[{HOLE}] = {rhs};"),
             leaves,
-            var: self.sys.vars[a.var].name.clone(),
+            var: self.sys.var_name(a.var).to_string(),
             comment: self.comment(a),
         }
     }
@@ -297,7 +297,7 @@ impl Gen<'_> {
         Shaped {
             template: format!("dv[{HOLE}] = {rhs};"),
             leaves,
-            var: format!("d {}", self.sys.vars[a.var].name),
+            var: format!("d {}", self.sys.var_name(a.var)),
             comment: self.comment(a),
         }
     }
@@ -309,16 +309,12 @@ impl Gen<'_> {
                 Solved::Explicit(e) => reroll(&[self.shaped(a, e)], self.syn, out),
                 Solved::Implicit(_) => out.push(format!(
                     "    block_{k}(t, y, p, v); // {} solved numerically from {}",
-                    self.sys.vars[a.var].name,
+                    self.sys.var_name(a.var),
                     self.comment(a)
                 )),
             },
             Step::Block(b) => {
-                let tears: Vec<&str> = b
-                    .tears
-                    .iter()
-                    .map(|&v| self.sys.vars[v].name.as_str())
-                    .collect();
+                let tears: Vec<&str> = b.tears.iter().map(|&v| self.sys.var_name(v)).collect();
                 out.push(format!(
                     "    block_{k}(t, y, p, v); // algebraic loop through {} (tearing {})",
                     super::listing::shortened(&b.elements, super::listing::ELEMENTS_SHOWN),
@@ -379,7 +375,7 @@ impl Gen<'_> {
                     let _ = writeln!(
                         out,
                         "    // {} is a Newton unknown of this loop: {}",
-                        self.sys.vars[a.var].name,
+                        self.sys.var_name(a.var),
                         self.comment(a)
                     );
                 }
@@ -422,7 +418,7 @@ impl Gen<'_> {
                     "    dv[{}] = {}; // d {}",
                     a.var.0,
                     self.tangent(e),
-                    self.sys.vars[a.var].name
+                    self.sys.var_name(a.var)
                 );
             }
         }
@@ -713,7 +709,7 @@ pub fn emit(sys: &EquationSystem, sched: &Schedule, lang: Lang) -> String {
     header(&mut out, sys, syn, states.len());
     let _ = writeln!(out, "// States y[k]:");
     for (k, &s) in states.iter().enumerate() {
-        let _ = writeln!(out, "//   y[{k}] = {} (v[{}])", sys.vars[s].name, s.0);
+        let _ = writeln!(out, "//   y[{k}] = {} (v[{}])", sys.var_name(s), s.0);
     }
     g.sources(&mut out);
     g.diodes(&mut out);
