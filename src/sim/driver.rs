@@ -118,12 +118,14 @@ where
 
 /// [`run`] for a caller that owns the sorted circuit: once the operating
 /// point is found, its equation system and circuit are released
-/// ([`Sorted::release_ir`]) before the integrator allocates. On a
-/// 10^5-section ladder they were about half the run's memory.
+/// ([`Sorted::release_ir`]), and `released` called, before the integrator
+/// allocates. On a 10^5-section ladder they were about half the run's
+/// memory.
 pub(super) fn run_releasing<M, LS>(
     sorted: &mut Sorted,
     parts: &Parts<'_>,
     sink: Option<RowSink<'_>>,
+    released: fn(),
 ) -> Result<Waveforms, SimError>
 where
     M: Matrix<T = f64> + diffsol::DefaultSolver,
@@ -134,6 +136,7 @@ where
 {
     let ready = setup::<M>(&parts.with(sorted))?;
     sorted.release_ir();
+    released();
     integrate::<M, LS>(ready, parts, sink)
 }
 

@@ -679,12 +679,15 @@ pub fn run_prepared(
 /// [`run_prepared`] for a caller that owns `sorted` and needs only its
 /// sources and title afterwards: the equation system and the circuit are
 /// released once the operating point is found ([`Sorted::release_ir`]),
-/// before the integrator allocates. A circuit with no states keeps them.
+/// before the integrator allocates, and `released` is called then (the
+/// binary has its allocator return the freed memory to the system there). A
+/// circuit with no states keeps them.
 pub fn run_prepared_releasing(
     sorted: &mut Sorted,
     p: Prepared,
     opts: &Options,
     sink: Option<RowSink<'_>>,
+    released: fn(),
 ) -> Result<Waveforms, SimError> {
     let n = p.tape.states.len();
     if n == 0 {
@@ -701,9 +704,9 @@ pub fn run_prepared_releasing(
         switches: &p.switches,
     };
     let w = if n <= DENSE_STATES {
-        driver::run_releasing::<NalgebraMat<f64>, NalgebraLU<f64>>(sorted, &parts, sink)?
+        driver::run_releasing::<NalgebraMat<f64>, NalgebraLU<f64>>(sorted, &parts, sink, released)?
     } else {
-        driver::run_releasing::<FaerSparseMat<f64>, CircuitLu>(sorted, &parts, sink)?
+        driver::run_releasing::<FaerSparseMat<f64>, CircuitLu>(sorted, &parts, sink, released)?
     };
     Ok(finish(w, names, &p))
 }

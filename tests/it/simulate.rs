@@ -2035,7 +2035,8 @@ fn releasing_the_ir_changes_no_output() {
         let title = sorted.elaborated.circuit.title.clone();
         let kept = sim::simulate(&sorted, &opts).expect("runs");
         let p = sim::prepare(&sorted, &opts).expect("prepares");
-        let released = sim::run_prepared_releasing(&mut sorted, p, &opts, None).expect("runs");
+        let released =
+            sim::run_prepared_releasing(&mut sorted, p, &opts, None, || {}).expect("runs");
         assert!(
             sorted.system().vars.is_empty(),
             "{title}: the system is kept"

@@ -28,18 +28,36 @@ static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
 /// `eager_commit_delay` = 14 and `use_numa_nodes` = 16, but not this one).
 const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
 
-/// Return freed memory to the system at once from here on, not 10 ms
-/// later (`kausal sim` only): a simulation frees its causalization, its
-/// schedule, then its equation system and circuit just before the
-/// integrator allocates, and with the delay they were resident together (a
-/// 10^4-section ladder peaked at 48 MB against 34 MB, 10^5 at 299 MB
-/// against 254 MB, its time unchanged within noise). Not for every
-/// command: `kausal sort` of 10^6 equations, which frees and allocates as
-/// it goes, took 10 to 15 % longer with it (system time 0.7 → 0.9 s).
+/// mimalloc's default purge delay, in milliseconds.
+const DEFAULT_PURGE_DELAY_MS: std::ffi::c_long = 10;
+
+/// Until [`return_freed_memory`], return freed memory to the system at
+/// once, not 10 ms later: `kausal sim` builds and sorts its equations, frees
+/// what the tape no longer needs and then its equation system and circuit,
+/// and with the delay much of it stayed resident beside what came next (a
+/// 10^4-section ladder peaked at 48 MB, 10^5 at 299 MB; 34 and 245 MB
+/// with this). It costs system time (0.4 → 0.75 s at 10^5 sections: the
+/// sort's temporary buffers given back and faulted in again); purging only
+/// at the big releases saved half as much (268 MB).
 pub(crate) fn purge_freed_memory_at_once() {
+    set_purge_delay(0);
+}
+
+/// Return what has been freed so far, and purge with mimalloc's delay again
+/// from here on: `kausal sim` calls it once it has released its equation
+/// system, as the integrator starts (whose restarts free and take the same
+/// buffers again).
+pub(crate) fn return_freed_memory() {
+    // SAFETY: mi_collect takes a flag and only walks mimalloc's heaps of the
+    // calling thread, the only one that allocates here.
+    unsafe { libmimalloc_sys::mi_collect(true) }
+    set_purge_delay(DEFAULT_PURGE_DELAY_MS);
+}
+
+fn set_purge_delay(ms: std::ffi::c_long) {
     // SAFETY: mi_option_set takes an option index and a value and only
     // stores the value in mimalloc's option table.
-    unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, 0) }
+    unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, ms) }
 }
 
 #[derive(Parser)]

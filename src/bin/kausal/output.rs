@@ -167,7 +167,13 @@ pub fn stream_waves(
         let prepared = prepared.take().expect("one run");
         // The equation system and circuit go once the operating point is
         // found: the integrator's memory takes their place.
-        let mut wf = sim::run_prepared_releasing(sorted, prepared, opts, Some(&mut sink))?;
+        let mut wf = sim::run_prepared_releasing(
+            sorted,
+            prepared,
+            opts,
+            Some(&mut sink),
+            crate::return_freed_memory,
+        )?;
         w.flush().map_err(write_err)?;
         wf.names = names.clone();
         Ok((wf, count_at, points))

@@ -151,7 +151,8 @@ fn simulate(
 ) -> Result<(Waveforms, WaveFile), sim::SimError> {
     let result = match &args.raw {
         Some(_) => {
-            sim::run_prepared_releasing(sorted, prepared, opts, None).map(|w| (w, WaveFile::Kept))
+            sim::run_prepared_releasing(sorted, prepared, opts, None, crate::return_freed_memory)
+                .map(|w| (w, WaveFile::Kept))
         }
         None => stream_waves(
             sorted,
