@@ -147,7 +147,13 @@ impl Sorted {
     /// sources (to render diagnostics), the warnings and the circuit's
     /// title: what a simulation that has compiled its tape and found its
     /// operating point no longer reads (see `sim::run_prepared_releasing`).
-    pub fn release_ir(&mut self) {
+    /// Returns the sorted system's variable names, which its diagnostics
+    /// still print.
+    pub fn release_ir(&mut self) -> crate::ir::NameTable<crate::ir::VarId> {
+        let names = match &mut self.reduction {
+            Some(r) => std::mem::take(&mut r.system.names),
+            None => std::mem::take(&mut self.built.system.names),
+        };
         self.built = Built::default();
         self.reduction = None;
         self.causal = Default::default();
@@ -158,6 +164,7 @@ impl Sorted {
             title_span: c.title_span,
             ..Default::default()
         };
+        names
     }
 }
 

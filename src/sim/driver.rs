@@ -112,7 +112,8 @@ where
     for<'b> &'b M::V: diffsol::VectorRef<M::V>,
     for<'b> &'b M: diffsol::matrix::MatrixRef<M>,
 {
-    let ready = setup::<M>(job)?;
+    let mut ready = setup::<M>(job)?;
+    ready.names = job.sorted.system().names.clone();
     integrate::<M, LS>(ready, &job.parts(), sink)
 }
 
@@ -134,8 +135,8 @@ where
     for<'b> &'b M::V: diffsol::VectorRef<M::V>,
     for<'b> &'b M: diffsol::matrix::MatrixRef<M>,
 {
-    let ready = setup::<M>(&parts.with(sorted))?;
-    sorted.release_ir();
+    let mut ready = setup::<M>(&parts.with(sorted))?;
+    ready.names = sorted.release_ir();
     released();
     integrate::<M, LS>(ready, parts, sink)
 }
@@ -188,6 +189,8 @@ where
     M::V: HostVec,
 {
     problem: OdeSolverProblem<CircuitOde<M>>,
+    /// The variables' names: left empty by [`setup`] for its caller to
+    /// move (or copy) from the system.
     names: NameTable<VarId>,
     atol_own: Vec<f64>,
     atol_current: f64,
@@ -245,11 +248,11 @@ where
         .map_err(|error| SimError::Eval { error })?;
     *ode.y0.borrow_mut() = start.y;
     let rtol = run_rtol(opts, c);
-    let names = sys.names.clone();
     let mut warnings = start.warnings;
     let (dc_stages, dc_found) = (start.stages, start.found);
     if method == Method::Bdf
-        && let Some(d) = oscillation_at_loose_rtol(&names, &ode, tran, rtol, t0, &ode.y0.borrow())
+        && let Some(d) =
+            oscillation_at_loose_rtol(&sys.names, &ode, tran, rtol, t0, &ode.y0.borrow())
     {
         warnings.push(d);
     }
@@ -302,7 +305,7 @@ where
     };
     Ok(Ready {
         problem,
-        names,
+        names: NameTable::default(),
         atol_own,
         atol_current: atol_pair(opts, c).1,
         rtol,

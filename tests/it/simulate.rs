@@ -2047,4 +2047,13 @@ fn releasing_the_ir_changes_no_output() {
         assert_eq!(kept.data, released.data, "{title}");
         assert_eq!(kept.stats.steps, released.stats.steps, "{title}");
     }
+    // A failure after the release still names its variable.
+    let mut s = sort_text("unstable\nR1 a 0 -1\nC1 a 0 1u ic=1\n.tran 1u 1 uic\n.end\n");
+    let opts = sim::Options::default();
+    let kept = sim::simulate(&s, &opts).unwrap_err().to_string();
+    let p = sim::prepare(&s, &opts).expect("prepares");
+    let released = sim::run_prepared_releasing(&mut s, p, &opts, None, || {})
+        .unwrap_err()
+        .to_string();
+    assert_eq!(kept, released);
 }
