@@ -32,7 +32,7 @@ impl Culprit {
             text: print::equation(sys, eq),
             origin: e.origin.describe(),
             elements: e.origin.elements().into_iter().map(String::from).collect(),
-            span: e.origin.span,
+            span: e.origin.span(),
             eq: Some(eq),
             var: None,
         }
@@ -50,7 +50,7 @@ impl Culprit {
                 .into_iter()
                 .map(String::from)
                 .collect(),
-            span: var.origin.span,
+            span: var.origin.span(),
             eq: None,
             var: Some(v),
         }

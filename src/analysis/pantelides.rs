@@ -296,8 +296,10 @@ fn differentiate(aug: &mut EquationSystem, derivs: &mut HashMap<VarId, VarId>, e
         dl,
         dr,
         Origin {
-            kind: OriginKind::Derivative { of: eq },
-            span: e.origin.span,
+            kind: OriginKind::Derivative {
+                of: eq,
+                from: e.origin.entity().cloned(),
+            },
         },
     )
 }

@@ -312,7 +312,6 @@ mod tests {
         let mut s = EquationSystem::default();
         let o = Origin {
             kind: OriginKind::Element { name: "R1".into() },
-            span: None,
         };
         let u = s.add_var("u", VarKind::BranchVoltage, o.clone());
         let i = s.add_var("i", VarKind::BranchCurrent, o);
@@ -328,7 +327,6 @@ mod tests {
         let (mut s, vds, id) = sys();
         let o = Origin {
             kind: OriginKind::Element { name: "M1".into() },
-            span: None,
         };
         let vd = s.add_var("vd", VarKind::Potential, o.clone());
         let vg = s.add_var("vg", VarKind::Potential, o);

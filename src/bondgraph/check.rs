@@ -268,7 +268,7 @@ pub fn check_with(
         // A differentiated equation is its original's law.
         for _ in 0..sys.eqs.len() {
             match &sys.eqs[e].origin.kind {
-                OriginKind::Derivative { of } => e = *of,
+                OriginKind::Derivative { of, .. } => e = *of,
                 OriginKind::Element { name } => return names.get(&**name).copied(),
                 _ => return None,
             }

@@ -105,7 +105,12 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
         names: circuit
             .elements
             .values()
-            .map(|e| Name::from(e.name.as_str()))
+            .map(|e| Name::new(&e.name, Some(e.span)))
+            .collect(),
+        node_names: circuit
+            .nodes
+            .values()
+            .map(|n| Name::new(&n.name, Some(n.span)))
             .collect(),
         reduced: groups.singular,
         fluxes: Vec::new(),
@@ -149,6 +154,8 @@ struct Builder<'c> {
     sys: EquationSystem,
     /// Element names, shared by every origin that mentions them.
     names: Vec<Name>,
+    /// Node names, as `names` (a node's potential and its KCL).
+    node_names: Vec<Name>,
     reduced: Vec<coupling::Reduced>,
     fluxes: Vec<Vec<VarId>>,
     /// The variable of each device intermediate, by element.
@@ -167,7 +174,6 @@ impl Builder<'_> {
             kind: OriginKind::Element {
                 name: self.names[id.0 as usize].clone(),
             },
-            span: Some(self.c.elements[id].span),
         }
     }
 }
@@ -303,9 +309,8 @@ impl Builder<'_> {
                 VarKind::Potential,
                 Origin {
                     kind: OriginKind::Node {
-                        name: Name::from(n.name.as_str()),
+                        name: self.node_names[id.0 as usize].clone(),
                     },
-                    span: Some(n.span),
                 },
             );
             pots.push(self.sys.exprs.var(v));
@@ -724,7 +729,7 @@ impl Builder<'_> {
                 *slot += 1;
             }
         }
-        for (id, node) in self.c.nodes.iter() {
+        for (id, _) in self.c.nodes.iter() {
             if id == GROUND {
                 continue;
             }
@@ -743,9 +748,8 @@ impl Builder<'_> {
                 rhs,
                 Origin {
                     kind: OriginKind::Kcl {
-                        node: Name::from(node.name.as_str()),
+                        node: self.node_names[id.0 as usize].clone(),
                     },
-                    span: Some(node.span),
                 },
             );
         }
@@ -800,7 +804,6 @@ impl Builder<'_> {
                             link: self.names[id.0 as usize].clone(),
                             elements,
                         })),
-                        span: Some(e.span),
                     },
                 );
                 continue;
@@ -815,7 +818,6 @@ impl Builder<'_> {
                     kind: OriginKind::Branch {
                         name: self.names[id.0 as usize].clone(),
                     },
-                    span: Some(e.span),
                 },
             );
         }

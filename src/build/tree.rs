@@ -100,9 +100,8 @@ pub fn potentials_from_tree(
                     VarKind::Potential,
                     Origin {
                         kind: OriginKind::Node {
-                            name: Name::from(node.name.as_str()),
+                            name: Name::new(&node.name, Some(node.span)),
                         },
-                        span: Some(node.span),
                     },
                 );
                 sys.exprs.var(v)
@@ -230,10 +229,9 @@ pub fn loop_equations(
             rhs,
             Origin {
                 kind: OriginKind::Kvl(Box::new(KvlLoop {
-                    link: Name::from(e.name.as_str()),
+                    link: Name::new(&e.name, Some(e.span)),
                     elements,
                 })),
-                span: Some(e.span),
             },
         );
     }

@@ -194,7 +194,6 @@ mod tests {
         let mut s = EquationSystem::default();
         let o = Origin {
             kind: OriginKind::Element { name: "D1".into() },
-            span: None,
         };
         let u = s.add_var("u", VarKind::BranchVoltage, o.clone());
         let du = s.add_var("du", VarKind::Derivative, o);

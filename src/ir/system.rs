@@ -80,16 +80,66 @@ impl Var {
     }
 }
 
-/// Where an equation or variable came from, in circuit terms.
+/// Where an equation or variable came from, in circuit terms: one word of
+/// kind and one pointer (every variable and equation holds one; with its
+/// own span beside a two-word name it was 40 bytes, a third of a big
+/// system's variables and equations).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Origin {
     pub kind: OriginKind,
-    /// The netlist text that created it (element line, or node first use).
-    pub span: Option<Span>,
 }
 
-/// A shared, immutable name (element or node): cloned by reference count.
-pub type Name = std::sync::Arc<str>;
+/// A circuit entity (element or node) that variables and equations come
+/// from: its name and the netlist text that created it (element line, or
+/// node first use), shared by reference count.
+#[derive(Clone, PartialEq, Eq, Hash)]
+pub struct Name(std::sync::Arc<Entity>);
+
+#[derive(PartialEq, Eq, Hash)]
+struct Entity {
+    name: Box<str>,
+    span: Option<Span>,
+}
+
+impl Name {
+    pub fn new(name: &str, span: Option<Span>) -> Name {
+        Name(std::sync::Arc::new(Entity {
+            name: name.into(),
+            span,
+        }))
+    }
+
+    /// The netlist text that created the entity.
+    pub fn span(&self) -> Option<Span> {
+        self.0.span
+    }
+}
+
+/// A name with no netlist text behind it (tests, generated entities).
+impl From<&str> for Name {
+    fn from(name: &str) -> Name {
+        Name::new(name, None)
+    }
+}
+
+impl std::ops::Deref for Name {
+    type Target = str;
+    fn deref(&self) -> &str {
+        &self.0.name
+    }
+}
+
+impl std::fmt::Display for Name {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0.name)
+    }
+}
+
+impl std::fmt::Debug for Name {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        std::fmt::Debug::fmt(&*self.0.name, f)
+    }
+}
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum OriginKind {
@@ -100,11 +150,12 @@ pub enum OriginKind {
     /// Kirchhoff's current law at a node.
     Kcl { node: Name },
     /// Kirchhoff's voltage law on a fundamental loop (boxed: rare, and
-    /// twice the size of the other kinds, which every variable and equation
+    /// larger than the other kinds, which every variable and equation
     /// would pay for).
     Kvl(Box<KvlLoop>),
-    /// The time derivative of another equation (index reduction).
-    Derivative { of: EqId },
+    /// The time derivative of another equation (index reduction); `from`
+    /// is that equation's entity, for its span.
+    Derivative { of: EqId, from: Option<Name> },
     /// A node potential.
     Node { name: Name },
 }
@@ -117,6 +168,28 @@ pub struct KvlLoop {
 }
 
 impl Origin {
+    pub fn new(kind: OriginKind) -> Origin {
+        Origin { kind }
+    }
+
+    /// The entity this comes from: the element, node or loop link (for a
+    /// derivative, the differentiated equation's).
+    pub fn entity(&self) -> Option<&Name> {
+        match &self.kind {
+            OriginKind::Element { name }
+            | OriginKind::Branch { name }
+            | OriginKind::Kcl { node: name }
+            | OriginKind::Node { name } => Some(name),
+            OriginKind::Kvl(l) => Some(&l.link),
+            OriginKind::Derivative { from, .. } => from.as_ref(),
+        }
+    }
+
+    /// The netlist text that created it (element line, or node first use).
+    pub fn span(&self) -> Option<Span> {
+        self.entity().and_then(Name::span)
+    }
+
     /// The circuit entity this names, for messages: an element or node name.
     pub fn describe(&self) -> String {
         let mut out = String::new();
@@ -131,7 +204,7 @@ impl Origin {
             OriginKind::Branch { name } => write!(out, "branch of {name}"),
             OriginKind::Kcl { node } => write!(out, "KCL at node {node}"),
             OriginKind::Kvl(l) => write!(out, "KVL on the loop of {}", l.link),
-            OriginKind::Derivative { of } => write!(out, "d/dt of {of}"),
+            OriginKind::Derivative { of, .. } => write!(out, "d/dt of {of}"),
             OriginKind::Node { name } => write!(out, "node {name}"),
         }
     }
