@@ -102,31 +102,23 @@ impl Method {
     }
 }
 
-/// Run `job` with matrices `M` and linear solver `LS`: dense (nalgebra) up
-/// to [`DENSE_STATES`] states, sparse (faer and the circuit LU) above.
-pub(super) fn run<M, LS>(job: &Job<'_>, sink: Option<RowSink<'_>>) -> Result<Waveforms, SimError>
-where
-    M: Matrix<T = f64> + diffsol::DefaultSolver,
-    M::V: HostVec + diffsol::DefaultDenseMatrix<T = f64, C = M::C>,
-    LS: LinearSolver<M>,
-    for<'b> &'b M::V: diffsol::VectorRef<M::V>,
-    for<'b> &'b M: diffsol::matrix::MatrixRef<M>,
-{
-    let mut ready = setup::<M>(job)?;
-    ready.names = job.sorted.system().names.clone();
-    integrate::<M, LS>(ready, &job.parts(), sink)
+/// How a run holds its sorted circuit: kept for the caller, or released
+/// once the operating point is found ([`Sorted::release_ir`]) with the
+/// function to call then (the binary returns the freed memory to the
+/// system; on a 10^5-section ladder the system and circuit were about half
+/// the run's memory).
+pub(super) enum Ir<'a> {
+    Kept(&'a Sorted),
+    Released(&'a mut Sorted, fn()),
 }
 
-/// [`run`] for a caller that owns the sorted circuit: once the operating
-/// point is found, its equation system and circuit are released
-/// ([`Sorted::release_ir`]), and `released` called, before the integrator
-/// allocates. On a 10^5-section ladder they were about half the run's
-/// memory.
-pub(super) fn run_releasing<M, LS>(
-    sorted: &mut Sorted,
+/// Run `parts` on `ir` with matrices `M` and linear solver `LS`: dense
+/// (nalgebra) up to [`DENSE_STATES`] states, sparse (faer and the circuit
+/// LU) above.
+pub(super) fn run<M, LS>(
+    ir: Ir<'_>,
     parts: &Parts<'_>,
     sink: Option<RowSink<'_>>,
-    released: fn(),
 ) -> Result<Waveforms, SimError>
 where
     M: Matrix<T = f64> + diffsol::DefaultSolver,
@@ -135,9 +127,19 @@ where
     for<'b> &'b M::V: diffsol::VectorRef<M::V>,
     for<'b> &'b M: diffsol::matrix::MatrixRef<M>,
 {
-    let mut ready = setup::<M>(&parts.with(sorted))?;
-    ready.names = sorted.release_ir();
-    released();
+    let ready = match ir {
+        Ir::Kept(sorted) => {
+            let mut ready = setup::<M>(&parts.with(sorted))?;
+            ready.names = sorted.system().names.clone();
+            ready
+        }
+        Ir::Released(sorted, released) => {
+            let mut ready = setup::<M>(&parts.with(sorted))?;
+            ready.names = sorted.release_ir();
+            released();
+            ready
+        }
+    };
     integrate::<M, LS>(ready, parts, sink)
 }
 
@@ -152,25 +154,12 @@ pub(super) struct Parts<'a> {
 }
 
 impl<'a> Parts<'a> {
-    pub(super) fn with<'s>(&self, sorted: &'s Sorted) -> Job<'s>
+    fn with<'s>(&self, sorted: &'s Sorted) -> Job<'s>
     where
         'a: 's,
     {
         Job {
             sorted,
-            tape: self.tape.clone(),
-            tran: self.tran,
-            outputs: self.outputs,
-            opts: self.opts,
-            method: self.method,
-            switches: self.switches,
-        }
-    }
-}
-
-impl Job<'_> {
-    fn parts(&self) -> Parts<'_> {
-        Parts {
             tape: self.tape.clone(),
             tran: self.tran,
             outputs: self.outputs,

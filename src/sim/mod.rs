@@ -644,36 +644,7 @@ pub fn run_prepared(
     opts: &Options,
     sink: Option<RowSink<'_>>,
 ) -> Result<Waveforms, SimError> {
-    let names = output_names(sorted, &p);
-    let n = p.tape.states.len();
-    let job = Job {
-        sorted,
-        tape: p.tape.clone(),
-        tran: &p.tran,
-        outputs: &p.list,
-        opts,
-        method: p.method,
-        switches: &p.switches,
-    };
-    let w = if n == 0 {
-        algebraic(
-            sorted,
-            p.tape.clone(),
-            &p.tran,
-            &p.list,
-            opts,
-            &p.switches,
-            sink,
-        )?
-    } else {
-        check_method(p.method, n)?;
-        if n <= DENSE_STATES {
-            run::<NalgebraMat<f64>, NalgebraLU<f64>>(&job, sink)?
-        } else {
-            run::<FaerSparseMat<f64>, CircuitLu>(&job, sink)?
-        }
-    };
-    Ok(finish(w, names, &p))
+    run_ir(driver::Ir::Kept(sorted), p, opts, sink)
 }
 
 /// [`run_prepared`] for a caller that owns `sorted` and needs only its
@@ -689,24 +660,46 @@ pub fn run_prepared_releasing(
     sink: Option<RowSink<'_>>,
     released: fn(),
 ) -> Result<Waveforms, SimError> {
-    let n = p.tape.states.len();
-    if n == 0 {
-        return run_prepared(sorted, p, opts, sink);
-    }
-    check_method(p.method, n)?;
-    let names = output_names(sorted, &p);
-    let parts = driver::Parts {
-        tape: p.tape.clone(),
-        tran: &p.tran,
-        outputs: &p.list,
-        opts,
-        method: p.method,
-        switches: &p.switches,
+    run_ir(driver::Ir::Released(sorted, released), p, opts, sink)
+}
+
+fn run_ir(
+    ir: driver::Ir<'_>,
+    p: Prepared,
+    opts: &Options,
+    sink: Option<RowSink<'_>>,
+) -> Result<Waveforms, SimError> {
+    let sorted: &Sorted = match &ir {
+        driver::Ir::Kept(s) => s,
+        driver::Ir::Released(s, _) => s,
     };
-    let w = if n <= DENSE_STATES {
-        driver::run_releasing::<NalgebraMat<f64>, NalgebraLU<f64>>(sorted, &parts, sink, released)?
+    let names = output_names(sorted, &p);
+    let n = p.tape.states.len();
+    let w = if n == 0 {
+        algebraic(
+            sorted,
+            p.tape.clone(),
+            &p.tran,
+            &p.list,
+            opts,
+            &p.switches,
+            sink,
+        )?
     } else {
-        driver::run_releasing::<FaerSparseMat<f64>, CircuitLu>(sorted, &parts, sink, released)?
+        check_method(p.method, n)?;
+        let parts = driver::Parts {
+            tape: p.tape.clone(),
+            tran: &p.tran,
+            outputs: &p.list,
+            opts,
+            method: p.method,
+            switches: &p.switches,
+        };
+        if n <= DENSE_STATES {
+            run::<NalgebraMat<f64>, NalgebraLU<f64>>(ir, &parts, sink)?
+        } else {
+            run::<FaerSparseMat<f64>, CircuitLu>(ir, &parts, sink)?
+        }
     };
     Ok(finish(w, names, &p))
 }
