@@ -1,6 +1,7 @@
 //! Numerical kernels below the tape and the simulator: dense and sparse LU
 //! behind one factored-matrix type, damped Newton's step control,
-//! union-find and Jacobian column colouring.
+//! union-find, Jacobian column colouring, and the subnormal-flushing mode
+//! a simulation runs in.
 //!
 //! This layer knows no circuit, equation or tape: it works on slices and
 //! index lists, so that every user shares one copy of each routine.
@@ -10,6 +11,7 @@ pub mod colour;
 pub mod dense;
 pub mod newton;
 pub mod sparse_lu;
+pub mod subnormal;
 pub mod union_find;
 
 pub use dense::DenseLu;

@@ -669,6 +669,9 @@ fn run_ir(
     opts: &Options,
     sink: Option<RowSink<'_>>,
 ) -> Result<Waveforms, SimError> {
+    // Values below f64's normal range are far below every tolerance, and
+    // on Intel cores each operation on one costs a microcode assist.
+    let _flush = crate::numeric::subnormal::flush_subnormals();
     let sorted: &Sorted = match &ir {
         driver::Ir::Kept(s) => s,
         driver::Ir::Released(s, _) => s,
