@@ -541,7 +541,7 @@ fn run_one(name: &str, text: &str, max_steps: usize, max_rows: usize) -> Outcome
                         .circuit
                         .elements
                         .iter()
-                        .any(|(_, el)| msg.contains(&el.name));
+                        .any(|(_, el)| msg.contains(el.name.as_str()));
                     // A time, an element, or a place in the netlist.
                     let located = msg.contains("t = ") || names || !d.labels.is_empty();
                     let code = if msg.contains("fuzz: row cap") {

@@ -56,7 +56,7 @@ pub(super) fn build(c: &Circuit) -> BondGraph {
             bonds: Default::default(),
             simplified: Vec::new(),
             notes: Vec::new(),
-            element_names: c.elements.values().map(|e| e.name.clone()).collect(),
+            element_names: c.elements.values().map(|e| e.name.to_string()).collect(),
             node_names: c
                 .nodes
                 .iter()
@@ -152,7 +152,7 @@ impl Builder<'_> {
         let name = &self.c.elements[elem].name;
         let label = match part {
             Part::Series => format!("{name}.rs"),
-            _ => name.clone(),
+            _ => name.to_string(),
         };
         let v = self.vertex(kind, label, Origin::Element { elem, part }, law);
         self.g.elements[elem.0 as usize].vertices.push(v);
@@ -321,7 +321,7 @@ impl Builder<'_> {
 
     fn element(&mut self, id: ElemId) {
         let e = &self.c.elements[id];
-        let name = e.name.clone();
+        let name = e.name.to_string();
         let linear = |value: f64| Law::Linear {
             param: name.clone(),
             value,
@@ -529,7 +529,7 @@ impl Builder<'_> {
     /// or TT, a nonlinear C (the junction charge) on the junction voltage;
     /// with RS, in series with R:RS behind a 1-junction.
     fn diode(&mut self, id: ElemId, charge: bool, rs: Option<f64>) {
-        let name = self.c.elements[id].name.clone();
+        let name = self.c.elements[id].name.to_string();
         let (u, i) = self.names(id);
         let current_law = Law::Nonlinear {
             name: format!("id_{name}"),
@@ -623,7 +623,7 @@ impl Builder<'_> {
     /// flow source when other branches' voltages alone set it), its charge
     /// and its capacitance (nonlinear Cs), in parallel on its difference.
     fn device(&mut self, id: ElemId, controlled: bool, parts: [bool; 3], controls: &[ElemId]) {
-        let name = self.c.elements[id].name.clone();
+        let name = self.c.elements[id].name.to_string();
         let n_parts = parts.iter().filter(|&&p| p).count();
         if n_parts == 0 {
             self.g.notes.push(Note {
@@ -742,8 +742,8 @@ impl Builder<'_> {
         // (f1 = g·e2, f2 = g·e1). n and g in the bonds' signs.
         let s = (se1 as i32 * se2 as i32 * pair.c1) as f64;
         let (param, gain) = match (self.c.elements[e].kind.clone(), &self.c.elements[f].kind) {
-            (ElementKind::Vcvs { gain }, _) => (self.c.elements[e].name.clone(), gain),
-            (_, ElementKind::Vccs { gm }) => (self.c.elements[f].name.clone(), *gm),
+            (ElementKind::Vcvs { gain }, _) => (self.c.elements[e].name.to_string(), gain),
+            (_, ElementKind::Vccs { gm }) => (self.c.elements[f].name.to_string(), *gm),
             _ => (String::new(), 1.0),
         };
         let value = s * gain;
@@ -928,7 +928,7 @@ impl Builder<'_> {
     fn field(&mut self, f: usize) {
         let (members, couplings) = self.fields[f].clone();
         let c = self.c;
-        let name = |e: ElemId| c.elements[e].name.clone();
+        let name = |e: ElemId| c.elements[e].name.to_string();
         let index = |e: ElemId| members.iter().position(|&m| m == e);
         let singular = crate::build::coupling::singular_groups(c)
             .into_iter()

@@ -102,11 +102,7 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
             sys.diodes = circuit.junctions.clone();
             sys
         },
-        names: circuit
-            .elements
-            .values()
-            .map(|e| Name::new(&e.name, Some(e.span)))
-            .collect(),
+        names: circuit.elements.values().map(|e| e.name.clone()).collect(),
         node_names: circuit
             .nodes
             .values()
@@ -637,7 +633,7 @@ impl Builder<'_> {
         let is = th.diode_saturation(m.is, m.n, m.eg, m.xti) * area;
         let vj = th.potential(m.vj);
         let params = crate::ir::DiodeParams {
-            name: name.clone(),
+            name: name.to_string(),
             is,
             vte,
             bv: m

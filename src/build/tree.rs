@@ -229,7 +229,7 @@ pub fn loop_equations(
             rhs,
             Origin {
                 kind: OriginKind::Kvl(Box::new(KvlLoop {
-                    link: Name::new(&e.name, Some(e.span)),
+                    link: e.name.clone(),
                     elements,
                 })),
             },

@@ -751,7 +751,7 @@ impl Elab {
         let resistor = |this: &mut Elab, tag: &str, a: NodeId, z: NodeId, r: f64| {
             if a != z {
                 this.circuit.elements.push(Element {
-                    name: format!("{name}:{tag}"),
+                    name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind: ElementKind::Resistor { r: r / (area * m) },
                     nodes: vec![a, z],
                     span,
@@ -804,7 +804,7 @@ impl Elab {
                 ),
             ] {
                 self.circuit.elements.push(Element {
-                    name: format!("{name}:{tag}"),
+                    name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind,
                     nodes: nodes.to_vec(),
                     span,
@@ -918,7 +918,7 @@ impl Elab {
         let mut fin = |x: Option<Ex>| x.map(|x| Box::new(x.finish(&mut controls)));
         let (current, charge) = (fin(current), fin(charge));
         self.circuit.elements.push(Element {
-            name: format!("{device}:{tag}"),
+            name: crate::ir::Name::new(&format!("{device}:{tag}"), Some(span)),
             kind: ElementKind::DeviceBranch {
                 device: letter,
                 controlled,

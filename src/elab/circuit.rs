@@ -333,7 +333,7 @@ impl ElementKind {
 #[derive(Clone, Debug)]
 pub struct Element {
     /// Name as written, with the instance path in front (`X1.R2`).
-    pub name: String,
+    pub name: crate::ir::Name,
     pub kind: ElementKind,
     /// Terminals: two for most elements, four for E and G, none for K.
     pub nodes: Vec<NodeId>,

@@ -97,7 +97,7 @@ impl Elab {
             return;
         };
         let id = self.circuit.elements.push(Element {
-            name,
+            name: crate::ir::Name::new(&name, Some(el.span)),
             kind,
             nodes,
             span: el.span,

@@ -295,7 +295,7 @@ impl Elab {
         for (tag, a, z, r) in [("rd", d, dp, md.rd), ("rs", s, sp, md.rs)] {
             if a != z {
                 self.circuit.elements.push(Element {
-                    name: format!("{name}:{tag}"),
+                    name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind: ElementKind::Resistor { r: r / scale },
                     nodes: vec![a, z],
                     span,

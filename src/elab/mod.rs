@@ -652,7 +652,7 @@ impl Elab {
 
     fn resolve_pending(&mut self) {
         for p in std::mem::take(&mut self.pending) {
-            let elem_name = self.circuit.elements[p.elem].name.clone();
+            let elem_name = self.circuit.elements[p.elem].name.to_string();
             match p.what {
                 PendingRef::Control { vsrc, index } => {
                     // F and H sense a V source's current; a B source reads
@@ -721,7 +721,7 @@ impl Elab {
                         ok = false;
                         let names: Vec<String> = ids
                             .iter()
-                            .map(|&id| self.circuit.elements[id].name.clone())
+                            .map(|&id| self.circuit.elements[id].name.to_string())
                             .collect();
                         self.errors.push(ElabError::CouplingSigns {
                             span: p.spans[if v1 < 0.0 { 0 } else { 1 }],

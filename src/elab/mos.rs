@@ -663,7 +663,7 @@ impl Elab {
             let mut controls = Vec::new();
             let expr = Box::new(x.finish(&mut controls));
             self.circuit.elements.push(Element {
-                name: format!("{name}:{tag}"),
+                name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                 kind: ElementKind::Intermediate {
                     device: ElementLetter::M,
                     expr,
@@ -796,7 +796,7 @@ impl Elab {
             let mut controls = Vec::new();
             let capacitance = Box::new(x.finish(&mut controls));
             self.circuit.elements.push(Element {
-                name: format!("{name}:{tag}"),
+                name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                 kind: ElementKind::DeviceBranch {
                     device: ElementLetter::M,
                     controlled: false,
@@ -829,7 +829,7 @@ impl Elab {
         for (tag, a, z, r) in [("rd", d, dp, rd), ("rs", s, sp, rs)] {
             if a != z {
                 self.circuit.elements.push(Element {
-                    name: format!("{name}:{tag}"),
+                    name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind: ElementKind::Resistor { r: r / m },
                     nodes: vec![a, z],
                     span,

@@ -81,7 +81,7 @@ impl Elab {
         };
         sw.initially_on = on;
         let id = self.circuit.elements.push(Element {
-            name: name.to_string(),
+            name: crate::ir::Name::new(name, Some(el.span)),
             kind: ElementKind::Switch {
                 sw: Box::new(sw),
                 ctrl: current.then_some(super::ElemId(u32::MAX)),
@@ -270,7 +270,7 @@ impl Elab {
         if let Some(kind) = self.behavioural(true, &current, &text, el.span, scope) {
             self.b_controls.clear();
             self.circuit.elements.push(Element {
-                name: name.to_string(),
+                name: crate::ir::Name::new(name, Some(el.span)),
                 kind,
                 nodes: nodes[..2].to_vec(),
                 span: el.span,
@@ -279,7 +279,7 @@ impl Elab {
             // picoamperes that a supply's current shows.
             if nodes[2] != nodes[3] {
                 self.circuit.elements.push(Element {
-                    name: format!("{name}:ctrl"),
+                    name: crate::ir::Name::new(&format!("{name}:ctrl"), Some(el.span)),
                     kind: ElementKind::Resistor { r: 1e12 },
                     nodes: nodes[2..4].to_vec(),
                     span: el.span,

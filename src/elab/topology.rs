@@ -521,7 +521,7 @@ impl TopologyError {
         let part = |&e: &ElemId| {
             let x = &c.elements[e];
             let part = Part {
-                name: x.name.clone(),
+                name: x.name.to_string(),
                 span: x.span,
                 defines: defines(&x.kind),
                 device: device_storage(&x.kind),

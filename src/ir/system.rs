@@ -113,6 +113,34 @@ impl Name {
     pub fn span(&self) -> Option<Span> {
         self.0.span
     }
+
+    pub fn as_str(&self) -> &str {
+        &self.0.name
+    }
+}
+
+impl AsRef<str> for Name {
+    fn as_ref(&self) -> &str {
+        &self.0.name
+    }
+}
+
+impl PartialEq<str> for Name {
+    fn eq(&self, other: &str) -> bool {
+        *self.0.name == *other
+    }
+}
+
+impl PartialEq<&str> for Name {
+    fn eq(&self, other: &&str) -> bool {
+        *self.0.name == **other
+    }
+}
+
+impl std::borrow::Borrow<str> for Name {
+    fn borrow(&self) -> &str {
+        &self.0.name
+    }
 }
 
 /// A name with no netlist text behind it (tests, generated entities).

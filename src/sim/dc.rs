@@ -682,7 +682,7 @@ pub(super) fn floating_islands(c: &Circuit) -> Vec<(Vec<crate::elab::NodeId>, Ve
             .collect();
         of.dedup();
         for k in of {
-            islands[k].1.push(e.name.clone());
+            islands[k].1.push(e.name.to_string());
         }
     }
     islands

@@ -75,7 +75,7 @@ impl Switches {
         let mut controls = Vec::new();
         for e in c.elements.values() {
             if let ElementKind::Switch { sw, ctrl } = &e.kind {
-                list.push(((**sw).clone(), e.name.clone()));
+                list.push(((**sw).clone(), e.name.to_string()));
                 controls.push(match ctrl {
                     Some(ctrl) => Output::Current { elem: *ctrl },
                     None => Output::Voltage {

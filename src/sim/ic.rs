@@ -126,7 +126,10 @@ fn dc_image(
     }
     for ic in ics.iter().zip(hold).filter(|h| *h.1).map(|h| h.0) {
         elements.push(Element {
-            name: format!("{directive} v({})", c.nodes[ic.node].name),
+            name: crate::ir::Name::new(
+                &format!("{directive} v({})", c.nodes[ic.node].name),
+                Some(ic.span),
+            ),
             kind: ElementKind::VSource {
                 wave: Box::new(Waveform::Dc { value: ic.value }),
             },
