@@ -64,7 +64,7 @@ pub(super) fn build(c: &Circuit) -> BondGraph {
                     if id == GROUND {
                         "0".to_string()
                     } else {
-                        n.name.clone()
+                        n.name.to_string()
                     }
                 })
                 .collect(),

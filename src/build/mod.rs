@@ -103,11 +103,7 @@ pub fn build(circuit: &Circuit, opts: Options) -> Built {
             sys
         },
         names: circuit.elements.values().map(|e| e.name.clone()).collect(),
-        node_names: circuit
-            .nodes
-            .values()
-            .map(|n| Name::new(&n.name, Some(n.span)))
-            .collect(),
+        node_names: circuit.nodes.values().map(|n| n.name.clone()).collect(),
         reduced: groups.singular,
         fluxes: Vec::new(),
         intermediates: HashMap::new(),

@@ -100,7 +100,7 @@ pub fn potentials_from_tree(
                     VarKind::Potential,
                     Origin {
                         kind: OriginKind::Node {
-                            name: Name::new(&node.name, Some(node.span)),
+                            name: node.name.clone(),
                         },
                     },
                 );

@@ -890,7 +890,7 @@ impl Elab {
     ) -> NodeId {
         let n = format!("{device}#{tag}").to_ascii_lowercase();
         let id = self.circuit.nodes.push(super::Node {
-            name: n.clone(),
+            name: crate::ir::Name::new(&n, Some(span)),
             span,
             internal: true,
         });

@@ -22,7 +22,7 @@ pub const GROUND: NodeId = NodeId(0);
 #[derive(Clone, Debug)]
 pub struct Node {
     /// Lower-case, hierarchical for subcircuit-internal nodes (`x1.n2`).
-    pub name: String,
+    pub name: crate::ir::Name,
     /// Where the node is first used.
     pub span: Span,
     /// A device's internal node (`q1#c`, behind a terminal resistance):
@@ -433,7 +433,7 @@ impl Circuit {
         }
         self.nodes
             .iter()
-            .find(|(_, n)| n.name == lower)
+            .find(|(_, n)| *n.name == *lower)
             .map(|(id, _)| id)
     }
 

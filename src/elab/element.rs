@@ -63,7 +63,7 @@ impl Elab {
             self.errors.push(ElabError::ShortedElement {
                 span: el.nodes[0].span.to(el.nodes[1].span),
                 name: name.clone(),
-                node: self.circuit.nodes[nodes[0]].name.clone(),
+                node: self.circuit.nodes[nodes[0]].name.to_string(),
             });
             return;
         }
@@ -71,7 +71,7 @@ impl Elab {
             self.errors.push(ElabError::SingleNode {
                 span: el.nodes[0].span.to(el.nodes[1].span),
                 name: name.clone(),
-                node: self.circuit.nodes[nodes[0]].name.clone(),
+                node: self.circuit.nodes[nodes[0]].name.to_string(),
             });
             return;
         }

@@ -73,7 +73,7 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
         b_controls: Vec::new(),
     };
     e.circuit.nodes.push(Node {
-        name: "0".into(),
+        name: crate::ir::Name::new("0", Some(Span::default())),
         span: Span::default(),
         internal: false,
     });
@@ -491,7 +491,7 @@ impl Elab {
             return n;
         }
         let id = self.circuit.nodes.push(Node {
-            name: key.clone(),
+            name: crate::ir::Name::new(key, Some(name.span)),
             span: name.span,
             internal: false,
         });
@@ -993,7 +993,7 @@ impl Elab {
             if id != GROUND && count[id.0 as usize] == 1 {
                 self.errors.push(ElabError::DanglingNode {
                     span: node.span,
-                    node: node.name.clone(),
+                    node: node.name.to_string(),
                 });
             }
         }

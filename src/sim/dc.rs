@@ -700,7 +700,7 @@ pub(super) fn name_dc_failure(c: &Circuit, e: SimError) -> SimError {
                 .into_iter()
                 .take(3)
                 .map(|(nodes, elems)| {
-                    let names = nodes.iter().map(|&n| c.nodes[n].name.clone()).collect();
+                    let names = nodes.iter().map(|&n| c.nodes[n].name.to_string()).collect();
                     (names, elems)
                 })
                 .collect();

@@ -192,7 +192,9 @@ where
         Ok(CircuitOde {
             regs: RefCell::new(tape.registers()),
             side_regs: RefCell::new(tape.registers()),
-            dregs: RefCell::new(vec![0.0; tape.n_regs]),
+            // Made at the first `J v` (a sparse run may take none: its
+            // Jacobian is coloured, through `mregs`).
+            dregs: RefCell::new(Vec::new()),
             tape,
             y0: RefCell::new(y0),
             sparsity,
@@ -387,9 +389,11 @@ where
             point.1.clear();
             point.1.extend_from_slice(y);
         }
+        let mut dregs = self.dregs.borrow_mut();
+        dregs.resize(self.tape.n_regs, 0.0);
         self.tape.jac_mul(
             &mut self.regs.borrow_mut(),
-            &mut self.dregs.borrow_mut(),
+            &mut dregs,
             t,
             y,
             v,
