@@ -185,7 +185,7 @@ fn coupling_note(c: &crate::elab::Circuit, g: &crate::build::coupling::Reduced) 
         ),
     );
     for &k in &g.couplings {
-        d = d.with_label(c.elements[k].span, "coupling");
+        d = d.with_label(c.elements[k].span(), "coupling");
     }
     d.with_help("this is what ngspice simulates too; a coupling below 1 (k = 0.999) keeps one state per inductor, with a leakage inductance")
 }
@@ -204,7 +204,7 @@ fn indefinite_note(c: &crate::elab::Circuit, couplings: &[crate::elab::ElemId]) 
         ),
     );
     for &k in couplings {
-        d = d.with_label(c.elements[k].span, "coupling");
+        d = d.with_label(c.elements[k].span(), "coupling");
     }
     d.with_help("each winding's couplings must fit one magnetic circuit: for three windings, k12² + k13² + k23² − 2·k12·k13·k23 ≤ 1 (with k12 = 1, k13 must equal k23)")
 }
@@ -263,7 +263,7 @@ pub fn sort_built(
                         "--prefer-state names `{name}`, which is not a capacitor or inductor: it has no state"
                     ),
                 )
-                .with_label(c.elements[e].span, "this element")
+                .with_label(c.elements[e].span(), "this element")
                 .with_help("name a capacitor or inductor, e.g. --prefer-state C1");
                 return Err(fail(el, vec![d]));
             }

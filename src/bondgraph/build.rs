@@ -69,7 +69,7 @@ pub(super) fn build(c: &Circuit) -> BondGraph {
                 })
                 .collect(),
             elements: vec![ElementPorts::default(); c.elements.len()],
-            element_spans: c.elements.values().map(|e| e.span).collect(),
+            element_spans: c.elements.values().map(|e| e.span()).collect(),
             witness: Vec::new(),
             forward: HashMap::new(),
         },

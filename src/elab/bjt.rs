@@ -754,7 +754,6 @@ impl Elab {
                     name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind: ElementKind::Resistor { r: r / (area * m) },
                     nodes: vec![a, z],
-                    span,
                 });
             }
         };
@@ -807,7 +806,6 @@ impl Elab {
                     name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind,
                     nodes: nodes.to_vec(),
-                    span,
                 });
             }
         }
@@ -928,7 +926,6 @@ impl Elab {
                 controls,
             },
             nodes: nodes.to_vec(),
-            span,
         });
     }
 }

@@ -337,10 +337,14 @@ pub struct Element {
     pub kind: ElementKind,
     /// Terminals: two for most elements, four for E and G, none for K.
     pub nodes: Vec<NodeId>,
-    pub span: Span,
 }
 
 impl Element {
+    /// The element's line in the netlist (its name's entity holds it).
+    pub fn span(&self) -> Span {
+        self.name.span().unwrap_or_default()
+    }
+
     /// The name ngspice gives this element's current vector: `v1`, or
     /// `v.x1.vmeas` inside a subcircuit.
     pub fn ngspice_name(&self) -> String {

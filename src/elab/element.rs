@@ -100,7 +100,6 @@ impl Elab {
             name: crate::ir::Name::new(&name, Some(el.span)),
             kind,
             nodes,
-            span: el.span,
         });
         self.elem_map.insert(key, (id, el.name.span));
         match &el.body {

@@ -298,7 +298,6 @@ impl Elab {
                     name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind: ElementKind::Resistor { r: r / scale },
                     nodes: vec![a, z],
-                    span,
                 });
             }
         }

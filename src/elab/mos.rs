@@ -670,7 +670,6 @@ impl Elab {
                     controls,
                 },
                 nodes: Vec::new(),
-                span,
             })
         };
         let f = dev.frame(&mut def, [gate, dp, sp, b]);
@@ -806,7 +805,6 @@ impl Elab {
                     controls,
                 },
                 nodes: nodes.to_vec(),
-                span,
             });
         }
         // ds: the drain current, signed by the mode.
@@ -832,7 +830,6 @@ impl Elab {
                     name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind: ElementKind::Resistor { r: r / m },
                     nodes: vec![a, z],
-                    span,
                 });
             }
         }

@@ -87,7 +87,6 @@ impl Elab {
                 ctrl: current.then_some(super::ElemId(u32::MAX)),
             },
             nodes: nodes.to_vec(),
-            span: el.span,
         });
         if let Some(vsrc) = vsrc {
             self.pending.push(Pending {
@@ -273,7 +272,6 @@ impl Elab {
                 name: crate::ir::Name::new(name, Some(el.span)),
                 kind,
                 nodes: nodes[..2].to_vec(),
-                span: el.span,
             });
             // `pswitch`'s control input is a 1 TΩ resistance (`r_cntl_in`):
             // picoamperes that a supply's current shows.
@@ -282,7 +280,6 @@ impl Elab {
                     name: crate::ir::Name::new(&format!("{name}:ctrl"), Some(el.span)),
                     kind: ElementKind::Resistor { r: 1e12 },
                     nodes: nodes[2..4].to_vec(),
-                    span: el.span,
                 });
             }
         }

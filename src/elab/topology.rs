@@ -522,7 +522,7 @@ impl TopologyError {
             let x = &c.elements[e];
             let part = Part {
                 name: x.name.to_string(),
-                span: x.span,
+                span: x.span(),
                 defines: defines(&x.kind),
                 device: device_storage(&x.kind),
             };

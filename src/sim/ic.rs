@@ -113,7 +113,6 @@ fn dc_image(
             name: e.name.clone(),
             kind,
             nodes: e.nodes.clone(),
-            span: e.span,
         })));
     }
     for e in elements.values_mut() {
@@ -134,7 +133,6 @@ fn dc_image(
                 wave: Box::new(Waveform::Dc { value: ic.value }),
             },
             nodes: vec![ic.node, GROUND],
-            span: ic.span,
         });
     }
     let image = Circuit {
