@@ -753,7 +753,7 @@ impl Elab {
                 this.circuit.elements.push(Element {
                     name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind: ElementKind::Resistor { r: r / (area * m) },
-                    nodes: vec![a, z],
+                    nodes: Box::new([a, z]),
                 });
             }
         };
@@ -805,7 +805,7 @@ impl Elab {
                 self.circuit.elements.push(Element {
                     name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind,
-                    nodes: nodes.to_vec(),
+                    nodes: nodes.into(),
                 });
             }
         }
@@ -925,7 +925,7 @@ impl Elab {
                 capacitance: None,
                 controls,
             },
-            nodes: nodes.to_vec(),
+            nodes: nodes.into(),
         });
     }
 }

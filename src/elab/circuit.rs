@@ -336,7 +336,7 @@ pub struct Element {
     pub name: crate::ir::Name,
     pub kind: ElementKind,
     /// Terminals: two for most elements, four for E and G, none for K.
-    pub nodes: Vec<NodeId>,
+    pub nodes: Box<[NodeId]>,
 }
 
 impl Element {

@@ -99,7 +99,7 @@ impl Elab {
         let id = self.circuit.elements.push(Element {
             name: crate::ir::Name::new(&name, Some(el.span)),
             kind,
-            nodes,
+            nodes: nodes.into(),
         });
         self.elem_map.insert(key, (id, el.name.span));
         match &el.body {

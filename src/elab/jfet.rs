@@ -297,7 +297,7 @@ impl Elab {
                 self.circuit.elements.push(Element {
                     name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind: ElementKind::Resistor { r: r / scale },
-                    nodes: vec![a, z],
+                    nodes: Box::new([a, z]),
                 });
             }
         }

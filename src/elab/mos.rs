@@ -669,7 +669,7 @@ impl Elab {
                     expr,
                     controls,
                 },
-                nodes: Vec::new(),
+                nodes: Box::new([]),
             })
         };
         let f = dev.frame(&mut def, [gate, dp, sp, b]);
@@ -804,7 +804,7 @@ impl Elab {
                     capacitance: Some(capacitance),
                     controls,
                 },
-                nodes: nodes.to_vec(),
+                nodes: nodes.into(),
             });
         }
         // ds: the drain current, signed by the mode.
@@ -829,7 +829,7 @@ impl Elab {
                 self.circuit.elements.push(Element {
                     name: crate::ir::Name::new(&format!("{name}:{tag}"), Some(span)),
                     kind: ElementKind::Resistor { r: r / m },
-                    nodes: vec![a, z],
+                    nodes: Box::new([a, z]),
                 });
             }
         }

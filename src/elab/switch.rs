@@ -86,7 +86,7 @@ impl Elab {
                 sw: Box::new(sw),
                 ctrl: current.then_some(super::ElemId(u32::MAX)),
             },
-            nodes: nodes.to_vec(),
+            nodes: nodes.into(),
         });
         if let Some(vsrc) = vsrc {
             self.pending.push(Pending {
@@ -271,7 +271,7 @@ impl Elab {
             self.circuit.elements.push(Element {
                 name: crate::ir::Name::new(name, Some(el.span)),
                 kind,
-                nodes: nodes[..2].to_vec(),
+                nodes: nodes[..2].into(),
             });
             // `pswitch`'s control input is a 1 TΩ resistance (`r_cntl_in`):
             // picoamperes that a supply's current shows.
@@ -279,7 +279,7 @@ impl Elab {
                 self.circuit.elements.push(Element {
                     name: crate::ir::Name::new(&format!("{name}:ctrl"), Some(el.span)),
                     kind: ElementKind::Resistor { r: 1e12 },
-                    nodes: nodes[2..4].to_vec(),
+                    nodes: nodes[2..4].into(),
                 });
             }
         }

@@ -1024,13 +1024,19 @@ where
     let mut jacobian: Box<JacobianAt<'_>> = if n > DENSE_STATES {
         // The coloured sparse Jacobian.
         use diffsol::NonLinearOpJacobian;
-        let sparsity = ode.rhs().jacobian_sparsity();
-        let mut jm = M::new_from_sparsity(n, n, sparsity, ode.context().clone());
+        // Made at the first Jacobian: a Newton that starts at its solution
+        // (a circuit at rest at t = 0) needs none, and on a 10^5-section
+        // ladder the matrix and its pattern's copy were the run's peak.
+        let mut jm: Option<M> = None;
         Box::new(move |y: &[f64], shift: f64| {
             if tape.over_budget() {
                 return Err(out_of_work());
             }
-            let mut entries = sparse_jacobian(ode, t0, y, &mut jm)?;
+            let jm = jm.get_or_insert_with(|| {
+                let sparsity = ode.rhs().jacobian_sparsity();
+                M::new_from_sparsity(n, n, sparsity, ode.context().clone())
+            });
+            let mut entries = sparse_jacobian(ode, t0, y, jm)?;
             if shift != 0.0 {
                 entries.extend((0..n).map(|k| (k, k, -shift)));
             }

@@ -132,7 +132,7 @@ fn dc_image(
             kind: ElementKind::VSource {
                 wave: Box::new(Waveform::Dc { value: ic.value }),
             },
-            nodes: vec![ic.node, GROUND],
+            nodes: Box::new([ic.node, GROUND]),
         });
     }
     let image = Circuit {
