@@ -889,7 +889,6 @@ impl Elab {
         let n = format!("{device}#{tag}").to_ascii_lowercase();
         let id = self.circuit.nodes.push(super::Node {
             name: crate::ir::Name::new(&n, Some(span)),
-            span,
             internal: true,
         });
         self.node_map.insert(n, id);

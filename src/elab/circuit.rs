@@ -21,13 +21,19 @@ pub const GROUND: NodeId = NodeId(0);
 
 #[derive(Clone, Debug)]
 pub struct Node {
-    /// Lower-case, hierarchical for subcircuit-internal nodes (`x1.n2`).
+    /// Lower-case, hierarchical for subcircuit-internal nodes (`x1.n2`),
+    /// with where the node is first used ([`Node::span`]).
     pub name: crate::ir::Name,
-    /// Where the node is first used.
-    pub span: Span,
     /// A device's internal node (`q1#c`, behind a terminal resistance):
     /// not among the default output vectors.
     pub internal: bool,
+}
+
+impl Node {
+    /// Where the node is first used (its name entity holds it).
+    pub fn span(&self) -> Span {
+        self.name.span().unwrap_or_default()
+    }
 }
 
 /// ngspice's level-1 diode parameters (defaults as in ngspice).

@@ -74,7 +74,6 @@ pub fn elaborate(netlist: &ast::Netlist<'_>) -> (Circuit, Vec<ElabError>) {
     };
     e.circuit.nodes.push(Node {
         name: crate::ir::Name::new("0", Some(Span::default())),
-        span: Span::default(),
         internal: false,
     });
     let mut top = Scope::default();
@@ -492,7 +491,6 @@ impl Elab {
         }
         let id = self.circuit.nodes.push(Node {
             name: crate::ir::Name::new(key, Some(name.span)),
-            span: name.span,
             internal: false,
         });
         self.node_map.insert(key.clone(), id);
@@ -992,7 +990,7 @@ impl Elab {
         for (id, node) in self.circuit.nodes.iter() {
             if id != GROUND && count[id.0 as usize] == 1 {
                 self.errors.push(ElabError::DanglingNode {
-                    span: node.span,
+                    span: node.span(),
                     node: node.name.to_string(),
                 });
             }

@@ -528,7 +528,7 @@ impl TopologyError {
             };
             (e, part)
         };
-        let node = |&n: &NodeId| (n, (c.nodes[n].name.to_string(), c.nodes[n].span));
+        let node = |&n: &NodeId| (n, (c.nodes[n].name.to_string(), c.nodes[n].span()));
         let mut parts: rustc_hash::FxHashMap<ElemId, Part> = elements.iter().map(part).collect();
         if let Fault::CapacitorLoop { fixed, .. }
         | Fault::InductorCutset { fixed, .. }
