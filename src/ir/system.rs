@@ -137,12 +137,6 @@ impl PartialEq<&str> for Name {
     }
 }
 
-impl std::borrow::Borrow<str> for Name {
-    fn borrow(&self) -> &str {
-        &self.0.name
-    }
-}
-
 /// A name with no netlist text behind it (tests, generated entities).
 impl From<&str> for Name {
     fn from(name: &str) -> Name {

@@ -112,6 +112,15 @@ pub(super) enum Ir<'a> {
     Released(&'a mut Sorted, fn()),
 }
 
+impl Ir<'_> {
+    pub(super) fn sorted(&self) -> &Sorted {
+        match self {
+            Ir::Kept(sorted) => sorted,
+            Ir::Released(sorted, _) => sorted,
+        }
+    }
+}
+
 /// Run `parts` on `ir` with matrices `M` and linear solver `LS`: dense
 /// (nalgebra) up to [`DENSE_STATES`] states, sparse (faer and the circuit
 /// LU) above.
@@ -127,17 +136,13 @@ where
     for<'b> &'b M::V: diffsol::VectorRef<M::V>,
     for<'b> &'b M: diffsol::matrix::MatrixRef<M>,
 {
-    let ready = match ir {
-        Ir::Kept(sorted) => {
-            let mut ready = setup::<M>(&parts.with(sorted))?;
-            ready.names = sorted.system().names.clone();
-            ready
-        }
+    let mut ready = setup::<M>(&parts.with(ir.sorted()))?;
+    ready.names = match ir {
+        Ir::Kept(sorted) => sorted.system().names.clone(),
         Ir::Released(sorted, released) => {
-            let mut ready = setup::<M>(&parts.with(sorted))?;
-            ready.names = sorted.release_ir();
+            let names = sorted.release_ir();
             released();
-            ready
+            names
         }
     };
     integrate::<M, LS>(ready, parts, sink)

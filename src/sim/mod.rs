@@ -672,10 +672,7 @@ fn run_ir(
     // Values below f64's normal range are far below every tolerance, and
     // on Intel cores each operation on one costs a microcode assist.
     let _flush = crate::numeric::subnormal::flush_subnormals();
-    let sorted: &Sorted = match &ir {
-        driver::Ir::Kept(s) => s,
-        driver::Ir::Released(s, _) => s,
-    };
+    let sorted = ir.sorted();
     let names = output_names(sorted, &p);
     let n = p.tape.states.len();
     let w = if n == 0 {
