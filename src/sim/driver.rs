@@ -1186,15 +1186,13 @@ where
         .map_err(|error| SimError::Eval { error })?;
     common.dy.slice_mut().copy_from_slice(&dy);
     let mut state = T::State::new_from_common(common);
-    state
-        .as_mut()
-        .set_step_size(
-            problem.h0,
-            &problem.atol,
-            problem.rtol,
-            &problem.eqn,
-            method.start_order(),
-        );
+    state.as_mut().set_step_size(
+        problem.h0,
+        &problem.atol,
+        problem.rtol,
+        &problem.eqn,
+        method.start_order(),
+    );
     // The SDIRK methods' embedded error estimate let a first step of 300
     // times the one before through, wrong by volts, at a breakpoint where a
     // CMOS inverter chain's junctions turn (`mos1_inverter_chain` under
@@ -1203,8 +1201,7 @@ where
     // have taken next. BDF's order-1 start from the same probe was right
     // there (its default run passes), and is left alone.
     let h = state.as_mut().h;
-    if matches!(method, Method::TrBdf2 | Method::Esdirk34) && h_before > 0.0 && h.abs() > h_before
-    {
+    if matches!(method, Method::TrBdf2 | Method::Esdirk34) && h_before > 0.0 && h.abs() > h_before {
         *h = h_before.copysign(*h);
     }
     // diffsol sizes the first step by an explicit Euler probe, which a fast
