@@ -725,8 +725,28 @@ impl Tape {
                     set(r, &w.x0, &w.step, 0.0);
                     return self.settle(b, r, t);
                 }
+                set(r, &w.x0, &w.step, 0.0);
+                if self.correction_is_rounding(b, r, t, sparse.as_ref(), w)? {
+                    // Each tear's correction is within what rounding on the
+                    // residuals, carried through `J⁻¹`, can move it: no
+                    // f64 Newton step gets closer, whatever the units.
+                    return self.settle(b, r, t);
+                }
                 return Err(no_convergence(r));
             };
+            if lambda < CREEP_DAMPING {
+                // A step this short passes the monotonicity test by less
+                // than a correction's rounding can move it: where the
+                // correction is rounding, Newton would creep by it for
+                // ever (measured: 200 steps of λ ≈ 1e-10 on a MOSFET
+                // driver's loop, each moving a tear by 5e-18).
+                set(r, &w.x0, &w.step, 0.0);
+                if self.correction_is_rounding(b, r, t, sparse.as_ref(), w)? {
+                    return self.settle(b, r, t);
+                }
+                set(r, &w.x0, &w.step, lambda);
+                continue;
+            }
             if b.affine() && lambda == 1.0 {
                 return Ok(());
             }
@@ -745,6 +765,144 @@ impl Tape {
         Err(no_convergence(r))
     }
 }
+
+impl Tape {
+    /// Whether the Newton correction in `w.step`, taken at the point in `r`
+    /// (which this evaluates again), is rounding: each tear's correction at
+    /// most what the residuals' rounding errors, bounded by
+    /// [`Tape::run_rounding`] and carried through the factored `J⁻¹`, move
+    /// it by. The two sign patterns of the bounds give `|J⁻¹|·e` exactly for
+    /// two tears and a lower estimate beyond, so a correction this accepts
+    /// is no larger than the bound. A huge slope (a picofarad gate
+    /// capacitance's `∂(dq/dt)/∂i`) carries a residual's last bit into a
+    /// correction far above any fixed floor, which only this sees.
+    fn correction_is_rounding(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        t: f64,
+        sparse: Option<&TripletLu>,
+        w: &mut Work,
+    ) -> Result<bool, EvalError> {
+        let mut e = std::mem::take(&mut w.dr);
+        for &x in &b.touched {
+            e[x] = 0.0;
+        }
+        let bounded = self.run_rounding(&b.body, r, &mut e, t);
+        let floor: Vec<f64> = b.residuals.iter().map(|&x| e[x]).collect();
+        w.dr = e;
+        if !bounded? || !floor.iter().all(|v| v.is_finite()) {
+            return Ok(false);
+        }
+        let mut reach = vec![0.0f64; floor.len()];
+        for flip in [false, true] {
+            for (j, v) in floor.iter().enumerate() {
+                w.bar[j] = if flip && j % 2 == 1 { -v } else { *v };
+            }
+            solve_factored(sparse, &w.jac, &w.perm, &mut w.bar, &mut w.tmp);
+            for (m, v) in reach.iter_mut().zip(&w.bar) {
+                *m = m.max(v.abs());
+            }
+        }
+        Ok(w.step.iter().zip(&reach).all(|(d, m)| d.abs() <= *m))
+    }
+
+    /// Runs `code` at `r` and bounds, to first order, the rounding error of
+    /// each register it writes (running error analysis: Higham, "Accuracy
+    /// and Stability of Numerical Algorithms", §3.1): `e[d]` is
+    /// `Σ |∂d/∂a|·e[a]` over the operands plus the operation's own rounding,
+    /// `u·|d|` (a few `u` for a library or device function). Registers it
+    /// does not write keep their `e` (a tear's is 0: its value is exact).
+    /// `false` where the body holds a nested block, whose error this does
+    /// not follow.
+    pub(super) fn run_rounding(
+        &self,
+        code: &[Instr],
+        r: &mut [f64],
+        e: &mut [f64],
+        t: f64,
+    ) -> Result<bool, EvalError> {
+        const U: f64 = f64::EPSILON / 2.0;
+        self.count_work(code.len());
+        for ins in code {
+            match *ins {
+                Instr::Neg { d, a } => {
+                    r[d] = -r[a];
+                    e[d] = e[a];
+                }
+                Instr::Add { d, a, b } => {
+                    r[d] = r[a] + r[b];
+                    e[d] = e[a] + e[b] + U * r[d].abs();
+                }
+                Instr::Sub { d, a, b } => {
+                    r[d] = r[a] - r[b];
+                    e[d] = e[a] + e[b] + U * r[d].abs();
+                }
+                Instr::Mul { d, a, b } => {
+                    let (x, y) = (r[a], r[b]);
+                    r[d] = x * y;
+                    e[d] = y.abs() * e[a] + x.abs() * e[b] + U * r[d].abs();
+                }
+                Instr::Div { d, a, b } => {
+                    let (x, y) = (r[a], r[b]);
+                    let q = x / y;
+                    r[d] = q;
+                    e[d] = (e[a] + q.abs() * e[b]) / y.abs() + U * q.abs();
+                }
+                Instr::Pow { d, a, b } => {
+                    let (x, y) = (r[a], r[b]);
+                    let p = x.powf(y);
+                    r[d] = p;
+                    let mut bound = (y * x.powf(y - 1.0)).abs() * e[a] + 4.0 * U * p.abs();
+                    if e[b] != 0.0 {
+                        bound += (p * x.ln()).abs() * e[b];
+                    }
+                    e[d] = bound;
+                }
+                Instr::Call { d, f, a } => {
+                    let x = r[a];
+                    let fx = f.apply(x);
+                    r[d] = fx;
+                    e[d] = f.derivative(x, fx).abs() * e[a] + 2.0 * U * fx.abs();
+                }
+                Instr::Cmp { d, op, a, b, m } => {
+                    r[d] = self.compare(op, m, r[a], r[b]);
+                    e[d] = 0.0;
+                }
+                Instr::Select { d, c, a, b } => {
+                    let pick = if r[c] != 0.0 { a } else { b };
+                    r[d] = r[pick];
+                    e[d] = e[pick];
+                }
+                Instr::Device { d, f, a } => {
+                    let (v, slope) = self.device(f, r[a]);
+                    r[d] = v;
+                    // A device function scales its argument before its
+                    // exponential: that rounding, carried by the slope.
+                    e[d] = slope.abs() * (e[a] + U * r[a].abs()) + 8.0 * U * v.abs();
+                }
+                Instr::Src { d, s, order } => {
+                    r[d] = self.source(s, t, order);
+                    e[d] = 0.0;
+                }
+                Instr::Time { d } => {
+                    r[d] = t;
+                    e[d] = 0.0;
+                }
+                Instr::TimeRate { d } => {
+                    r[d] = self.time_rate();
+                    e[d] = 0.0;
+                }
+                Instr::Block { .. } => return Ok(false),
+            }
+        }
+        Ok(true)
+    }
+}
+
+/// A damping factor below which an accepted step is checked for a
+/// correction that is rounding ([`Tape::correction_is_rounding`]).
+const CREEP_DAMPING: f64 = 1e-6;
 
 /// The largest multi-direction tangent buffer (registers × tears) a dense
 /// block Jacobian uses, 8 MiB; a larger product takes a pass a column.
@@ -1336,6 +1494,83 @@ mod tests {
             "x = {:e}, off by {volts:e} V on the resistor",
             r[0]
         );
+    }
+
+    /// A torn nanoampere `x` summed with an ampere (`(A + x) − A = c`: the
+    /// sum resolves `x` only to A's last bit, 2.2e-16) and a slope of
+    /// 3.8e11 from it into a second residual over `y`,
+    /// `G·x + k·y² + a·y = B`, whose exact root is `y = 1`: the rounding of
+    /// the first residual moves `y`'s correction by `G·2.2e-16/(a + 2k)`,
+    /// about 2e-2, which no Newton step removes. Registers: tears 0 (`x`)
+    /// and 1 (`y`), residuals 4 and 16; constants from 10.
+    fn rounding_through_a_slope() -> Tape {
+        use Instr::*;
+        let (a, b, d) = (Reg, Reg, Reg);
+        let body = vec![
+            Add {
+                d: d(2),
+                a: a(10),
+                b: b(0),
+            },
+            Sub {
+                d: d(3),
+                a: a(2),
+                b: b(10),
+            },
+            Sub {
+                d: d(4),
+                a: a(3),
+                b: b(11),
+            },
+            Mul {
+                d: d(5),
+                a: a(12),
+                b: b(0),
+            },
+            Mul {
+                d: d(6),
+                a: a(1),
+                b: b(1),
+            },
+            Mul {
+                d: d(7),
+                a: a(6),
+                b: b(13),
+            },
+            Add {
+                d: d(8),
+                a: a(5),
+                b: b(7),
+            },
+            Mul {
+                d: d(9),
+                a: a(1),
+                b: b(14),
+            },
+            Add {
+                d: d(15),
+                a: a(8),
+                b: b(9),
+            },
+            Sub {
+                d: d(16),
+                a: a(15),
+                b: b(17),
+            },
+        ];
+        let (big, c, g, k, slope) = (1.0, 1e-11, 3.8e11, 1e-3, 2.43e-3);
+        let mut init = vec![0.0; 18];
+        init[..2].copy_from_slice(&[0.0, 0.5]);
+        init[10..15].copy_from_slice(&[big, c, g, k, slope]);
+        init[17] = g * c + k + slope;
+        tape_of(init, vec![block(vec![0, 1], vec![4, 16], body)])
+    }
+
+    #[test]
+    fn a_correction_that_is_rounding_through_a_large_slope_ends_newton() {
+        let r = solved(&rounding_through_a_slope()).expect("converges");
+        assert!(r[4].abs() <= f64::EPSILON, "first residual {:e}", r[4]);
+        assert!((r[1] - 1.0).abs() < 0.05, "y = {}", r[1]);
     }
 
     #[test]
