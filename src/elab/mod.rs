@@ -982,9 +982,23 @@ impl Elab {
             return;
         }
         let mut count = vec![0u32; self.circuit.nodes.len()];
-        for e in self.circuit.elements.values() {
+        for e in self.circuit.elements.values_mut() {
             for n in &e.nodes {
                 count[n.0 as usize] += 1;
+            }
+            // A device terminal that only its own laws read (a MOSFET's gate
+            // without gate capacitances) is a connection all the same.
+            if matches!(
+                e.kind,
+                ElementKind::DeviceBranch { .. } | ElementKind::Intermediate { .. }
+            ) {
+                for x in e.kind.exprs_mut() {
+                    for n in &x.nodes {
+                        if let BNode::Pot(id) = n {
+                            count[id.0 as usize] += 1;
+                        }
+                    }
+                }
             }
         }
         for (id, node) in self.circuit.nodes.iter() {

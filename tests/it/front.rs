@@ -602,3 +602,21 @@ fn mosfet_lines_read_their_geometry_and_the_model_its_level() {
     let ds = c.elements.values().find(|e| e.name == "M2:ds").unwrap();
     assert_eq!(ds.nodes[0], c.find_node("1").unwrap());
 }
+
+/// A node only device laws read is connected all the same: a MOSFET's gate
+/// with no gate capacitances has no branch of its own, and once gave "only
+/// one connection" beside the B source that drives it. A node that only a B
+/// source's expression reads is still dangling.
+#[test]
+fn a_gate_without_capacitances_is_a_connection() {
+    let el = elaborate(
+        "gate\nVdd d 0 5\nVin in 0 1\nBg g 0 V = V(in)\nM1 d g 0 0 nm\n.model nm nmos(level=1 kp=1m)\n.tran 1u 1m\n.end\n",
+    );
+    let dangling: Vec<&str> = el
+        .warnings
+        .iter()
+        .filter(|d| d.code == kausal::diag::codes::DANGLING_NODE)
+        .map(|d| d.message.as_str())
+        .collect();
+    assert_eq!(dangling, ["node `in` has only one connection"]);
+}
