@@ -726,13 +726,13 @@ impl Tape {
                     return self.settle(b, r, t);
                 }
                 set(r, &w.x0, &w.step, 0.0);
-                if self.correction_is_rounding(b, r, t, sparse.as_ref(), w)? {
-                    // Each tear's correction is within what rounding on the
-                    // residuals, carried through `J⁻¹`, can move it: no
-                    // f64 Newton step gets closer, whatever the units.
-                    return self.settle(b, r, t);
+                match self.rounding(b, r, t, sparse.as_ref(), w)? {
+                    Some(at) if at.solved() => return self.settle(b, r, t),
+                    Some(at) if self.full_step_lowers(b, r, t, sparse.as_ref(), w, at)? => {
+                        continue;
+                    }
+                    _ => return Err(no_convergence(r)),
                 }
-                return Err(no_convergence(r));
             };
             if lambda < CREEP_DAMPING {
                 // A step this short passes the monotonicity test by less
@@ -741,10 +741,11 @@ impl Tape {
                 // ever (measured: 200 steps of λ ≈ 1e-10 on a MOSFET
                 // driver's loop, each moving a tear by 5e-18).
                 set(r, &w.x0, &w.step, 0.0);
-                if self.correction_is_rounding(b, r, t, sparse.as_ref(), w)? {
-                    return self.settle(b, r, t);
+                match self.rounding(b, r, t, sparse.as_ref(), w)? {
+                    Some(at) if at.solved() => return self.settle(b, r, t),
+                    Some(at) if self.full_step_lowers(b, r, t, sparse.as_ref(), w, at)? => {}
+                    _ => set(r, &w.x0, &w.step, lambda),
                 }
-                set(r, &w.x0, &w.step, lambda);
                 continue;
             }
             if b.affine() && lambda == 1.0 {
@@ -767,23 +768,24 @@ impl Tape {
 }
 
 impl Tape {
-    /// Whether the Newton correction in `w.step`, taken at the point in `r`
-    /// (which this evaluates again), is rounding: each tear's correction at
-    /// most what the residuals' rounding errors, bounded by
-    /// [`Tape::run_rounding`] and carried through the factored `J⁻¹`, move
-    /// it by. The two sign patterns of the bounds give `|J⁻¹|·e` exactly for
-    /// two tears and a lower estimate beyond, so a correction this accepts
-    /// is no larger than the bound. A huge slope (a picofarad gate
+    /// The block at the point in `r` (which this evaluates again) against
+    /// the rounding of its residuals, bounded by [`Tape::run_rounding`]:
+    /// whether the Newton correction in `w.step` is rounding (each tear's
+    /// correction at most what those bounds, carried through the factored
+    /// `J⁻¹`, move it by: the two sign patterns of the bounds give `|J⁻¹|·e`
+    /// exactly for two tears and a lower estimate beyond), and the residuals'
+    /// size in their bounds, `max |rᵢ|/eᵢ`. A huge slope (a picofarad gate
     /// capacitance's `∂(dq/dt)/∂i`) carries a residual's last bit into a
-    /// correction far above any fixed floor, which only this sees.
-    fn correction_is_rounding(
+    /// correction far above any fixed floor, which only this sees. `None`
+    /// where the bounds are not known (a nested block, a non-finite bound).
+    fn rounding(
         &self,
         b: &TapeBlock,
         r: &mut [f64],
         t: f64,
         sparse: Option<&TripletLu>,
         w: &mut Work,
-    ) -> Result<bool, EvalError> {
+    ) -> Result<Option<Rounding>, EvalError> {
         let mut e = std::mem::take(&mut w.dr);
         for &x in &b.touched {
             e[x] = 0.0;
@@ -792,8 +794,17 @@ impl Tape {
         let floor: Vec<f64> = b.residuals.iter().map(|&x| e[x]).collect();
         w.dr = e;
         if !bounded? || !floor.iter().all(|v| v.is_finite()) {
-            return Ok(false);
+            return Ok(None);
         }
+        let size = b
+            .residuals
+            .iter()
+            .zip(&floor)
+            .map(|(&x, &f)| match (r[x].abs(), f) {
+                (0.0, _) => 0.0,
+                (v, f) => v / f,
+            })
+            .fold(0.0, f64::max);
         let mut reach = vec![0.0f64; floor.len()];
         for flip in [false, true] {
             for (j, v) in floor.iter().enumerate() {
@@ -804,7 +815,32 @@ impl Tape {
                 *m = m.max(v.abs());
             }
         }
-        Ok(w.step.iter().zip(&reach).all(|(d, m)| d.abs() <= *m))
+        let correction = w.step.iter().zip(&reach).all(|(d, m)| d.abs() <= *m);
+        Ok(Some(Rounding { correction, size }))
+    }
+
+    /// Whether the full Newton step from the point in `r`, `x0 − d` with
+    /// `d` in `w.step`, lowers the residuals measured in their rounding
+    /// bounds below `at`'s; it is left in `r` either way. The damping
+    /// compares corrections, and where one tear's is rounding carried
+    /// through a large slope, that noise (far above its tear's scale) hides
+    /// the real correction of another: a high-side driver's loop took steps
+    /// of λ ≈ 1e-7 whose full step would have lowered both residuals 50-fold.
+    fn full_step_lowers(
+        &self,
+        b: &TapeBlock,
+        r: &mut [f64],
+        t: f64,
+        sparse: Option<&TripletLu>,
+        w: &mut Work,
+        at: Rounding,
+    ) -> Result<bool, EvalError> {
+        for (j, &x) in b.tears.iter().enumerate() {
+            r[x] = w.x0[j] - w.step[j];
+        }
+        Ok(self
+            .rounding(b, r, t, sparse, w)?
+            .is_some_and(|next| next.size < at.size))
     }
 
     /// Runs `code` at `r` and bounds, to first order, the rounding error of
@@ -900,8 +936,25 @@ impl Tape {
     }
 }
 
+/// A torn block's point against its residuals' rounding ([`Tape::rounding`]).
+#[derive(Clone, Copy)]
+struct Rounding {
+    /// The Newton correction is within what rounding moves it by.
+    correction: bool,
+    /// `max |rᵢ|/eᵢ`: the residuals in their rounding bounds.
+    size: f64,
+}
+
+impl Rounding {
+    /// No f64 Newton step gets closer: the correction is rounding, or every
+    /// residual is within its rounding bound, whatever the units.
+    fn solved(self) -> bool {
+        self.correction || self.size <= 1.0
+    }
+}
+
 /// A damping factor below which an accepted step is checked for a
-/// correction that is rounding ([`Tape::correction_is_rounding`]).
+/// correction that is rounding ([`Tape::rounding`]).
 const CREEP_DAMPING: f64 = 1e-6;
 
 /// The largest multi-direction tangent buffer (registers × tears) a dense
