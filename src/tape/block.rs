@@ -796,32 +796,51 @@ impl Tape {
             e[x] = 0.0;
         }
         let bounded = self.run_rounding(&b.body, r, &mut e, t);
-        let floor: Vec<f64> = b.residuals.iter().map(|&x| e[x]).collect();
+        let mut floor = std::mem::take(&mut w.floor);
+        floor.clear();
+        floor.extend(b.residuals.iter().map(|&x| e[x]));
         w.dr = e;
-        if !bounded? || !floor.iter().all(|v| v.is_finite()) {
-            return Ok(None);
-        }
+        let result = match bounded {
+            Ok(true) if floor.iter().all(|v| v.is_finite()) => {
+                Ok(Some(Self::rounding_at(b, r, &floor, sparse, w)))
+            }
+            Ok(_) => Ok(None),
+            Err(err) => Err(err),
+        };
+        w.floor = floor;
+        result
+    }
+
+    /// [`Tape::rounding`] from the residuals' rounding bounds `floor`.
+    fn rounding_at(
+        b: &TapeBlock,
+        r: &[f64],
+        floor: &[f64],
+        sparse: Option<&TripletLu>,
+        w: &mut Work,
+    ) -> Rounding {
         let size = b
             .residuals
             .iter()
-            .zip(&floor)
+            .zip(floor)
             .map(|(&x, &f)| match (r[x].abs(), f) {
                 (0.0, _) => 0.0,
                 (v, f) => v / f,
             })
             .fold(0.0, f64::max);
-        let mut reach = vec![0.0f64; floor.len()];
+        w.reach.clear();
+        w.reach.resize(floor.len(), 0.0);
         for flip in [false, true] {
             for (j, v) in floor.iter().enumerate() {
                 w.bar[j] = if flip && j % 2 == 1 { -v } else { *v };
             }
             solve_factored(sparse, &w.jac, &w.perm, &mut w.bar, &mut w.tmp);
-            for (m, v) in reach.iter_mut().zip(&w.bar) {
+            for (m, v) in w.reach.iter_mut().zip(&w.bar) {
                 *m = m.max(v.abs());
             }
         }
-        let correction = w.step.iter().zip(&reach).all(|(d, m)| d.abs() <= *m);
-        Ok(Some(Rounding { correction, size }))
+        let correction = w.step.iter().zip(&w.reach).all(|(d, m)| d.abs() <= *m);
+        Rounding { correction, size }
     }
 
     /// Whether the full Newton step from the point in `r`, `x0 − d` with
@@ -1049,6 +1068,10 @@ pub(super) struct Work {
     pub(super) dr: Vec<f64>,
     /// Tangents in every tear's direction at once (registers × tears).
     pub(super) wide: Vec<f64>,
+    /// The residuals' rounding bounds, and what they move each tear by
+    /// (empty until filled; [`Tape::rounding`]).
+    pub(super) floor: Vec<f64>,
+    pub(super) reach: Vec<f64>,
 }
 
 thread_local! {
