@@ -534,11 +534,54 @@ impl SparsePattern {
     }
 }
 
-/// Approximate minimum degree order of `A + Aᵀ` (identity if it fails).
-fn amd_order(n: usize, a: &FaerSparseMat<f64>) -> Vec<usize> {
-    amd_order_of(n, a.inner()[0].symbolic())
+/// An AMD order with its pattern's size, nonzero count and hash.
+struct KnownOrder {
+    n: usize,
+    nnz: usize,
+    hash: u64,
+    order: Vec<usize>,
 }
 
+thread_local! {
+    /// The order [`remembered_amd_order`] found last on this thread.
+    static LAST_ORDER: RefCell<Option<KnownOrder>> = const { RefCell::new(None) };
+}
+
+/// The AMD order of the pattern `sym` ([`amd_order_of`]), remembered for the
+/// last pattern: a BDF restart (at every source corner) makes a new solver
+/// of the same matrix pattern, and AMD was a third of a restart's cost on a
+/// 10^5-state ladder. The pattern is known by its size and a hash of its
+/// structure; a collision would cost fill, not correctness, since the
+/// factorization is right in any column order.
+fn remembered_amd_order(
+    n: usize,
+    sym: faer::sparse::SymbolicSparseColMatRef<'_, usize>,
+) -> Vec<usize> {
+    let nnz = sym.compute_nnz();
+    // FNV-1a over the column pointers and row indices.
+    let mut hash = 0xcbf2_9ce4_8422_2325_u64;
+    for &x in sym.col_ptr().iter().chain(sym.row_idx()) {
+        hash = (hash ^ x as u64).wrapping_mul(0x0100_0000_01b3);
+    }
+    LAST_ORDER.with(|last| {
+        let mut last = last.borrow_mut();
+        if let Some(k) = last.as_ref()
+            && (k.n, k.nnz, k.hash) == (n, nnz, hash)
+        {
+            return k.order.clone();
+        }
+        let order = amd_order_of(n, sym);
+        *last = Some(KnownOrder {
+            n,
+            nnz,
+            hash,
+            order: order.clone(),
+        });
+        order
+    })
+}
+
+/// Approximate minimum degree order of `A + Aᵀ` (identity if it fails).
 fn amd_order_of(n: usize, sym: faer::sparse::SymbolicSparseColMatRef<'_, usize>) -> Vec<usize> {
     let nnz = sym.compute_nnz();
     let mut perm = vec![0usize; n];
@@ -577,7 +620,7 @@ impl LaLinearSolver<FaerSparseMat<f64>> for CircuitLu {
         let a = FaerSparseMat::new_from_sparsity(n, op.ncols(), op.sparsity(), *op.context());
         self.f = Factors {
             n,
-            q: amd_order(n, &a),
+            q: remembered_amd_order(n, a.inner()[0].symbolic()),
             ..Factors::default()
         };
         self.work = Work::default();
@@ -611,6 +654,51 @@ mod tests {
             cp.push(ri.len());
         }
         (cp, ri, v)
+    }
+
+    /// The remembered order is the pattern's own: two patterns in turn
+    /// (an arrow, whose dense node AMD puts last, and a path) each get
+    /// theirs, not the last one found.
+    #[test]
+    fn a_remembered_order_is_its_own_patterns() {
+        let n = 5;
+        let pattern = |cols: &[Vec<usize>]| {
+            let mut cp = vec![0];
+            let mut ri = Vec::new();
+            for c in cols {
+                ri.extend_from_slice(c);
+                cp.push(ri.len());
+            }
+            (cp, ri)
+        };
+        let arrow = pattern(&[
+            vec![0, 1, 2, 3, 4],
+            vec![0, 1],
+            vec![0, 2],
+            vec![0, 3],
+            vec![0, 4],
+        ]);
+        let path = pattern(&[
+            vec![0, 1],
+            vec![0, 1, 2],
+            vec![1, 2, 3],
+            vec![2, 3, 4],
+            vec![3, 4],
+        ]);
+        let sym = |p: &(Vec<usize>, Vec<usize>)| {
+            faer::sparse::SymbolicSparseColMatRef::new_checked(n, n, &p.0, None, &p.1).to_owned()
+        };
+        let (arrow, path) = (sym(&arrow).unwrap(), sym(&path).unwrap());
+        let (q_arrow, q_path) = (
+            amd_order_of(n, arrow.as_ref()),
+            amd_order_of(n, path.as_ref()),
+        );
+        assert_eq!(q_arrow.last(), Some(&0), "AMD puts the dense node last");
+        assert_ne!(q_arrow, q_path);
+        for _ in 0..2 {
+            assert_eq!(remembered_amd_order(n, arrow.as_ref()), q_arrow);
+            assert_eq!(remembered_amd_order(n, path.as_ref()), q_path);
+        }
     }
 
     fn check(a: &[Vec<f64>], q: Vec<usize>) {

@@ -300,8 +300,11 @@ impl Tape {
     /// For each state, the junction-charge inversion whose charge it is
     /// (the block that finds the junction voltage from it), if any.
     pub fn charge_states(&self) -> Vec<Option<ChargeInverse>> {
-        let slot = self.state_slots();
         let mut of = vec![None; self.states.len()];
+        if self.blocks.is_empty() {
+            return of;
+        }
+        let slot = self.state_slots();
         for ins in &self.code {
             if let Instr::Block { k } = *ins
                 && let Some(ci) = self.blocks[k as usize].charge_inverse
@@ -321,8 +324,11 @@ impl Tape {
     /// depletion and diffusion charge). `None` for every other state, and
     /// where no depletion capacitance is given.
     pub fn charge_capacitances(&self) -> Vec<Option<f64>> {
-        let slot = self.state_slots();
         let mut of = vec![None; self.states.len()];
+        if self.blocks.is_empty() {
+            return of;
+        }
+        let slot = self.state_slots();
         for ins in &self.code {
             let Instr::Block { k } = *ins else { continue };
             let b = &self.blocks[k as usize];

@@ -10,7 +10,9 @@ pub(super) struct Compiler<'a> {
     sys: &'a EquationSystem,
     n_regs: u32,
     init: Vec<f64>,
-    memo: HashMap<ExprId, Reg>,
+    /// The register of each expression emitted so far, by expression
+    /// index ([`NONE`]: not yet).
+    memo: Vec<Reg>,
     var_reg: Vec<Reg>,
     param_reg: Vec<Reg>,
     /// Constant registers (constants, parameters, reciprocals) by value.
@@ -124,7 +126,7 @@ impl Compiler<'_> {
 
     /// Whether `e` already has its register.
     fn emitted(&self, e: ExprId) -> bool {
-        self.memo.contains_key(&e)
+        self.memo[e.0 as usize] != NONE
             || match self.sys.exprs.get(e) {
                 Expr::Var(v) => self.var_reg[v.0 as usize] != NONE,
                 Expr::Param(p) => self.param_reg[p.0 as usize] != NONE,
@@ -137,7 +139,8 @@ impl Compiler<'_> {
     /// which would overflow the stack) the operands are emitted bottom-up with
     /// an explicit stack, each then found memoized.
     fn emit_at(&mut self, e: ExprId, out: &mut Vec<Instr>, depth: usize) -> Reg {
-        if let Some(&r) = self.memo.get(&e) {
+        let r = self.memo[e.0 as usize];
+        if r != NONE {
             return r;
         }
         if depth > 128 {
@@ -175,7 +178,7 @@ impl Compiler<'_> {
         let r = match x.get(e) {
             Expr::Const(b) => {
                 let r = self.const_reg(f64::from_bits(b));
-                self.memo.insert(e, r);
+                self.memo[e.0 as usize] = r;
                 return r;
             }
             Expr::Param(p) => {
@@ -286,7 +289,7 @@ impl Compiler<'_> {
                 d
             }
         };
-        self.memo.insert(e, r);
+        self.memo[e.0 as usize] = r;
         r
     }
 
@@ -722,7 +725,7 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
         sys,
         n_regs: 0,
         init: Vec::new(),
-        memo: HashMap::new(),
+        memo: vec![NONE; sys.exprs.len()],
         var_reg: vec![NONE; sys.vars.len()],
         param_reg: vec![NONE; sys.params.len()],
         consts: HashMap::new(),
@@ -774,8 +777,11 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
     let (tail_code, tail_regs) = c.outputs(sched, &at_out, outputs);
     let tail_blocks = tail_blocks..c.blocks.len();
     // The output program gets its own registers for everything computed.
-    c.memo
-        .retain(|&e, _| matches!(sys.exprs.get(e), Expr::Const(_)));
+    for (r, e) in c.memo.iter_mut().zip(sys.exprs.nodes()) {
+        if !matches!(e, Expr::Const(_)) {
+            *r = NONE;
+        }
+    }
     for v in sys.vars.ids() {
         if !sys.vars[v].is_state() {
             c.var_reg[v.0 as usize] = NONE;
