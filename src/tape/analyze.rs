@@ -92,21 +92,32 @@ pub(super) fn set_constant_jacobians(
     programs: &[&[Instr]],
     states: &[Reg],
 ) {
-    let mut written: std::collections::HashSet<Reg> = states.iter().copied().collect();
-    for ins in programs
-        .iter()
-        .flat_map(|c| c.iter())
-        .chain(blocks.iter().flat_map(|b| b.body.iter()))
-    {
-        written.insert(ins.dest());
+    if blocks.is_empty() {
+        return;
     }
-    written.extend(blocks.iter().flat_map(|b| b.tears.iter().copied()));
+    // Registers are numbered densely: a flag each, not a hashed set (every
+    // instruction but a block's call writes one).
+    let dests = || {
+        programs
+            .iter()
+            .flat_map(|c| c.iter())
+            .chain(blocks.iter().flat_map(|b| b.body.iter()))
+            .map(|ins| ins.dest())
+            .chain(states.iter().copied())
+            .chain(blocks.iter().flat_map(|b| b.tears.iter().copied()))
+            .filter(|&r| r != NONE)
+    };
+    let mut written = vec![false; dests().map(|r| r.0 as usize + 1).max().unwrap_or(0)];
+    for r in dests() {
+        written[r.0 as usize] = true;
+    }
+    let written = |x: Reg| written.get(x.0 as usize).copied().unwrap_or(false);
     for b in blocks.iter_mut() {
         let mut varies: std::collections::HashSet<Reg> = b.tears.iter().copied().collect();
         let mut constant = !b.tears.is_empty();
         for ins in &b.body {
             let v = |x: Reg| varies.contains(&x);
-            let coefficient = |x: Reg| !written.contains(&x);
+            let coefficient = |x: Reg| !written(x);
             // Whether the result moves with the tears, and whether its
             // derivative with respect to them is still a constant.
             let (moves, stays_affine) = match *ins {
