@@ -91,27 +91,25 @@ pub(super) fn set_constant_jacobians(
     blocks: &mut [TapeBlock],
     programs: &[&[Instr]],
     states: &[Reg],
+    n_regs: usize,
 ) {
     if blocks.is_empty() {
         return;
     }
-    // Registers are numbered densely: a flag each, not a hashed set (every
-    // instruction but a block's call writes one).
-    let dests = || {
-        programs
-            .iter()
-            .flat_map(|c| c.iter())
-            .chain(blocks.iter().flat_map(|b| b.body.iter()))
-            .map(|ins| ins.dest())
-            .chain(states.iter().copied())
-            .chain(blocks.iter().flat_map(|b| b.tears.iter().copied()))
-            .filter(|&r| r != NONE)
-    };
-    let mut written = vec![false; dests().map(|r| r.0 as usize + 1).max().unwrap_or(0)];
-    for r in dests() {
-        written[r.0 as usize] = true;
+    // A flag by register, not a hashed set (every instruction but a block's
+    // call writes one).
+    let mut written = vec![false; n_regs];
+    let dests = programs
+        .iter()
+        .flat_map(|c| c.iter())
+        .chain(blocks.iter().flat_map(|b| b.body.iter()))
+        .map(|ins| ins.dest())
+        .chain(states.iter().copied())
+        .chain(blocks.iter().flat_map(|b| b.tears.iter().copied()));
+    for r in dests.filter(|&r| r != NONE) {
+        written[r.idx()] = true;
     }
-    let written = |x: Reg| written.get(x.0 as usize).copied().unwrap_or(false);
+    let written = |x: Reg| written[x.idx()];
     for b in blocks.iter_mut() {
         let mut varies: std::collections::HashSet<Reg> = b.tears.iter().copied().collect();
         let mut constant = !b.tears.is_empty();

@@ -833,7 +833,12 @@ pub fn compile(sys: &EquationSystem, sched: &Schedule, outputs: &[OutputRef]) ->
         .chain(&floor_reg)
         .copied()
         .collect();
-    set_constant_jacobians(&mut c.blocks, &[&code, &out_code, &tail_code], &varying);
+    set_constant_jacobians(
+        &mut c.blocks,
+        &[&code, &out_code, &tail_code],
+        &varying,
+        c.n_regs as usize,
+    );
     c.set_charge_inverses();
     let memo_links = memo_links(&c.blocks, &code, &out_code);
     let n_in_f = count(&in_f);
